@@ -1,0 +1,26 @@
+# voxlidar: `make demo` and `make test` each do their own set-up first.
+PY := .venv/bin/python
+OUT ?= out
+
+.PHONY: setup demo test test-slow test-all bench clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(PY) examples/demo.py --out $(OUT)
+
+test: setup
+	$(PY) -m pytest -m "not slow and not gpu"
+
+test-slow: setup
+	$(PY) -m pytest -m "slow"
+
+test-all: setup
+	$(PY) -m pytest
+
+bench: setup
+	$(PY) benchmarks/bench_scanner.py
+
+clean:
+	rm -rf $(OUT) .pytest_cache

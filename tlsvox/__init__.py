@@ -1,0 +1,23 @@
+"""tlsvox: terrestrial laser scans -> voxel model of leaf area density, wood and ground.
+
+The public API is re-exported here; Open3D is imported only by the modules
+that use it, so ``import tlsvox`` stays light.
+"""
+
+from .errors import InputError, TlsvoxError
+from .leafangle import LeafAngle, LeafAngleKind
+from .materials import Material, Optics
+from .scene import Scene
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "InputError",
+    "LeafAngle",
+    "LeafAngleKind",
+    "Material",
+    "Optics",
+    "Scene",
+    "TlsvoxError",
+    "__version__",
+]
