@@ -1,0 +1,353 @@
+"""One terrestrial laser scan: its echoes, its pulses, its pose.
+
+A :class:`Scan` holds the echoes of one scanner position in the scanner's own
+frame, with apparent reflectance (RIEGL dB) or raw intensity, return number and
+count, the pulse each echo belongs to, and optionally the truth material (for
+simulated scans).  Its :class:`PulseTable` lists *every* pulse fired, those
+with no echo too: they carry the gap information that leaf area density
+estimation needs.
+
+Files (see docs/formats.md):
+
+- ``NAME.las`` / ``NAME.laz``: LAS 1.4 point format 6, coordinates in the
+  scanner frame, extra bytes ``reflectance_db`` (float32), ``pulse_id``
+  (uint32), ``truth_material`` (uint8, simulated scans only).
+- ``NAME.pulses.npz``: the pulse table (``direction`` (P, 3), ``n_echoes``
+  (P,), ``origin`` (3,), and the angular grid).
+- ``NAME.pose.json``: ``pose`` (4x4 world-from-scanner, when known) and, for
+  simulated scans, ``pose_true``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, ScanFileError
+from .scene import atomic_write
+
+__all__ = ["AngularGrid", "PulseTable", "Scan", "read_scan", "sidecar_paths"]
+
+
+def sidecar_paths(path: "str | os.PathLike") -> tuple[Path, Path]:
+    """The pulse-table and pose files that belong to a scan file."""
+    path = Path(path)
+    stem = path.with_suffix("")
+    return stem.with_name(stem.name + ".pulses.npz"), stem.with_name(stem.name + ".pose.json")
+
+
+@dataclass(frozen=True)
+class AngularGrid:
+    """Regular scan grid of a scanner: zenith lines x azimuth columns, degrees."""
+
+    zenith_start_deg: float
+    zenith_step_deg: float
+    n_zenith: int
+    azimuth_start_deg: float
+    azimuth_step_deg: float
+    n_azimuth: int
+
+    def __post_init__(self):
+        for name in ("zenith_step_deg", "azimuth_step_deg"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"{name}={v!r} must be a positive angle step in degrees")
+        for name in ("n_zenith", "n_azimuth"):
+            if int(getattr(self, name)) < 1:
+                raise InputError(f"{name} must be >= 1")
+
+    @property
+    def n_pulses(self) -> int:
+        return int(self.n_zenith) * int(self.n_azimuth)
+
+    def angles(self) -> tuple[np.ndarray, np.ndarray]:
+        """Zenith and azimuth (radians) of every grid pulse, zenith-major order."""
+        zen = np.deg2rad(self.zenith_start_deg + self.zenith_step_deg * np.arange(self.n_zenith))
+        az = np.deg2rad(self.azimuth_start_deg + self.azimuth_step_deg * np.arange(self.n_azimuth))
+        zz, aa = np.meshgrid(zen, az, indexing="ij")
+        return zz.ravel(), aa.ravel()
+
+    def to_dict(self) -> dict:
+        return {k: (float(v) if isinstance(v, float) else int(v)) for k, v in self.__dict__.items()}
+
+
+def directions_from_angles(zenith, azimuth) -> np.ndarray:
+    """Unit vectors (N, 3) from zenith and azimuth angles (radians)."""
+    sz = np.sin(zenith)
+    return np.column_stack([sz * np.cos(azimuth), sz * np.sin(azimuth), np.cos(zenith)])
+
+
+@dataclass
+class PulseTable:
+    """Every pulse of a scan, in the scanner frame.
+
+    Parameters
+    ----------
+    direction : (P, 3) float, unit vectors
+        Beam direction of each pulse in the scanner frame.
+    n_echoes : (P,) int
+        Number of echoes recorded for the pulse (0 for a gap).
+    origin : (3,) float, metres
+        Beam origin in the scanner frame (the scanner's centre).
+    grid : AngularGrid, optional
+        The angular grid the pulses were fired on.
+    """
+
+    direction: np.ndarray
+    n_echoes: np.ndarray
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    grid: AngularGrid | None = None
+
+    def __post_init__(self):
+        self.direction = np.asarray(self.direction, dtype=np.float32).reshape(-1, 3)
+        self.n_echoes = np.asarray(self.n_echoes, dtype=np.uint8).reshape(-1)
+        self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
+        if len(self.n_echoes) != len(self.direction):
+            raise InputError(
+                f"pulse table: {len(self.direction)} directions but {len(self.n_echoes)} echo counts"
+            )
+
+    def __len__(self) -> int:
+        return len(self.direction)
+
+    def save(self, path) -> Path:
+        arrays = dict(direction=self.direction, n_echoes=self.n_echoes, origin=self.origin)
+        if self.grid is not None:
+            arrays["grid"] = np.str_(json.dumps(self.grid.to_dict()))
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+
+        return atomic_write(path, write)
+
+    @classmethod
+    def load(cls, path) -> "PulseTable":
+        with np.load(path, allow_pickle=False) as z:
+            grid = AngularGrid(**json.loads(str(z["grid"]))) if "grid" in z else None
+            return cls(z["direction"], z["n_echoes"], z["origin"], grid)
+
+
+@dataclass
+class Scan:
+    """The echoes of one scanner position (scanner frame) and its pulses.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64, metres
+        Echo positions in the scanner's own frame.
+    reflectance_db : (N,) float32, optional
+        Apparent reflectance in dB relative to a white Lambertian target.
+    intensity : (N,) float, optional
+        Raw intensity (when no calibrated reflectance exists).
+    return_number, number_of_returns : (N,) uint8
+        1-based echo index within its pulse, and the pulse's echo count.
+    pulse_id : (N,) int64, optional
+        Row of :attr:`pulses` each echo belongs to.
+    truth_material : (N,) uint8, optional
+        :class:`tlsvox.materials.Material` of the surface hit (simulated scans).
+    pose : (4, 4) float64, optional
+        World-from-scanner transform (estimated, or known).
+    pose_true : (4, 4) float64, optional
+        The true pose (simulated scans only).
+    pulses : PulseTable, optional
+    scan_id : int
+    name : str
+    """
+
+    xyz: np.ndarray
+    reflectance_db: np.ndarray | None = None
+    intensity: np.ndarray | None = None
+    return_number: np.ndarray | None = None
+    number_of_returns: np.ndarray | None = None
+    pulse_id: np.ndarray | None = None
+    truth_material: np.ndarray | None = None
+    pose: np.ndarray | None = None
+    pose_true: np.ndarray | None = None
+    pulses: PulseTable | None = None
+    scan_id: int = 0
+    name: str = "scan"
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.xyz = np.asarray(self.xyz, dtype=np.float64).reshape(-1, 3)
+        n = len(self.xyz)
+        if not np.all(np.isfinite(self.xyz)):
+            bad = int(np.count_nonzero(~np.isfinite(self.xyz).all(axis=1)))
+            raise InputError(
+                f"scan {self.name!r}: {bad} of {n} points have NaN or inf coordinates; "
+                "remove them before building a Scan"
+            )
+
+        def col(name, dtype):
+            v = getattr(self, name)
+            if v is None:
+                return None
+            v = np.asarray(v, dtype=dtype).reshape(-1)
+            if len(v) != n:
+                raise InputError(f"scan {self.name!r}: {name} has {len(v)} values for {n} points")
+            return v
+
+        self.reflectance_db = col("reflectance_db", np.float32)
+        self.intensity = col("intensity", np.float32)
+        self.return_number = col("return_number", np.uint8)
+        self.number_of_returns = col("number_of_returns", np.uint8)
+        self.pulse_id = col("pulse_id", np.int64)
+        self.truth_material = col("truth_material", np.uint8)
+        if self.return_number is None:
+            self.return_number = np.ones(n, np.uint8)
+        if self.number_of_returns is None:
+            self.number_of_returns = np.ones(n, np.uint8)
+        for name in ("pose", "pose_true"):
+            v = getattr(self, name)
+            if v is not None:
+                v = np.asarray(v, dtype=np.float64)
+                if v.shape != (4, 4) or not np.all(np.isfinite(v)):
+                    raise InputError(f"scan {self.name!r}: {name} must be a finite 4x4 matrix")
+                setattr(self, name, v)
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+    @property
+    def reflectance(self) -> np.ndarray | None:
+        """Apparent reflectance (linear): 10^(dB/10)."""
+        if self.reflectance_db is None:
+            return None
+        return np.power(10.0, self.reflectance_db.astype(np.float64) / 10.0)
+
+    def world_xyz(self, pose=None) -> np.ndarray:
+        """Echo positions in the world frame, using ``pose`` or the scan's own."""
+        pose = self.pose if pose is None else np.asarray(pose, dtype=float)
+        if pose is None:
+            raise InputError(
+                f"scan {self.name!r} has no pose: register it (tlsvox register) or pass pose="
+            )
+        return self.xyz @ pose[:3, :3].T + pose[:3, 3]
+
+    # -- LAS I/O ------------------------------------------------------------------
+    def write(self, path: "str | os.PathLike") -> Path:
+        """Write LAS/LAZ (point format 6 + extra bytes) and the sidecar files.
+
+        Every file goes to a temporary name first and is renamed when complete.
+        """
+        import laspy
+
+        path = Path(path)
+        if path.suffix.lower() not in (".las", ".laz"):
+            raise InputError(f"scan output {str(path)!r} must end in .las or .laz")
+        header = laspy.LasHeader(point_format=6, version="1.4")
+        header.scales = np.array([1e-4, 1e-4, 1e-4])
+        header.offsets = np.zeros(3)
+        extra = [laspy.ExtraBytesParams(name="reflectance_db", type=np.float32,
+                                        description="apparent reflectance dB"),
+                 laspy.ExtraBytesParams(name="pulse_id", type=np.uint32, description="pulse row")]
+        if self.truth_material is not None:
+            extra.append(laspy.ExtraBytesParams(name="truth_material", type=np.uint8,
+                                                description="tlsvox Material id"))
+        header.add_extra_dims(extra)
+        las = laspy.LasData(header)
+        n = len(self)
+        las.x, las.y, las.z = self.xyz[:, 0], self.xyz[:, 1], self.xyz[:, 2]
+        las.return_number = np.clip(self.return_number, 1, 15)
+        las.number_of_returns = np.clip(self.number_of_returns, 1, 15)
+        las.point_source_id = np.full(n, self.scan_id & 0xFFFF, np.uint16)
+        refl = self.reflectance_db if self.reflectance_db is not None else np.full(n, np.nan, np.float32)
+        las.reflectance_db = refl
+        if self.intensity is not None:
+            las.intensity = np.clip(self.intensity, 0, 65535).astype(np.uint16)
+        elif self.reflectance_db is not None:
+            # intensity: linear reflectance scaled so that 1.0 (0 dB) -> 10000
+            las.intensity = np.clip(self.reflectance * 1e4, 0, 65535).astype(np.uint16)
+        pid = self.pulse_id if self.pulse_id is not None else np.arange(n)
+        las.pulse_id = pid.astype(np.uint32)
+        las.gps_time = pid.astype(np.float64)
+        if self.truth_material is not None:
+            las.truth_material = self.truth_material
+        atomic_write(path, lambda tmp: las.write(str(tmp)))
+        pulses_path, pose_path = sidecar_paths(path)
+        if self.pulses is not None:
+            self.pulses.save(pulses_path)
+        pose_doc = {"name": self.name, "scan_id": int(self.scan_id), "frame": "scanner",
+                    "meta": self.meta}
+        if self.pose is not None:
+            pose_doc["pose"] = self.pose.tolist()
+        if self.pose_true is not None:
+            pose_doc["pose_true"] = self.pose_true.tolist()
+
+        def write_json(tmp):
+            Path(tmp).write_text(json.dumps(pose_doc, indent=1))
+
+        atomic_write(pose_path, write_json)
+        return path
+
+    @classmethod
+    def read(cls, path: "str | os.PathLike", *, scan_id: int | None = None) -> "Scan":
+        """Read a LAS/LAZ scan and its sidecar files (when present).
+
+        Reflectance comes from the ``reflectance_db`` extra dimension (tlsvox
+        and RIEGL exports; RIEGL's ``Reflectance`` is accepted too); without
+        one, ``intensity`` is kept when the file has non-zero intensities.
+        """
+        import laspy
+
+        path = Path(path)
+        if not path.exists():
+            raise ScanFileError(f"scan file {str(path)!r} does not exist")
+        if path.stat().st_size == 0:
+            raise InputError(f"scan file {str(path)!r} is empty (0 bytes); re-export the scan")
+        try:
+            las = laspy.read(str(path))
+        except Exception as err:  # noqa: BLE001 - re-raised with the file named
+            raise InputError(f"{str(path)!r} is not a readable LAS/LAZ file: {err}") from err
+        xyz = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
+        dims = {d.lower(): d for d in las.point_format.dimension_names}
+        refl = None
+        for key in ("reflectance_db", "reflectance"):
+            if key in dims:
+                refl = np.asarray(las[dims[key]], dtype=np.float32)
+                break
+        intensity = None
+        if "intensity" in dims:
+            inten = np.asarray(las.intensity)
+            if inten.size and inten.max() > 0:
+                intensity = inten
+        pulse_id = np.asarray(las["pulse_id"], dtype=np.int64) if "pulse_id" in dims else None
+        truth = np.asarray(las["truth_material"]) if "truth_material" in dims else None
+        pulses_path, pose_path = sidecar_paths(path)
+        pulses = PulseTable.load(pulses_path) if pulses_path.exists() else None
+        pose = pose_true = None
+        name, sid, meta = path.stem, 0, {}
+        if pose_path.exists():
+            doc = json.loads(pose_path.read_text())
+            pose = doc.get("pose")
+            pose_true = doc.get("pose_true")
+            name = doc.get("name", name)
+            sid = int(doc.get("scan_id", 0))
+            meta = doc.get("meta", {})
+        elif len(las.points):
+            sid = int(np.asarray(las.point_source_id)[0])
+        return cls(
+            xyz=xyz,
+            reflectance_db=refl,
+            intensity=intensity,
+            return_number=np.asarray(las.return_number),
+            number_of_returns=np.asarray(las.number_of_returns),
+            pulse_id=pulse_id,
+            truth_material=truth,
+            pose=pose,
+            pose_true=pose_true,
+            pulses=pulses,
+            scan_id=sid if scan_id is None else scan_id,
+            name=name,
+            meta=meta,
+        )
+
+
+def read_scan(path, **kwargs) -> Scan:
+    """Read a scan file (LAS/LAZ); see :meth:`Scan.read`."""
+    return Scan.read(path, **kwargs)
