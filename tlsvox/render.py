@@ -1,0 +1,157 @@
+"""Pictures: headless Open3D renders, with a matplotlib fallback.
+
+Open3D's ``OffscreenRenderer`` (Filament) runs headless on Mesa's software
+drivers (llvmpipe / lavapipe).  Where it cannot start (no EGL/Vulkan driver),
+:func:`render` falls back to a matplotlib scatter of the same points so that a
+figure is always written; the returned value says which renderer was used.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .scene import atomic_write
+
+__all__ = ["render", "colormap", "reflectance_colors"]
+
+_RENDERER = {}
+
+
+def colormap(values, *, vmin=None, vmax=None, name="viridis") -> np.ndarray:
+    """Map values to (N, 3) RGB in [0, 1] with a matplotlib colormap."""
+    import matplotlib
+
+    v = np.asarray(values, dtype=float)
+    lo = np.nanmin(v) if vmin is None else vmin
+    hi = np.nanmax(v) if vmax is None else vmax
+    x = np.clip((v - lo) / max(hi - lo, 1e-12), 0, 1)
+    return matplotlib.colormaps[name](x)[:, :3]
+
+
+def reflectance_colors(reflectance_db, *, vmin=-20.0, vmax=0.0) -> np.ndarray:
+    """Colours for apparent reflectance in dB (dark = low, bright = high)."""
+    return colormap(np.nan_to_num(reflectance_db, nan=vmin), vmin=vmin, vmax=vmax, name="inferno")
+
+
+def _o3d_renderer(width, height):
+    import open3d as o3d
+
+    key = (width, height)
+    if key not in _RENDERER:
+        _RENDERER[key] = o3d.visualization.rendering.OffscreenRenderer(width, height)
+    r = _RENDERER[key]
+    r.scene.clear_geometry()
+    return r
+
+
+def render(items, path, *, eye, center, up=(0.0, 0.0, 1.0), fov_deg=45.0, width=1200, height=900,
+           point_size=2.0, background=(1.0, 1.0, 1.0), title=None, backend="auto") -> str:
+    """Render point clouds and meshes to a PNG.
+
+    Parameters
+    ----------
+    items : list
+        Each item is an Open3D geometry (PointCloud or TriangleMesh), or a tuple
+        ``(points (N, 3), colors (N, 3))`` for a point cloud.
+    path : str or Path
+        Output PNG (written atomically).
+    eye, center, up : (3,) float
+        Camera position, look-at point, up vector (world frame, metres).
+    backend : {"auto", "open3d", "matplotlib"}
+        ``auto`` tries Open3D and falls back to matplotlib.
+
+    Returns
+    -------
+    str
+        The backend that produced the picture.
+    """
+    path = Path(path)
+    if backend in ("auto", "open3d") and os.environ.get("VOXLIDAR_NO_O3D_RENDER") != "1":
+        try:
+            _render_o3d(items, path, eye, center, up, fov_deg, width, height, point_size, background)
+            return "open3d"
+        except Exception:  # noqa: BLE001 - any renderer failure falls back to matplotlib
+            if backend == "open3d":
+                raise
+    _render_mpl(items, path, eye, center, width, height, title)
+    return "matplotlib"
+
+
+def _as_o3d(item):
+    import open3d as o3d
+
+    if isinstance(item, tuple):
+        pts, cols = item
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(pts, dtype=np.float64)))
+        pc.colors = o3d.utility.Vector3dVector(np.asarray(cols, dtype=np.float64))
+        return pc
+    return item
+
+
+def _render_o3d(items, path, eye, center, up, fov, width, height, point_size, background):
+    import open3d as o3d
+
+    r = _o3d_renderer(width, height)
+    r.scene.set_background(list(background) + [1.0])
+    for k, item in enumerate(items):
+        g = _as_o3d(item)
+        mat = o3d.visualization.rendering.MaterialRecord()
+        if isinstance(g, o3d.geometry.TriangleMesh):
+            mat.shader = "defaultLit"
+            if not g.has_vertex_normals():
+                g.compute_vertex_normals()
+        else:
+            mat.shader = "defaultUnlit"
+            mat.point_size = float(point_size)
+        r.scene.add_geometry(f"g{k}", g, mat)
+    r.scene.scene.set_sun_light([-0.4, 0.3, -0.85], [1.0, 1.0, 1.0], 90000)
+    r.scene.scene.enable_sun_light(True)
+    r.setup_camera(float(fov), np.asarray(center, float), np.asarray(eye, float), np.asarray(up, float))
+    img = r.render_to_image()
+    atomic_write(path, lambda tmp: o3d.io.write_image(str(tmp), img))
+
+
+def _render_mpl(items, path, eye, center, width, height, title):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pts_all, col_all = [], []
+    for item in items:
+        if isinstance(item, tuple):
+            pts, cols = item
+        else:  # Open3D geometry
+            if hasattr(item, "points"):
+                pts = np.asarray(item.points)
+                cols = np.asarray(item.colors) if item.has_colors() else np.full((len(pts), 3), 0.3)
+            else:
+                pts = np.asarray(item.vertices)
+                cols = (np.asarray(item.vertex_colors) if item.has_vertex_colors()
+                        else np.full((len(pts), 3), 0.3))
+        pts_all.append(np.asarray(pts))
+        col_all.append(np.asarray(cols))
+    pts = np.concatenate(pts_all)
+    cols = np.concatenate(col_all)
+    if len(pts) > 400_000:
+        keep = np.random.default_rng(0).choice(len(pts), 400_000, replace=False)
+        pts, cols = pts[keep], cols[keep]
+    # project on the plane facing the camera
+    view = np.asarray(center, float) - np.asarray(eye, float)
+    view /= np.linalg.norm(view)
+    right = np.cross(view, [0.0, 0.0, 1.0])
+    right /= max(np.linalg.norm(right), 1e-12)
+    upv = np.cross(right, view)
+    depth = (pts - eye) @ view
+    order = np.argsort(-depth)
+    fig, ax = plt.subplots(figsize=(width / 150, height / 150), dpi=150)
+    ax.scatter((pts @ right)[order], (pts @ upv)[order], c=cols[order], s=0.3, linewidths=0)
+    ax.set_aspect("equal")
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
