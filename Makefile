@@ -20,7 +20,8 @@ test-all: setup
 	$(PY) -m pytest
 
 bench: setup
-	$(PY) benchmarks/bench_scanner.py
+	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+	$(PY) benchmarks/collect.py
 
 clean:
 	rm -rf $(OUT) .pytest_cache

@@ -50,3 +50,9 @@ def test_errors_are_reported_not_raised(tmp_path, capsys):
 def test_parser_lists_subcommands():
     sub = [a for a in build_parser()._actions if a.dest == "command"][0]
     assert {"tree", "scan", "view"} <= set(sub.choices)
+
+
+def test_versions_lists_opencl_devices(capsys):
+    assert main(["versions"]) == 0
+    out = capsys.readouterr().out
+    assert "open3d" in out and "OpenCL" in out and "numpy" in out

@@ -8,6 +8,7 @@ from .errors import InputError, TlsvoxError
 from .leafangle import LeafAngle, LeafAngleKind
 from .materials import Material, Optics
 from .scene import Scene
+from .versions import show_versions
 
 __version__ = "0.1.0"
 
@@ -19,5 +20,6 @@ __all__ = [
     "Optics",
     "Scene",
     "TlsvoxError",
+    "show_versions",
     "__version__",
 ]

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from .errors import TlsvoxError
+from .versions import show_versions
 
 # sub-command modules that add themselves with register(subparsers)
 _PLUGINS = ("tlsvox.cli_register", "tlsvox.cli_voxelize")
@@ -164,6 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--screenshot", help="write a PNG instead of opening a window")
     p.add_argument("--point-size", type=float, default=2.0)
     p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser("versions", help="print package versions and OpenCL devices (for bug reports)")
+    p.set_defaults(func=lambda args: show_versions() or 0)
 
     for name in _PLUGINS:
         try:

@@ -277,11 +277,7 @@ def simulate_scan(tree, *, pose: ScanPose | np.ndarray, preset: ScannerPreset | 
         retro[int(mat)] = o.retro_gain
     tri_mat = np.asarray(tree.material, dtype=np.int64)
 
-    scene = o3d.t.geometry.RaycastingScene()
-    mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(np.asarray(tree.vertices, np.float32))
-    mesh.triangle.indices = o3d.core.Tensor(np.asarray(tree.triangles, np.int32))
-    scene.add_triangles(mesh)
+    scene = tree.raycasting_scene()
 
     zen, az = grid.angles()
     d_scan = directions_from_angles(zen, az)

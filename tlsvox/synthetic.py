@@ -162,13 +162,29 @@ class SyntheticTree:
         return area_per_voxel(self.triangle_coords(Material.BARK), origin=origin,
                               voxel_size=voxel_size, shape=shape)
 
+    def raycasting_scene(self):
+        """Open3D RaycastingScene (Embree BVH) of the mesh, built once and cached."""
+        cached = self.__dict__.get("_raycaster")
+        if cached is None:
+            import open3d as o3d
+
+            cached = o3d.t.geometry.RaycastingScene()
+            mesh = o3d.t.geometry.TriangleMesh()
+            mesh.vertex.positions = o3d.core.Tensor(np.asarray(self.vertices, np.float32))
+            mesh.triangle.indices = o3d.core.Tensor(np.asarray(self.triangles, np.int32))
+            cached.add_triangles(mesh)
+            self.__dict__["_raycaster"] = cached
+        return cached
+
     def bounds(self, *, vegetation_only: bool = True) -> np.ndarray:
         """(2, 3) lower/upper corner of the leaves and bark (or everything)."""
         if vegetation_only:
             keep = np.isin(self.material, [Material.LEAF, Material.BARK])
             if not keep.any():
                 keep = self.material != Material.GROUND
-            v = self.vertices[np.unique(self.triangles[keep])]
+            used = np.zeros(len(self.vertices), bool)
+            used[self.triangles[keep].ravel()] = True
+            v = self.vertices[used]
         else:
             v = self.vertices
         if not len(v):

@@ -1,0 +1,42 @@
+"""Assemble docs/benchmarks.md from the sections the benchmark scripts write.
+
+Each script in benchmarks/ writes its own section to docs/bench/<topic>.md;
+this script joins them (in a fixed order, then any others) under one page.
+
+    .venv/bin/python benchmarks/collect.py
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+ORDER = ["scanner", "register_classify", "voxelize", "clsim", "decompose", "pipeline", "device"]
+
+HEADER = """# Benchmarks
+
+Speed and accuracy figures, each with the command that produced it.  Ratios are
+measured side by side in one run; times are medians of several runs.  Unless a
+section says otherwise the machine is the project's standard one: 2 CPU cores,
+24 GB, no GPU; OpenCL on PoCL's CPU device.  Re-run everything with
+`make bench`, then `.venv/bin/python benchmarks/collect.py`.
+
+"""
+
+
+def main() -> int:
+    parts = sorted((ROOT / "docs" / "bench").glob("*.md"))
+    by_name = {p.stem: p for p in parts}
+    names = [n for n in ORDER if n in by_name] + sorted(n for n in by_name if n not in ORDER)
+    text = HEADER + "\n".join(by_name[n].read_text().rstrip() + "\n" for n in names)
+    out = ROOT / "docs" / "benchmarks.md"
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, out)
+    print(f"wrote {out} from {len(names)} sections: {', '.join(names)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
