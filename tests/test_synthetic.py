@@ -127,3 +127,14 @@ def test_materials_present():
 def test_bad_tree_parameters_name_the_parameter(bad, word):
     with pytest.raises(InputError, match=word):
         TreeParams(**{**SMALL, **bad})
+
+
+def test_truth_scene_holds_the_leaf_area_and_wood():
+    tree = small_tree()
+    scene = tree.truth_scene(0.25)
+    assert scene.total_leaf_area() == pytest.approx(tree.leaf_area(), rel=1e-9)
+    assert scene.wood.max() <= 1.0 and scene.wood.max() > 0.5  # trunk voxels are nearly opaque
+    assert scene.leaf_angle == tree.params.leaf_angle_model and scene.leaf_azimuth == "outward"
+    # trunk voxel at the base: bark surface of the trunk segment inside it
+    i, j, k = np.floor((np.array([0.0, 0.0, 0.1]) - scene.origin) / 0.25).astype(int)
+    assert scene.dense("wood")[i, j, k] > 0

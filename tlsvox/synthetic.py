@@ -176,6 +176,46 @@ class SyntheticTree:
             self.__dict__["_raycaster"] = cached
         return cached
 
+    def truth_grid(self, voxel_size: float, *, margin: float = 0.0):
+        """(origin, shape) of a grid aligned on multiples of ``voxel_size`` covering the vegetation."""
+        lo, hi = self.bounds()
+        origin = np.floor((lo - margin) / voxel_size) * voxel_size
+        if self.ground_z is not None:
+            origin[2] = max(origin[2], np.floor(self.ground_z / voxel_size) * voxel_size)
+        shape = np.ceil((hi + margin - origin) / voxel_size).astype(int) + 1
+        return origin, tuple(int(v) for v in shape)
+
+    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None):
+        """The voxel scene of the mesh's exact leaf area and wood (the turbid-medium twin).
+
+        LAD = leaf area in the voxel / voxel volume.  Wood becomes a crossing
+        probability: bark surfaces are closed convex cylinders, whose mean
+        projected area over random directions is a quarter of their surface
+        (Cauchy), so sigma_wood = A_bark / (4 V) and the chance that a beam
+        crossing the whole voxel is stopped is ``1 - exp(-sigma_wood h)``.
+
+        Returns
+        -------
+        tlsvox.Scene
+        """
+        from .scene import Scene
+
+        origin, shape = self.truth_grid(voxel_size)
+        kw = dict(origin=origin, voxel_size=voxel_size, shape=shape)
+        leaf = self.leaf_area_per_voxel(**kw)
+        bark = self.bark_area_per_voxel(**kw)
+        vol = voxel_size**3
+        ijk = np.argwhere((leaf > 0) | (bark > 0))
+        lad = leaf[tuple(ijk.T)] / vol
+        wood = 1.0 - np.exp(-bark[tuple(ijk.T)] / (4.0 * vol) * voxel_size)
+        p = self.params
+        angle = p.leaf_angle_model if p else LeafAngle("uniform")
+        azimuth = p.leaf_azimuth if p else "uniform"
+        return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
+                     wood_kind="probability", leaf_angle=angle, leaf_azimuth=azimuth,
+                     crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,
+                     meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size})
+
     def bounds(self, *, vegetation_only: bool = True) -> np.ndarray:
         """(2, 3) lower/upper corner of the leaves and bark (or everything)."""
         if vegetation_only:
