@@ -184,8 +184,9 @@ def main(argv=None) -> int:
     """Entry point of the ``tlsvox`` command."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    fn = getattr(args, "func", None) or getattr(args, "handler", None)
     try:
-        return int(args.func(args) or 0)
+        return int(fn(args) or 0)
     except TlsvoxError as err:
         print(f"tlsvox {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -1,0 +1,263 @@
+"""``clsim simulate | devices | bench``: the command-line face of the simulator.
+
+``register(subparsers)`` adds the three commands to an argparse parser; each
+handler takes the parsed namespace and returns an exit status, so tests call
+them in-process.
+
+Examples
+--------
+>>> import argparse
+>>> p = argparse.ArgumentParser(prog="clsim")
+>>> register(p.add_subparsers(dest="command"))
+>>> a = p.parse_args(["simulate", "scene.npz", "--photons", "1000", "-o", "wf.npz"])
+>>> a.mode, a.detect, a.max_order, a.sensor
+('exact', 'nee', 3, 'ahab-chiroptera-i')
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ClsimError, InputError
+from .sensor import Sensor, list_presets
+from .simulator import Detect, Mode
+
+__all__ = ["register", "cmd_simulate", "cmd_devices", "cmd_bench", "device_benchmark",
+           "benchmark_scene", "plot_result", "plot_traces"]
+
+
+def register(subparsers) -> None:
+    """Add ``simulate``, ``devices`` and ``bench`` to an argparse subparsers object."""
+    p = subparsers.add_parser(
+        "simulate", help="simulate a full waveform over a voxel scene",
+        description="Monte Carlo photon transport of one airborne LiDAR pulse through a voxel "
+                    "scene (NPZ, docs/formats.md); writes time_ns, waveform, by_order (orders x "
+                    "samples), the fine histograms and the run's settings to an NPZ file.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("scene", help="scene file (.npz) written by tlsvox or clsim.testscenes")
+    p.add_argument("--sensor", default="ahab-chiroptera-i",
+                   help=f"preset name ({', '.join(list_presets())}) or a .toml file")
+    p.add_argument("--photons", type=int, default=1_000_000, help="photons launched")
+    p.add_argument("--seed", type=int, default=1, help="random seed (same seed, same device: same output)")
+    p.add_argument("-o", "--output", required=True, help="output waveform file (.npz)")
+    p.add_argument("--mode", choices=[m.value for m in Mode], default="exact",
+                   help="interaction model: exact free flight, or the paper's fixed 2 cm step")
+    p.add_argument("--detect", choices=[d.value for d in Detect], default="nee",
+                   help="next-event estimation, or analog counting through the virtual aperture")
+    p.add_argument("--max-order", type=int, default=3, help="highest scattering order")
+    p.add_argument("--leaf-off", action="store_true", help="drop the leaves (wood and ground only)")
+    p.add_argument("--off-nadir", type=float, default=None, help="override the off-nadir angle, degrees")
+    p.add_argument("--fov", type=float, default=None, help="override the receiver FOV half angle, mrad")
+    p.add_argument("--batches", type=int, default=16, help="batches for standard errors")
+    p.add_argument("--trace", type=int, default=0, help="record the first events of this many photons")
+    p.add_argument("--plot", default=None, metavar="PNG", help="also write a waveform plot")
+    p.add_argument("--trace-plot", default=None, metavar="PNG",
+                   help="also draw the traced photon paths over the scene (needs --trace N)")
+    p.add_argument("--device", default=None, help="OpenCL device: 'platform:device' or a name part "
+                   "(default: PYOPENCL_CTX, else the first GPU, else the first device)")
+    p.add_argument("--reference", action="store_true",
+                   help="run the NumPy float64 oracle instead of OpenCL (slow; no device needed)")
+    p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.set_defaults(func=cmd_simulate)
+
+    d = subparsers.add_parser("devices", help="list OpenCL devices",
+                              description="List every OpenCL platform and device clsim can use.")
+    d.set_defaults(func=cmd_devices)
+
+    b = subparsers.add_parser("bench", help="photons/s and voxel steps/s on every device",
+                              description="Run the transport benchmark on every OpenCL device and "
+                                          "print a table (medians of --repeats runs).",
+                              formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    b.add_argument("--photons", type=int, default=200_000)
+    b.add_argument("--repeats", type=int, default=3)
+    b.set_defaults(func=cmd_bench)
+
+
+def _fail(err: Exception) -> int:
+    print(f"clsim: error: {err}", file=sys.stderr)
+    return 2
+
+
+def cmd_simulate(args) -> int:
+    """Handler of ``clsim simulate``."""
+    from tlsvox.errors import InputError as TlsInputError
+    from tlsvox.scene import Scene
+
+    try:
+        scene = Scene.load(args.scene)
+        over = {}
+        if args.off_nadir is not None:
+            over["off_nadir_deg"] = args.off_nadir
+        if args.fov is not None:
+            over["fov_mrad"] = args.fov
+        sensor = Sensor.preset(args.sensor, **over)
+        if args.reference:
+            from .transport_ref import ReferenceSimulator
+
+            sim = ReferenceSimulator()
+        else:
+            from .simulator import Simulator
+
+            sim = Simulator(device=args.device)
+        kw = dict(photons=args.photons, seed=args.seed, mode=args.mode, detect=args.detect,
+                  max_order=args.max_order, leaf_off=args.leaf_off, batches=args.batches,
+                  trace=args.trace)
+        if not args.reference:
+            kw["progress"] = args.progress
+        res = sim.run(scene, sensor, **kw)
+        res.save(args.output)
+        if args.plot:
+            plot_result(res, args.plot)
+        if args.trace_plot:
+            if not args.trace:
+                raise InputError("--trace-plot needs --trace N (the number of photons to draw)")
+            plot_traces(res, scene, args.trace_plot)
+    except (ClsimError, TlsInputError) as err:
+        return _fail(err)
+    e, se = res.energy()
+    print(f"{args.photons:,} photons in {res.elapsed_s:.2f} s on {res.settings['device']}: "
+          f"received energy {e:.4g} +- {se:.2g} of the emitted pulse; wrote {args.output}")
+    for f in res.flags:
+        print(f"note: {f}")
+    return 0
+
+
+def plot_result(res, path) -> Path:
+    """Waveform (total and per order) as a PNG, written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from tlsvox.scene import atomic_write
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(res.time_ns, res.waveform, "k", lw=1.5, label="total")
+    for k, row in enumerate(res.by_order):
+        ax.plot(res.time_ns, row, lw=0.8, label=f"order {k + 1}")
+    nz = np.nonzero(res.waveform > 1e-3 * res.waveform.max())[0] if res.waveform.max() > 0 else []
+    if len(nz):
+        ax.set_xlim(res.time_ns[nz[0]] - 5, res.time_ns[nz[-1]] + 5)
+    s = res.settings
+    ax.set_title(f"{s['sensor']['name']}: {s['mode']}/{s['detect']}, {s['photons']:,} photons")
+    ax.set_xlabel("time after emission (ns)")
+    ax.set_ylabel("received power (fraction of emitted energy / ns)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+    return path
+
+
+def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
+    """Photon paths (``res.traces``) over the scene's voxels, 3-D, as a PNG (paper Fig. 8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from tlsvox.scene import atomic_write
+
+    if res.traces is None:
+        raise InputError("the result has no photon traces; run with trace=N")
+    fig = plt.figure(figsize=(6, 7))
+    ax = fig.add_subplot(projection="3d")
+    c = scene.centers()
+    if len(c):
+        pick = np.random.default_rng(0).choice(len(c), min(len(c), max_voxels), replace=False)
+        ax.scatter(*c[pick].T, s=1, c="green", alpha=0.15)
+    lo, hi = scene.extent
+    top = hi[2] + 0.5 * (hi[2] - lo[2])
+    colours = {1: "green", 2: "saddlebrown", 3: "grey", 0: "blue"}
+    for tr in res.traces:
+        ok = tr[:, 3] > -9
+        pts = tr[ok].astype(np.float64)
+        if len(pts) < 2:
+            continue
+        # clip the 360 m approach so the canopy stays visible
+        d = pts[1, :3] - pts[0, :3]
+        if pts[0, 2] > top and d[2] < 0:
+            pts[0, :3] = pts[1, :3] + d * (top - pts[1, 2]) / d[2]
+        esc = pts[:, 3] == 0
+        pts[esc, :3] = np.clip(pts[esc, :3], lo - 1.0, [hi[0] + 1, hi[1] + 1, top])
+        ax.plot(*pts[:, :3].T, lw=0.6, color="red", alpha=0.6)
+        for typ, col in colours.items():
+            sel = pts[:, 3] == typ
+            if sel.any():
+                ax.scatter(*pts[sel, :3].T, s=4, color=col)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.set_title(f"{len(res.traces)} photon paths")
+    path = Path(path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+    return path
+
+
+def cmd_devices(args) -> int:
+    """Handler of ``clsim devices``."""
+    from .simulator import list_devices
+
+    found = list_devices()
+    if not found:
+        print("no OpenCL device found (pip install pocl-binary-distribution for a CPU device; "
+              "`clsim simulate --reference` runs the NumPy oracle)")
+        return 1
+    import pyopencl as cl
+
+    for key, d in found:
+        kind = cl.device_type.to_string(d.type)
+        fp64 = "fp64" if d.double_fp_config else "no fp64"
+        print(f"{key}  {d.platform.name.strip()} / {d.name.strip()}  [{kind}, "
+              f"{d.max_compute_units} compute units, {d.global_mem_size / 2**30:.1f} GiB, {fp64}]")
+    return 0
+
+
+def benchmark_scene():
+    """(scene, sensor) of the device benchmark: a 10 m x 10 m x 2 m layer of 0.1 m voxels."""
+    from .testscenes import homogeneous_layer
+
+    scene = homogeneous_layer(lad=1.0, thickness=2.0, base_height=2.0, width=10.0, voxel_size=0.1)
+    return scene, Sensor.preset("ahab-chiroptera-i")
+
+
+def device_benchmark(*, photons: int = 200_000, repeats: int = 3, devices=None) -> list[dict]:
+    """photons/s and voxel steps/s (medians) for each device and transport variant."""
+    from .simulator import Simulator, list_devices
+
+    scene, sensor = benchmark_scene()
+    rows = []
+    for _, dev in (list_devices() if devices is None else devices):
+        sim = Simulator(device=dev)
+        for mode, detect, n in (("exact", "nee", photons), ("exact", "analog", photons),
+                                ("paper", "nee", max(1, photons // 10))):
+            sim.run(scene, sensor, photons=min(n, 2000), seed=0, mode=mode, detect=detect)  # build
+            el, steps = [], []
+            for r in range(repeats):
+                res = sim.run(scene, sensor, photons=n, seed=r + 1, mode=mode, detect=detect, max_order=3)
+                el.append(res.elapsed_s)
+                steps.append(res.stat("voxel_steps")[0] / res.elapsed_s)
+            rows.append(dict(device=sim.device_name, mode=mode, detect=detect, photons=n,
+                             photons_per_s=n / statistics.median(el), steps_per_s=statistics.median(steps)))
+    return rows
+
+
+def cmd_bench(args) -> int:
+    """Handler of ``clsim bench``."""
+    try:
+        rows = device_benchmark(photons=args.photons, repeats=args.repeats)
+    except ClsimError as err:
+        return _fail(err)
+    if not rows:
+        print("no OpenCL device found")
+        return 1
+    print(f"{'device':40s} {'mode':6s} {'detect':7s} {'photons/s':>12s} {'voxel steps/s':>14s}")
+    for r in rows:
+        print(f"{r['device'][:40]:40s} {r['mode']:6s} {r['detect']:7s} {r['photons_per_s']:12,.0f} "
+              f"{r['steps_per_s'] / 1e6:12,.1f} M")
+    return 0

@@ -1,0 +1,359 @@
+"""CLI sub-commands for real waveform files: ``waveforms info``, ``decompose``, ``georegister``.
+
+``register(subparsers)`` adds them to the ``clsim`` argument parser; each
+handler takes the parsed namespace and returns an exit status.
+
+Inputs by suffix: ``.las``/``.laz`` (LAS 1.3/1.4 waveform packets, ``.wdp``
+beside), ``.pls`` (PulseWaves, ``.wvs`` beside), ``.csv`` (one waveform per
+row, e.g. the NEON ``return.csv``; trailing zeros are padding).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["register", "cmd_info", "cmd_decompose", "cmd_georegister", "load_waveforms"]
+
+
+def register(subparsers) -> None:
+    """Add ``waveforms``, ``decompose`` and ``georegister`` to an argparse subparsers object."""
+    wf = subparsers.add_parser(
+        "waveforms", help="inspect real full-waveform files (LAS 1.3/1.4 + .wdp, PulseWaves)",
+        description="Inspect full-waveform files.")
+    wsub = wf.add_subparsers(dest="waveforms_command", required=True)
+    info = wsub.add_parser("info", help="summary of a waveform file",
+                           description="Print format, counts, sampling, descriptors and the "
+                                       "first waveform of FILE (.las/.laz/.pls/.csv).")
+    info.add_argument("file", type=Path)
+    info.set_defaults(handler=cmd_info)
+
+    dec = subparsers.add_parser(
+        "decompose", help="Gaussian decomposition of every waveform in a file",
+        description="Decompose each waveform of FILE into Gaussian echoes (Levenberg-Marquardt, "
+                    "BIC component count) and write one CSV row per echo: waveform index, "
+                    "amplitude, location_ns, sigma_ns, their standard errors, baseline and, "
+                    "when the file has geometry, x, y, z of the echo.")
+    dec.add_argument("file", type=Path)
+    dec.add_argument("-o", "--output", type=Path, required=True, help="echo table (.csv)")
+    dec.add_argument("--plot", type=Path, help="PNG of the first waveforms with their fits")
+    dec.add_argument("--plot-count", type=int, default=6, help="waveforms in the plot (6)")
+    dec.add_argument("--dt-ns", type=float, default=None,
+                     help="sample spacing for CSV input (default 1 ns)")
+    dec.add_argument("--min-amplitude", type=float, default=None,
+                     help="detection threshold above baseline (default 4 noise sigma)")
+    dec.add_argument("--impulse", type=Path,
+                     help="CSV whose first column is the system impulse response; "
+                          "deconvolve before fitting")
+    dec.add_argument("--geolocation", type=Path,
+                     help="NEON-style geolocation CSV (bin0_x..bin0_dz) for CSV input")
+    dec.add_argument("--limit", type=int, default=None, help="only the first N waveforms")
+    dec.set_defaults(handler=cmd_decompose)
+
+    geo = subparsers.add_parser(
+        "georegister", help="place a TLS cloud in the airborne frame (ICP + yaw search)",
+        description="Register SOURCE (TLS cloud, its own frame) to TARGET (airborne cloud) "
+                    "with a restricted yaw search and point-to-plane ICP; write the 4x4 "
+                    "source->target transform and its fitness as JSON.")
+    geo.add_argument("source", type=Path, help="TLS cloud (.las/.laz/.ply/.pcd/.xyz/.npy)")
+    geo.add_argument("target", type=Path, help="airborne cloud (same formats)")
+    geo.add_argument("-o", "--output", type=Path, required=True, help="transform (.json)")
+    geo.add_argument("--init", default=None,
+                     help="initial guess 'tx,ty,tz,yaw_deg' (source->target) or a JSON file "
+                          "with a 'transform' 4x4; default: centroids and lowest points")
+    geo.add_argument("--yaw-range", type=float, default=30.0, help="+- degrees searched (30)")
+    geo.add_argument("--yaw-step", type=float, default=5.0, help="degrees between trials (5)")
+    geo.add_argument("--voxel", type=float, default=0.2, help="fine voxel size, m (0.2)")
+    geo.add_argument("--output-cloud", type=Path,
+                     help="also write SOURCE transformed into the target frame (.ply/.npy/.xyz)")
+    geo.set_defaults(handler=cmd_georegister)
+
+
+# ----------------------------------------------------------------- input ---
+
+class _Waveforms:
+    """Waveforms of a file: samples, sample spacing, optional geometry per waveform."""
+
+    def __init__(self, kind, waves, dt_ns, geometry, meta):
+        self.kind = kind
+        self.waves = waves  # list of 1-D arrays
+        self.dt_ns = dt_ns  # list of float
+        self.geometry = geometry  # list of (origin, direction per ns) or None
+        self.meta = meta
+
+
+def _read_csv_rows(path: Path) -> list:
+    text = path.read_text()
+    rows = list(csv.reader(io.StringIO(text)))
+    out = []
+    for r in rows:
+        try:
+            vals = [float(v) for v in r if v.strip() != ""]
+        except ValueError:
+            if out:
+                raise InputError(f"{path.name}: non-numeric value in row {len(out) + 1}; one "
+                                 "waveform per row, numbers only (a header row is allowed)")
+            continue  # header
+        out.append(np.array(vals))
+    if not out:
+        raise InputError(f"{path.name}: no numeric rows")
+    return out
+
+
+def load_waveforms(path: Path, *, dt_ns=None, geolocation=None) -> _Waveforms:
+    """Load every waveform of a LAS/LAZ, PulseWaves or CSV file."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        raise InputError(f"input file {str(path)!r} does not exist")
+    if suffix in (".las", ".laz"):
+        from .waveio import read_las_waveforms
+
+        w = read_las_waveforms(path)
+        first = np.full(w.n_packets, -1)
+        valid = np.flatnonzero(w.packet >= 0)
+        first[w.packet[valid][::-1]] = valid[::-1]
+        waves, dts, geo = [], [], []
+        for p in range(w.n_packets):
+            i = int(first[p])
+            d = w.descriptor_of_point(i)
+            waves.append(w.samples(i, volts=False).astype(np.float64))
+            dts.append(d.spacing_ps / 1000.0)
+            geo.append(w.waveform_origin(i))
+        meta = dict(points=len(w), packets=w.n_packets,
+                    descriptors={k: vars(v) for k, v in w.descriptors.items()},
+                    multi_return_points=int(np.sum(w.number_of_returns > 1)))
+        return _Waveforms("LAS waveform packets", waves, dts, geo, meta)
+    if suffix == ".pls":
+        from .waveio import read_pulsewaves
+
+        pw = read_pulsewaves(path)
+        segs = [s for s in pw.segments if s.kind == "returning"]
+        waves = [s.samples.astype(np.float64) for s in segs]
+        dts = [s.sample_units_ns for s in segs]
+        geo = [pw.segment_origin(s) for s in segs]
+        meta = dict(pulses=len(pw), system=pw.header["system"],
+                    outgoing=[len(s.samples) for s in pw.segments if s.kind == "outgoing"],
+                    returning=[len(s.samples) for s in segs],
+                    returning_pulse=[s.pulse for s in segs])
+        return _Waveforms("PulseWaves", waves, dts, geo, meta)
+    if suffix == ".csv":
+        rows = _read_csv_rows(path)
+        waves = []
+        for r in rows:
+            nz = np.flatnonzero(r != 0)
+            waves.append(r[:nz[-1] + 1] if nz.size else r[:0])
+        dt = 1.0 if dt_ns is None else float(dt_ns)
+        geo = [None] * len(waves)
+        if geolocation is not None:
+            geo = _neon_geolocation(Path(geolocation), len(waves))
+        return _Waveforms("CSV (one waveform per row)", waves, [dt] * len(waves), geo,
+                          dict(rows=len(waves)))
+    raise InputError(f"{path.name}: unknown waveform file type {suffix!r}; expected .las, "
+                     ".laz, .pls or .csv")
+
+
+def _neon_geolocation(path: Path, n: int) -> list:
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    need = ["bin0_x", "bin0_y", "bin0_z", "bin0_dx", "bin0_dy", "bin0_dz"]
+    if not rows or any(k not in rows[0] for k in need):
+        raise InputError(f"{path.name}: geolocation CSV needs columns {need}")
+    if len(rows) != n:
+        raise InputError(f"{path.name}: {len(rows)} geolocation rows for {n} waveforms")
+    return [(np.array([float(r[k]) for k in need[:3]]),
+             np.array([float(r[k]) for k in need[3:]])) for r in rows]
+
+
+# -------------------------------------------------------------- handlers ---
+
+def cmd_info(args) -> int:
+    wf = load_waveforms(args.file)
+    out = sys.stdout
+    lens = [w.size for w in wf.waves]
+    print(f"file: {args.file}", file=out)
+    print(f"format: {wf.kind}", file=out)
+    for k, v in wf.meta.items():
+        if isinstance(v, list) and len(v) > 12:
+            v = f"{v[:12]} ... ({len(v)} values)"
+        print(f"{k}: {v}", file=out)
+    print(f"waveforms: {len(wf.waves)}", file=out)
+    if lens:
+        print(f"samples per waveform: min {min(lens)} max {max(lens)}", file=out)
+        print(f"sample spacing: {sorted(set(wf.dt_ns))} ns", file=out)
+        first = wf.waves[0][:16]
+        print(f"first waveform (first 16 samples): {first.astype(np.int64).tolist()}", file=out)
+    return 0
+
+
+def cmd_decompose(args) -> int:
+    from tlsvox.scene import atomic_write
+
+    from .decompose import decompose, echo_positions
+
+    if args.output.suffix.lower() != ".csv":
+        raise InputError(f"--output must be a .csv file; got {str(args.output)!r}")
+    wf = load_waveforms(args.file, dt_ns=args.dt_ns, geolocation=args.geolocation)
+    impulse = None
+    if args.impulse is not None:
+        impulse = _read_csv_rows(Path(args.impulse))
+        impulse = np.array([r[0] for r in impulse])
+    n = len(wf.waves) if args.limit is None else min(len(wf.waves), int(args.limit))
+    results = []
+    iterator = range(n)
+    if n > 200:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="decompose", unit="waveform")
+    for i in iterator:
+        y = wf.waves[i]
+        if y.size < 4:
+            results.append(None)
+            continue
+        results.append(decompose(y, dt_ns=wf.dt_ns[i], min_amplitude=args.min_amplitude,
+                                 impulse=impulse))
+    header = ["waveform", "echo", "amplitude", "location_ns", "sigma_ns", "amplitude_se",
+              "location_se_ns", "sigma_se_ns", "baseline", "x", "y", "z"]
+
+    def write(tmp):
+        with open(tmp, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            for i, c in enumerate(results):
+                if c is None:
+                    continue
+                geo = wf.geometry[i]
+                xyz = (echo_positions(c.location_ns, origin=geo[0], direction=geo[1])
+                       if geo is not None else np.full((len(c), 3), np.nan))
+                for k in range(len(c)):
+                    w.writerow([i, k] + [f"{getattr(c, col)[k]:.6g}" for col in c.COLUMNS]
+                               + [f"{c.baseline:.6g}"]
+                               + [("" if not np.isfinite(v) else f"{v:.4f}") for v in xyz[k]])
+
+    atomic_write(args.output, write)
+    n_echo = sum(len(c) for c in results if c is not None)
+    print(f"{n} waveforms, {n_echo} echoes -> {args.output}")
+    if args.plot is not None:
+        _plot(args.plot, wf, results, int(args.plot_count))
+        print(f"plot -> {args.plot}")
+    return 0
+
+
+def _plot(path: Path, wf, results, count: int) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tlsvox.scene import atomic_write
+
+    from .decompose import gaussian_sum
+
+    idx = [i for i, c in enumerate(results) if c is not None][:max(1, count)]
+    fig, axes = plt.subplots(len(idx), 1, figsize=(7, 1.8 * len(idx)), squeeze=False,
+                             sharex=False)
+    for ax, i in zip(axes[:, 0], idx):
+        c = results[i]
+        t = np.arange(wf.waves[i].size) * wf.dt_ns[i]
+        tf = np.linspace(t[0], t[-1], 8 * t.size)
+        ax.plot(t, wf.waves[i], ".", ms=3, color="k", label="samples")
+        ax.plot(tf, c.model(tf), "-", color="C3", lw=1.2, label="fit")
+        for k in range(len(c)):
+            ax.plot(tf, c.baseline + gaussian_sum(tf, c.amplitude[k:k + 1],
+                                                  c.location_ns[k:k + 1], c.sigma_ns[k:k + 1]),
+                    "--", lw=0.8)
+        ax.set_ylabel(f"#{i}")
+    axes[-1, 0].set_xlabel("time from first sample (ns)")
+    axes[0, 0].legend(loc="upper right", fontsize=7)
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+
+
+def _read_cloud(path: Path) -> np.ndarray:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"point cloud {str(path)!r} does not exist")
+    suffix = path.suffix.lower()
+    if suffix in (".las", ".laz"):
+        import laspy
+
+        las = laspy.read(path)
+        return np.column_stack([las.x, las.y, las.z]).astype(np.float64)
+    if suffix == ".npy":
+        return np.load(path).astype(np.float64)
+    if suffix in (".ply", ".pcd", ".xyz", ".pts"):
+        import open3d as o3d
+
+        pc = o3d.io.read_point_cloud(str(path))
+        return np.asarray(pc.points, dtype=np.float64)
+    raise InputError(f"{path.name}: unknown point cloud type {suffix!r}; use .las, .laz, "
+                     ".ply, .pcd, .xyz or .npy")
+
+
+def _parse_init(value) -> np.ndarray | None:
+    if value is None:
+        return None
+    p = Path(value)
+    if p.suffix.lower() == ".json" and p.is_file():
+        return np.asarray(json.loads(p.read_text())["transform"], dtype=np.float64)
+    try:
+        tx, ty, tz, yaw = (float(v) for v in str(value).split(","))
+    except ValueError as err:
+        raise InputError(f"--init must be 'tx,ty,tz,yaw_deg' or a JSON file with 'transform'; "
+                         f"got {value!r}") from err
+    from .georegister import yaw_matrix
+
+    m = yaw_matrix(yaw)
+    m[:3, 3] = [tx, ty, tz]
+    return m
+
+
+def cmd_georegister(args) -> int:
+    from tlsvox.scene import atomic_write
+
+    from .georegister import georegister, transform_points
+
+    src = _read_cloud(args.source)
+    tgt = _read_cloud(args.target)
+    res = georegister(src, tgt, init=_parse_init(args.init), yaw_range_deg=args.yaw_range,
+                      yaw_step_deg=args.yaw_step, voxel_size=args.voxel)
+    doc = dict(transform=res.transform.tolist(), fitness=res.fitness,
+               inlier_rmse_m=res.inlier_rmse, yaw_offset_deg=res.yaw_offset_deg,
+               yaw_trials=res.trials, source=str(args.source), target=str(args.target))
+    atomic_write(args.output, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2)))
+    print(f"fitness {res.fitness:.3f}, inlier RMSE {res.inlier_rmse:.3f} m, yaw offset "
+          f"{res.yaw_offset_deg:+.1f} deg -> {args.output}")
+    if args.output_cloud is not None:
+        moved = transform_points(res.transform, src)
+        suffix = args.output_cloud.suffix.lower()
+        if suffix == ".npy":
+            atomic_write(args.output_cloud, lambda tmp: np.save(tmp, moved))
+        elif suffix in (".ply", ".pcd", ".xyz"):
+            import open3d as o3d
+
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(moved))
+            atomic_write(args.output_cloud,
+                         lambda tmp: o3d.io.write_point_cloud(str(tmp), pc))
+        else:
+            raise InputError(f"--output-cloud must be .npy, .ply, .pcd or .xyz; got {suffix!r}")
+    return 0
+
+
+def _main(argv=None) -> int:  # pragma: no cover - for `python -m clsim.cli_waveforms`
+    parser = argparse.ArgumentParser(prog="clsim")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.handler(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(_main())

@@ -1,0 +1,156 @@
+/* Sparse brick scene traversal (Amanatides & Woo 1987 DDA, two levels).
+ * Coordinates are local metres (grid origin at 0).  Empty bricks are crossed
+ * in one step; voxels with zero extinction are skipped. */
+#ifndef CLSIM_SCENE_CL
+#define CLSIM_SCENE_CL
+
+#define B3 (BRICK * BRICK * BRICK)
+
+typedef struct {
+    float3 o, d, inv; /* origin, unit direction, 1/direction (inf where 0) */
+    float3 tm;        /* distance to the far plane of the current voxel per axis */
+    float t, t_end;
+    int3 v, step;
+    int fresh;        /* tm must be recomputed (start, or after a brick jump) */
+} walker_t;
+
+inline float far_plane_t(int v, int step, float o, float inv, float cell)
+{
+    if (step == 0)
+        return INFINITY;
+    return ((float)(v + (step > 0)) * cell - o) * inv;
+}
+
+/* Clip [t_start, t_limit] to the grid box; 0 when the ray misses it. */
+inline int walker_init(walker_t *w, float3 o, float3 d, float t_start, float t_limit,
+                       __global const params_t *P)
+{
+    const float3 L = (float3)(P->shape[0], P->shape[1], P->shape[2]) * P->h;
+    float t0 = t_start, t1 = t_limit;
+    const float oo[3] = {o.x, o.y, o.z}, dd[3] = {d.x, d.y, d.z}, ll[3] = {L.x, L.y, L.z};
+    for (int a = 0; a < 3; ++a) {
+        if (dd[a] == 0.0f) {
+            if (oo[a] < 0.0f || oo[a] > ll[a])
+                return 0;
+        } else {
+            float ta = (0.0f - oo[a]) / dd[a], tb = (ll[a] - oo[a]) / dd[a];
+            t0 = fmax(t0, fmin(ta, tb));
+            t1 = fmin(t1, fmax(ta, tb));
+        }
+    }
+    if (!(t0 < t1))
+        return 0;
+    w->o = o;
+    w->d = d;
+    w->inv = (float3)(d.x != 0.0f ? 1.0f / d.x : INFINITY, d.y != 0.0f ? 1.0f / d.y : INFINITY,
+                      d.z != 0.0f ? 1.0f / d.z : INFINITY);
+    w->t = t0;
+    w->t_end = t1;
+    const float3 p = (o + d * t0) / P->h;
+    w->v = clamp(convert_int3_rtn(p), (int3)(0), (int3)(P->shape[0] - 1, P->shape[1] - 1, P->shape[2] - 1));
+    w->step = (int3)(d.x > 0.0f ? 1 : (d.x < 0.0f ? -1 : 0), d.y > 0.0f ? 1 : (d.y < 0.0f ? -1 : 0),
+                     d.z > 0.0f ? 1 : (d.z < 0.0f ? -1 : 0));
+    w->fresh = 1;
+    return 1;
+}
+
+inline int inside_grid(int3 v, __global const params_t *P)
+{
+    return v.x >= 0 && v.y >= 0 && v.z >= 0 && v.x < P->shape[0] && v.y < P->shape[1] &&
+           v.z < P->shape[2];
+}
+
+/* v must be inside the grid (non-negative). */
+inline int brick_slot(int3 v, __global const params_t *P, __global const int *index)
+{
+    const int3 b = v >> BRICK_SHIFT;
+    return index[b.x + P->bshape[0] * (b.y + P->bshape[1] * b.z)];
+}
+
+inline float2 voxel_value(int3 v, int slot, __global const float2 *pool)
+{
+    const int3 l = v & (BRICK - 1);
+    return pool[(size_t)slot * B3 + l.x + BRICK * (l.y + BRICK * l.z)];
+}
+
+/* Next voxel segment [*ta, *tb] with non-zero extinction; 0 at the end. */
+inline int walker_next(walker_t *w, __global const params_t *P, __global const int *index,
+                       __global const float2 *pool, float *ta, float *tb, float2 *val,
+                       uint *steps)
+{
+    const float h = P->h;
+    while (w->t < w->t_end) {
+        if (!inside_grid(w->v, P)) {
+            w->t = w->t_end;
+            return 0;
+        }
+        *steps += 1u;
+        const int slot = brick_slot(w->v, P, index);
+        const int3 v = w->v, s = w->step;
+        if (slot < 0) {
+            /* jump over the empty brick: enter the neighbour along the exit axis */
+            const float cell = (float)BRICK * h;
+            const int3 c = v >> BRICK_SHIFT;
+            const float fx = far_plane_t(c.x, s.x, w->o.x, w->inv.x, cell);
+            const float fy = far_plane_t(c.y, s.y, w->o.y, w->inv.y, cell);
+            const float fz = far_plane_t(c.z, s.z, w->o.z, w->inv.z, cell);
+            const int ax = (fx <= fy && fx <= fz) ? 0 : (fy <= fz ? 1 : 2);
+            const float t_b = fmin(fmin(fx, fmin(fy, fz)), w->t_end);
+            w->t = fmax(w->t, t_b);
+            const float3 p = (w->o + w->d * t_b) / h;
+            int3 nv = clamp(convert_int3_rtn(p), (int3)(0), (int3)(P->shape[0] - 1, P->shape[1] - 1, P->shape[2] - 1));
+            if (ax == 0) nv.x = (c.x + s.x) * BRICK + (s.x > 0 ? 0 : BRICK - 1);
+            else if (ax == 1) nv.y = (c.y + s.y) * BRICK + (s.y > 0 ? 0 : BRICK - 1);
+            else nv.z = (c.z + s.z) * BRICK + (s.z > 0 ? 0 : BRICK - 1);
+            w->v = nv;
+            w->fresh = 1;
+            continue;
+        }
+        if (w->fresh) {
+            w->tm = (float3)(far_plane_t(v.x, s.x, w->o.x, w->inv.x, h),
+                             far_plane_t(v.y, s.y, w->o.y, w->inv.y, h),
+                             far_plane_t(v.z, s.z, w->o.z, w->inv.z, h));
+            w->fresh = 0;
+        }
+        const float3 tm = w->tm;
+        const int ax = (tm.x <= tm.y && tm.x <= tm.z) ? 0 : (tm.y <= tm.z ? 1 : 2);
+        const float t_a = w->t;
+        const float t_b = fmin(fmin(tm.x, fmin(tm.y, tm.z)), w->t_end);
+        w->t = fmax(w->t, t_b);
+        if (ax == 0) { w->v.x += s.x; w->tm.x = far_plane_t(w->v.x, s.x, w->o.x, w->inv.x, h); }
+        else if (ax == 1) { w->v.y += s.y; w->tm.y = far_plane_t(w->v.y, s.y, w->o.y, w->inv.y, h); }
+        else { w->v.z += s.z; w->tm.z = far_plane_t(w->v.z, s.z, w->o.z, w->inv.z, h); }
+        const float2 e = voxel_value(v, slot, pool);
+        if (e.x + e.y > 0.0f && t_b > t_a) {
+            *ta = t_a;
+            *tb = t_b;
+            *val = e;
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* Extinction at a point (paper mode); sets *skip_t to the exit of an empty brick. */
+inline float2 point_value(float3 x, __global const params_t *P, __global const int *index,
+                          __global const float2 *pool, float3 o, float3 d, float *skip_t)
+{
+    const int3 v = convert_int3_rtn(x / P->h);
+    *skip_t = -1.0f;
+    if (!inside_grid(v, P))
+        return (float2)(0.0f);
+    const int slot = brick_slot(v, P, index);
+    if (slot < 0) {
+        const int3 c = v >> BRICK_SHIFT;
+        const float cell = (float)BRICK * P->h;
+        const float3 inv = 1.0f / d;
+        const int3 s = (int3)(d.x > 0.0f ? 1 : (d.x < 0.0f ? -1 : 0), d.y > 0.0f ? 1 : (d.y < 0.0f ? -1 : 0),
+                              d.z > 0.0f ? 1 : (d.z < 0.0f ? -1 : 0));
+        *skip_t = fmin(far_plane_t(c.x, s.x, o.x, inv.x, cell),
+                       fmin(far_plane_t(c.y, s.y, o.y, inv.y, cell), far_plane_t(c.z, s.z, o.z, inv.z, cell)));
+        return (float2)(0.0f);
+    }
+    return voxel_value(v, slot, pool);
+}
+
+#endif

@@ -1,0 +1,361 @@
+/* Monte Carlo photon transport through a sparse voxel scene with a ground plane.
+ * Physics and notation: docs/method.md.  NumPy float64 twin: clsim/transport_ref.py.
+ * Compile-time constants (-D): MODE (0 exact, 1 paper), DETECT (0 nee, 1 analog),
+ * BRICK, NTAB, NG, TRACE_EVENTS. */
+#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+
+#include "params.cl"
+#include "philox.cl"
+#include "geometry.cl"
+#include "scene.cl"
+
+#define EV_ESCAPE 0
+#define EV_LEAF 1
+#define EV_WOOD 2
+#define EV_GROUND 3
+
+#define RR_THRESHOLD 0.1f
+#define RR_SURVIVE 0.5f
+#define FIXED_SCALE 4294967296.0f
+
+typedef struct {
+    __global const params_t *P;
+    __global const int *index;
+    __global const float2 *pool;
+    __global const float *ppf;
+    __global const float *gtab;
+} scene_t;
+
+/* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]. */
+inline float g_of(__global const float *gtab, float mu)
+{
+    const float s = fmin(fabs(mu), 1.0f) * (float)(NG - 1);
+    const int i = min((int)s, NG - 2);
+    const float f = s - (float)i;
+    return gtab[i] * (1.0f - f) + gtab[i + 1] * f;
+}
+
+inline void add_fixed(__global ulong *p, float v)
+{
+    if (v > 0.0f)
+        atom_add(p, (ulong)(v * FIXED_SCALE + 0.5f));
+}
+
+inline float ground_t(float3 o, float3 d, __global const params_t *P)
+{
+    if (!P->has_ground || !(d.z < 0.0f))
+        return INFINITY;
+    return fmax(0.0f, (P->ground_z - o.z) / d.z);
+}
+
+/* Next real interaction along (o, d).  Returns the event type, its distance
+ * *t and the surface normal *n (leaf: sampled normal, wood: facing normal). */
+inline int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, float3 *n,
+                  uint *steps)
+{
+    __global const params_t *P = S->P;
+    const float tg = ground_t(o, d, P);
+    walker_t w;
+#if MODE == 0
+    float4 b = rng_next(rng);
+    float tau = -log(b.x);
+    if (walker_init(&w, o, d, 0.0f, tg, P)) {
+        float ta, tb;
+        float2 e;
+        while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
+            const float sig = e.x + e.y;
+            for (;;) {
+                const float opt = sig * (tb - ta);
+                if (opt <= tau) {
+                    tau -= opt;
+                    break;
+                }
+                const float tc = ta + tau / sig;
+                const float3 x = o + d * tc;
+                if (b.y * sig >= e.x) { /* wood: randomly oriented, facing normal */
+                    *n = cosine_dir(-d, b.z, b.w);
+                    *t = tc;
+                    return EV_WOOD;
+                }
+                const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
+                if (b.y * sig < e.x * fabs(dot(nl, d))) {
+                    *n = nl;
+                    *t = tc;
+                    return EV_LEAF;
+                }
+                b = rng_next(rng); /* null collision */
+                tau = -log(b.x);
+                ta = tc;
+            }
+        }
+    }
+#else
+    if (walker_init(&w, o, d, 0.0f, tg, P)) {
+        const float ds = P->ds;
+        int k = max(1, (int)ceil(w.t / ds));
+        while ((float)k * ds < w.t_end) {
+            const float tk = (float)k * ds;
+            const float3 x = o + d * tk;
+            float skip;
+            const float2 e = point_value(x, P, S->index, S->pool, o, d, &skip);
+            *steps += 1u;
+            if (skip >= 0.0f) {
+                k = max(k + 1, (int)floor(skip / ds) + 1);
+                continue;
+            }
+            if (e.x + e.y > 0.0f) {
+                const float4 b = rng_next(rng);
+                const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
+                if (b.x < fmin(1.0f, e.x * fabs(dot(nl, d)) * ds)) {
+                    *n = nl;
+                    *t = tk;
+                    return EV_LEAF;
+                }
+                if (b.y < -expm1(-e.y * ds)) {
+                    const float4 b2 = rng_next(rng);
+                    *n = cosine_dir(-d, b2.z, b2.w);
+                    *t = tk;
+                    return EV_WOOD;
+                }
+            }
+            ++k;
+        }
+    }
+#endif
+    if (isfinite(tg)) {
+        *t = tg;
+        *n = (float3)(0.0f, 0.0f, 1.0f);
+        return EV_GROUND;
+    }
+    *t = INFINITY;
+    return EV_ESCAPE;
+}
+
+/* Transmittance from o along unit d over distance r.  Exact mode: with
+ * uniform leaf azimuths the extinction LAD G(d) + sigma_wood is constant in a
+ * voxel and T = exp(-sum sigma l) exactly (no random numbers); with outward
+ * azimuths G varies inside a voxel and ratio tracking (unbiased) is used.
+ * Paper mode: the product over the paper's steps. */
+inline float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t *rng, uint *steps)
+{
+    __global const params_t *P = S->P;
+    walker_t w;
+    float T = 1.0f;
+#if MODE == 0
+    float ta, tb;
+    float2 e;
+    if (!P->outward) {
+        if (!walker_init(&w, o, d, 0.0f, r, P))
+            return T;
+        const float gd = g_of(S->gtab, d.z);
+        float od = 0.0f;
+        while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
+            od += (e.x * gd + e.y) * (tb - ta);
+            if (od > 40.0f)
+                return 0.0f;
+        }
+        return exp(-od);
+    }
+    float4 b = rng_next(rng);
+    float tau = -log(b.x);
+    if (!walker_init(&w, o, d, 0.0f, r, P))
+        return T;
+    while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
+        const float sig = e.x + e.y;
+        for (;;) {
+            const float opt = sig * (tb - ta);
+            if (opt <= tau) {
+                tau -= opt;
+                break;
+            }
+            const float tc = ta + tau / sig;
+            const float3 x = o + d * tc;
+            const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
+            T *= 1.0f - (e.x * fabs(dot(nl, d)) + e.y) / sig;
+            if (T < RR_THRESHOLD) {
+                if (b.y * RR_SURVIVE < T)
+                    T = RR_SURVIVE;
+                else
+                    return 0.0f;
+            }
+            b = rng_next(rng);
+            tau = -log(b.x);
+            ta = tc;
+        }
+    }
+#else
+    if (!walker_init(&w, o, d, 0.0f, r, P))
+        return T;
+    const float ds = P->ds;
+    int k = max(1, (int)ceil(w.t / ds));
+    while ((float)k * ds < w.t_end) {
+        const float tk = (float)k * ds;
+        const float3 x = o + d * tk;
+        float skip;
+        const float2 e = point_value(x, P, S->index, S->pool, o, d, &skip);
+        *steps += 1u;
+        if (skip >= 0.0f) {
+            k = max(k + 1, (int)floor(skip / ds) + 1);
+            continue;
+        }
+        if (e.x + e.y > 0.0f) {
+            const float4 b = rng_next(rng);
+            const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
+            T *= (1.0f - fmin(1.0f, e.x * fabs(dot(nl, d)) * ds)) * exp(-e.y * ds);
+            if (T < RR_THRESHOLD) {
+                if (b.y * RR_SURVIVE < T)
+                    T = RR_SURVIVE;
+                else
+                    return 0.0f;
+            }
+        }
+        ++k;
+    }
+#endif
+    return T;
+}
+
+inline void tally(__global ulong *hist, __global ulong *stats, __global const params_t *P,
+                  uint batch, int order, int kind, float t_ns, float value)
+{
+    const float s = (t_ns - P->t0_ns) / P->dt_ns;
+    if (s >= 0.0f && s < (float)P->nbins) {
+        const size_t i = (((size_t)batch * P->max_order + (order - 1)) * 2 + kind) * P->nbins + (size_t)s;
+        add_fixed(hist + i, value);
+    } else {
+        add_fixed(stats + batch * NSTAT + ST_OUTSIDE, value);
+    }
+}
+
+inline void record(__global float4 *trace, ulong pid, int k, float3 x, int type, __global const params_t *P)
+{
+    if (pid < (ulong)P->n_trace && k < TRACE_EVENTS)
+        trace[pid * TRACE_EVENTS + k] = (float4)(x, (float)type);
+}
+
+__kernel void simulate(__global const params_t *P, __global const int *index,
+                       __global const float2 *pool, __global const float *ppf,
+                       __global const float *gtab, __global ulong *hist, __global ulong *stats, __global float4 *trace,
+                       uint2 key, ulong pid0, uint n)
+{
+    const uint gid = get_global_id(0);
+    if (gid >= n)
+        return;
+    const ulong pid = pid0 + gid;
+    const uint batch = (uint)(pid % (ulong)P->n_batches);
+    __global ulong *st = stats + batch * NSTAT;
+    const scene_t S = {P, index, pool, ppf, gtab};
+    rng_t rng;
+    rng_init(&rng, key, pid);
+
+    const float3 sensor = vload3(0, P->sensor), axis = vload3(0, P->axis);
+    const float3 e1 = vload3(0, P->e1), e2 = vload3(0, P->e2);
+    const float4 b0 = rng_next(&rng);
+    const float rr = P->beam_sigma * sqrt(-2.0f * log(b0.x));
+    const float ph = 2.0f * CLSIM_PI * b0.y;
+    float3 d = normalize(axis + rr * cos(ph) * e1 + rr * sin(ph) * e2);
+    float3 x = sensor;
+    float L = 0.0f, w = 1.0f;
+    int last = EV_LEAF;
+    uint steps = 0u, events = 0u, shadow = 0u;
+    record(trace, pid, 0, x, -2, P);
+
+    for (int k = 1;; ++k) {
+        float t;
+        float3 n;
+        const int ev = flight(&S, x, d, &rng, &t, &n, &steps);
+        if (ev == EV_ESCAPE) {
+            add_fixed(st + (d.z >= 0.0f ? ST_ESC_UP : ST_ESC_DOWN), w);
+            record(trace, pid, k, x + d * 10.0f, EV_ESCAPE, P);
+#if DETECT == 1
+            if (k >= 2) {
+                const float den = dot(d, axis);
+                const float3 sx = x - sensor;
+                const float along = dot(sx, axis);
+                if (den < 0.0f && along > 0.0f && along >= P->cos_fov * length(sx)) {
+                    const float s = -along / den;
+                    const float3 q = x + d * s - sensor;
+                    if (dot(q, q) <= P->virt_r2) {
+                        tally(hist, stats, P, batch, k - 1, last == EV_GROUND, (L + s) / 0.299792458f,
+                              w * P->norm_analog);
+                        atom_inc(st + ST_DETECTIONS);
+                    }
+                }
+            }
+#endif
+            break;
+        }
+        x = x + d * t;
+        L += t;
+        events += 1u;
+        record(trace, pid, k, x, ev, P);
+        if (ev == EV_GROUND && k == 1)
+            add_fixed(st + ST_GROUND_DIRECT, w);
+        if (k > P->max_order) {
+            add_fixed(st + ST_TRUNCATED, w);
+            break;
+        }
+        float R, T;
+        float3 m;
+        last = ev;
+        if (ev == EV_LEAF) {
+            R = P->leaf_R; T = P->leaf_T; m = incident_side(n, d);
+        } else if (ev == EV_WOOD) {
+            R = P->wood_R; T = P->wood_T; m = n;
+        } else {
+            R = P->ground_R; T = 0.0f; m = n;
+        }
+#if DETECT == 0
+        {
+            const float3 to = sensor - x;
+            const float r = length(to);
+            const float3 drx = to / r;
+            const float cosr = -dot(drx, axis);
+            const float f = bsdf(m, drx, R, T);
+            if (cosr >= P->cos_fov && f > 0.0f) {
+                shadow += 1u;
+                const float Tr = transmittance(&S, x, drx, r, &rng, &steps);
+                if (Tr > 0.0f)
+                    tally(hist, stats, P, batch, k, ev == EV_GROUND, (L + r) / 0.299792458f,
+                          w * f * Tr * cosr * P->norm_nee / (r * r));
+            }
+        }
+        if (k == P->max_order) {
+            add_fixed(st + ST_TRUNCATED, w);
+            break;
+        }
+#endif
+        const float4 s = rng_next(&rng);
+        const float a = R + T;
+        int reflect;
+#if MODE == 0
+        if (a <= 0.0f) {
+            add_fixed(st + ST_ABSORBED, w);
+            break;
+        }
+        reflect = s.x * a < R;
+        add_fixed(st + ST_ABSORBED, w * (1.0f - a));
+        w *= a;
+        if (w < RR_THRESHOLD) {
+            if (s.w * RR_SURVIVE < w) {
+                add_fixed(st + ST_RR_ADDED, RR_SURVIVE - w);
+                w = RR_SURVIVE;
+            } else {
+                add_fixed(st + ST_RR_KILLED, w);
+                break;
+            }
+        }
+#else
+        if (s.x >= a) {
+            add_fixed(st + ST_ABSORBED, w);
+            record(trace, pid, k + 1, x, -1, P);
+            break;
+        }
+        reflect = s.x < R;
+#endif
+        d = cosine_dir(reflect ? m : -m, s.y, s.z);
+    }
+    atom_add(st + ST_VOXEL_STEPS, (ulong)steps);
+    atom_add(st + ST_EVENTS, (ulong)events);
+    atom_add(st + ST_SHADOW, (ulong)shadow);
+}

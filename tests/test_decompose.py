@@ -1,0 +1,177 @@
+"""Gaussian decomposition: synthetic truth (with calibrated standard errors),
+deconvolution, the peer's expectations, all NEON waveforms, bad input."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clsim.decompose import decompose, deconvolve, detect_peaks, echo_positions, gaussian_sum
+from clsim.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_decompose",
+                                                  ROOT / "benchmarks" / "bench_decompose.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+TRUE = dict(a=np.array([120.0, 45.0, 80.0]), m=np.array([30.0, 41.5, 70.0]),
+            s=np.array([2.2, 3.0, 2.5]), b=12.0)
+
+
+def _synthetic(rng, noise=2.0, n=110):
+    t = np.arange(n, dtype=float)
+    y = TRUE["b"] + gaussian_sum(t, TRUE["a"], TRUE["m"], TRUE["s"])
+    return y + rng.normal(0.0, noise, n)
+
+
+def test_recovers_known_components_within_standard_errors(rng):
+    c = decompose(_synthetic(rng))
+    assert len(c) == 3
+    for got, se, true in ((c.amplitude, c.amplitude_se, TRUE["a"]),
+                          (c.location_ns, c.location_se_ns, TRUE["m"]),
+                          (c.sigma_ns, c.sigma_se_ns, TRUE["s"])):
+        z = np.abs(got - true) / se
+        assert np.all(z < 4.0), z
+    assert abs(c.baseline - TRUE["b"]) < 4 * c.baseline_se
+
+
+def test_standard_errors_match_monte_carlo_scatter():
+    """Reported SEs equal the scatter of estimates over noise realisations.
+
+    200 realisations: the sample standard deviation of an estimate has a
+    relative standard error of 1/sqrt(2*199) = 5 %; we allow 20 %.
+    """
+    rng = np.random.default_rng(7)
+    est, ses = [], []
+    for _ in range(200):
+        c = decompose(_synthetic(rng))
+        assert len(c) == 3
+        est.append(np.concatenate([c.amplitude, c.location_ns, c.sigma_ns]))
+        ses.append(np.concatenate([c.amplitude_se, c.location_se_ns, c.sigma_se_ns]))
+    ratio = np.std(est, axis=0, ddof=1) / np.mean(ses, axis=0)
+    assert np.all(np.abs(ratio - 1.0) < 0.2), ratio
+    bias = np.mean(est, axis=0) - np.concatenate([TRUE["a"], TRUE["m"], TRUE["s"]])
+    assert np.all(np.abs(bias) < 4 * np.std(est, axis=0) / np.sqrt(200)), bias
+
+
+def test_dt_and_t0_scale_the_clock(rng):
+    y = _synthetic(rng)
+    a = decompose(y)
+    b = decompose(y, dt_ns=0.5, t0_ns=100.0, smooth_ns=0.5)
+    np.testing.assert_allclose(b.location_ns, 100.0 + 0.5 * a.location_ns)
+    np.testing.assert_allclose(b.sigma_ns, 0.5 * a.sigma_ns)
+
+
+def test_noise_only_gives_no_echo():
+    rng = np.random.default_rng(3)
+    c = decompose(50.0 + rng.normal(0.0, 1.5, 200))
+    assert len(c) == 0
+
+
+def _impulse(n=40):
+    """An asymmetric system response: a Gaussian convolved with an exponential tail."""
+    t = np.arange(n, dtype=float)
+    g = np.exp(-0.5 * ((t - 8.0) / 1.5) ** 2)
+    e = np.exp(-t / 4.0)
+    h = np.convolve(g, e)[:n]
+    return h / h.max()
+
+
+def test_deconvolution_restores_the_echo_times():
+    """Two 1-ns echoes blurred by an asymmetric impulse: RL deconvolution puts them
+    back at their times (impulse peak = time zero) within 0.3 ns; fitting the blurred
+    waveform directly is biased by the tail."""
+    rng = np.random.default_rng(11)
+    n = 120
+    t = np.arange(n, dtype=float)
+    truth_m = np.array([40.0, 52.0])
+    x = gaussian_sum(t, [100.0, 70.0], truth_m, [1.0, 1.0])
+    h = _impulse()
+    hn = h / h.sum()
+    c0 = int(np.argmax(hn))
+    blurred = np.convolve(x, hn)[c0:c0 + n]
+    y = 5.0 + blurred + rng.normal(0.0, 0.5, n)
+    plain = decompose(y)
+    dec = decompose(y, impulse=5.0 + h * 100, deconvolution_iterations=60)
+    main = np.sort(np.argsort(-dec.amplitude)[:2])
+    assert np.all(np.abs(dec.location_ns[main] - truth_m) < 0.3), dec.location_ns
+    # RL leaves small ringing echoes; they stay below 6 % of the main echo
+    others = np.setdiff1d(np.arange(len(dec)), main)
+    assert np.all(dec.amplitude[others] < 0.06 * dec.amplitude.max())
+    # without deconvolution the strongest echo is pulled late by the impulse tail
+    strongest = plain.location_ns[np.argmax(plain.amplitude)]
+    assert strongest - truth_m[0] > 0.5
+    # deconvolution keeps the energy
+    d = deconvolve(y, 5.0 + h * 100, iterations=60, baseline=5.0)
+    assert d.sum() == pytest.approx(np.clip(y - 5.0, 0, None).sum(), rel=1e-9)
+
+
+def test_echo_positions_along_the_pulse():
+    p = echo_positions([10.0], origin=[1.0, 2.0, 300.0], direction=[0.0, 0.01, -0.1495])
+    np.testing.assert_allclose(p, [[1.0, 2.1, 298.505]])
+
+
+@pytest.mark.realdata
+def test_peer_expectations_pass_rate(shared_data):
+    bench = _bench()
+    res = bench.score_peer(shared_data / "riegl-pulsewaves" / "adapt_gaussianfitter_tests.json")
+    for r in res["rows"]:
+        if not r["passed"]:
+            print(f"FAIL {r['name']}: {'; '.join(r['fails'])}")
+    print(f"pass rate {res['n_pass']}/{res['n']} = {res['rate']:.1%}, assertions "
+          f"{res['assert_rate']:.1%}")
+    assert res["n"] == 69
+    # measured 37/69 tests (53.6 %) and 79.8 % of assertions; see docs/waveforms.md
+    assert res["rate"] >= 0.50
+    assert res["assert_rate"] >= 0.75
+
+
+@pytest.mark.realdata
+def test_all_neon_waveforms_decompose(shared_data):
+    bench = _bench()
+    waves = bench.load_neon(shared_data)
+    assert len(waves) == 500
+    poor = []
+    for i, w in enumerate(waves):
+        c = decompose(w)
+        assert len(c) >= 1, i
+        for col in c.COLUMNS[:3]:
+            assert np.all(np.isfinite(getattr(c, col))), (i, col)
+        # the fit explains the signal: residual RMS far below the signal amplitude
+        resid = w - c.model(np.arange(w.size, dtype=float))
+        if np.sqrt(np.mean(resid ** 2)) >= 0.1 * (w.max() - c.baseline):
+            poor.append(i)
+    print(f"poorly fitted (residual RMS >= 10 % of the signal): {poor}")
+    # measured: 4 of 500 (144, 158, 267, 413: broad canopy returns); see docs/waveforms.md
+    assert len(poor) <= 10
+
+
+def test_detect_peaks_plateau_and_terrace():
+    y = [1, 1, 2, 20, 40, 40, 20, 12, 12, 12, 5, 1, 1]
+    c = detect_peaks(y, baseline=0.0, min_amplitude=10)
+    assert c.location_ns.tolist() == [4.5, 8.0]
+    assert c.amplitude.tolist() == [40.0, 12.0]
+
+
+@pytest.mark.parametrize("bad, match", [
+    (np.zeros((3, 10)), "1-D"),
+    ([1.0, 2.0], "at least 4"),
+    ([1.0, np.nan, 2.0, 3.0, 4.0], "NaN"),
+])
+def test_bad_samples(bad, match):
+    with pytest.raises(InputError, match=match):
+        decompose(bad)
+
+
+def test_bad_dt():
+    with pytest.raises(InputError, match="dt_ns"):
+        decompose(np.ones(10), dt_ns=0)

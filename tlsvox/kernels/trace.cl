@@ -1,0 +1,208 @@
+/* Amanatides-Woo voxel traversal of laser beams with echo bookkeeping.
+ *
+ * Every beam starts at its origin with weight W0 = sum of its echo weights +
+ * its tail weight.  Each echo at range r removes its weight (1/n for an n-echo
+ * pulse) from the beam; after the last echo the tail weight (the part of the
+ * pulse whose echoes were not recorded) carries on to max_range.
+ *
+ * Per voxel visited (one row of NF doubles, see tlsvox/trace.py FIELDS):
+ *   0 count        beams entering
+ *   1 n_w          weight entering
+ *   2 leaf_w       leaf echo weight inside
+ *   3 wood_w       wood echo weight inside
+ *   4 other_w      other stopping echoes (ground, targets)
+ *   5 path_w       integral of the beam weight along the path inside (free path)
+ *   6 path_wg      g * path_w (g = G(theta) of the beam, leaf projection)
+ *   7 leaf_zw      sum over leaf echoes of weight * (range - entry)
+ *   8 leaf_zwg     g * leaf_zw
+ *   9 wood_zw      sum over wood echoes of weight * (range - entry)
+ *  10 chord_w      entering weight * potential chord (as if unobstructed)
+ *  11 chord2_w     entering weight * chord^2
+ *  12..14 dir_w    entering weight * direction
+ *  15 leaf_w_g     leaf echo weight / g
+ *
+ * Compile-time options:
+ *   -DNF=16
+ *   -DUSE_ATOMICS   one shared accumulator, atomic adds (GPU); otherwise each
+ *                   work-item owns a private copy of the grid (CPU: no atomics,
+ *                   deterministic sums) and strides over the beams.
+ */
+
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#ifdef USE_ATOMICS
+#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+#endif
+
+#ifndef NF
+#define NF 16
+#endif
+
+#define KIND_LEAF 1
+#define KIND_WOOD 2
+
+#ifdef USE_ATOMICS
+inline void acc_add(__global double *p, double v)
+{
+    union { ulong u; double d; } old, nxt;
+    __global volatile ulong *q = (__global volatile ulong *)p;
+    do {
+        old.u = *q;
+        nxt.d = old.d + v;
+    } while (atom_cmpxchg(q, old.u, nxt.u) != old.u);
+}
+#define ADD(p, v) acc_add((p), (v))
+#else
+#define ADD(p, v) (*(p) += (v))
+#endif
+
+inline void trace_one(
+    const long b,
+    __global const double *origin, __global const double *direction,
+    __global const long *echo_start, __global const double *echo_range,
+    __global const double *echo_weight, __global const uchar *echo_kind,
+    __global const double *tail, __global const double *max_range,
+    __global const double *gval,
+    const double lx, const double ly, const double lz, const double h,
+    const int nx, const int ny, const int nz,
+    __global double *acc, __global ulong *steps)
+{
+    const double ox = origin[3 * b], oy = origin[3 * b + 1], oz = origin[3 * b + 2];
+    const double dx = direction[3 * b], dy = direction[3 * b + 1], dz = direction[3 * b + 2];
+    const long e0 = echo_start[b], e1 = echo_start[b + 1];
+    const double g = gval[b];
+    /* max_range bounds the tail only: a beam stopped by its last echo is
+     * followed to the end of that echo's voxel (its potential chord) */
+    const double tmaxr = tail[b] > 0.0 ? max_range[b] : INFINITY;
+
+    double w = tail[b];
+    for (long e = e0; e < e1; ++e) w += echo_weight[e];
+    if (w <= 0.0) return;
+
+    /* slab intersection with the grid box */
+    const double ux = lx + nx * h, uy = ly + ny * h, uz = lz + nz * h;
+    double t0 = 0.0, t1 = tmaxr;
+    double o[3] = {ox, oy, oz}, d[3] = {dx, dy, dz}, lo[3] = {lx, ly, lz}, hi[3] = {ux, uy, uz};
+    for (int a = 0; a < 3; ++a) {
+        if (d[a] != 0.0) {
+            double inv = 1.0 / d[a];
+            double ta = (lo[a] - o[a]) * inv, tb = (hi[a] - o[a]) * inv;
+            if (ta > tb) { double tmp = ta; ta = tb; tb = tmp; }
+            t0 = fmax(t0, ta);
+            t1 = fmin(t1, tb);
+        } else if (o[a] < lo[a] || o[a] >= hi[a]) {
+            return;
+        }
+    }
+    if (!(t0 < t1)) return;
+
+    /* echoes before the grid take their weight away first */
+    long e = e0;
+    while (e < e1 && echo_range[e] < t0) { w -= echo_weight[e]; ++e; }
+    if (w <= 1e-12) return;
+
+    /* starting voxel, from the midpoint-safe entry position */
+    const double n[3] = {nx, ny, nz};
+    int ijk[3], step[3];
+    double tnext[3], tdelta[3];
+    for (int a = 0; a < 3; ++a) {
+        double p = o[a] + d[a] * t0;
+        int i = (int)floor((p - lo[a]) / h);
+        if (i < 0) i = 0;
+        if (i >= (int)n[a]) i = (int)n[a] - 1;
+        /* a ray entering through the face at this axis' upper boundary */
+        ijk[a] = i;
+        if (d[a] > 0.0) {
+            step[a] = 1;
+            tnext[a] = (lo[a] + (i + 1) * h - o[a]) / d[a];
+            tdelta[a] = h / d[a];
+        } else if (d[a] < 0.0) {
+            step[a] = -1;
+            tnext[a] = (lo[a] + i * h - o[a]) / d[a];
+            tdelta[a] = -h / d[a];
+        } else {
+            step[a] = 0;
+            tnext[a] = INFINITY;
+            tdelta[a] = INFINITY;
+        }
+    }
+
+    double t = t0;
+    ulong nsteps = 0;
+    while (t < t1 && w > 1e-12) {
+        int a = 0;
+        if (tnext[1] < tnext[a]) a = 1;
+        if (tnext[2] < tnext[a]) a = 2;
+        double tex = fmin(tnext[a], t1);
+        double chord = tex - t;
+        if (chord > 1e-12 * h) {
+            const long v = ((long)ijk[0] * ny + ijk[1]) * nz + ijk[2];
+            __global double *row = acc + v * NF;
+            const double w_in = w;
+            double tp = t, path = 0.0, lz_ = 0.0, wz_ = 0.0, lw = 0.0, ww = 0.0, ow = 0.0;
+            /* echoes in [t, tex); the last segment also takes an echo at t1 */
+            const double tcut = (tex >= t1) ? nextafter(t1, (double)INFINITY) : tex;
+            while (e < e1 && echo_range[e] < tcut) {
+                const double r = echo_range[e], we = echo_weight[e];
+                path += w * (r - tp);
+                tp = r;
+                w -= we;
+                const uchar k = echo_kind[e];
+                if (k == KIND_LEAF) { lw += we; lz_ += we * (r - t); }
+                else if (k == KIND_WOOD) { ww += we; wz_ += we * (r - t); }
+                else { ow += we; }
+                ++e;
+            }
+            if (w < 1e-12) w = 0.0;
+            path += w * (tex - tp);
+            ADD(row + 0, 1.0);
+            ADD(row + 1, w_in);
+            if (lw > 0.0) { ADD(row + 2, lw); ADD(row + 7, lz_); ADD(row + 8, g * lz_); ADD(row + 15, lw / g); }
+            if (ww > 0.0) { ADD(row + 3, ww); ADD(row + 9, wz_); }
+            if (ow > 0.0) ADD(row + 4, ow);
+            ADD(row + 5, path);
+            ADD(row + 6, g * path);
+            ADD(row + 10, w_in * chord);
+            ADD(row + 11, w_in * chord * chord);
+            ADD(row + 12, w_in * dx);
+            ADD(row + 13, w_in * dy);
+            ADD(row + 14, w_in * dz);
+            ++nsteps;
+        }
+        t = tnext[a];
+        ijk[a] += step[a];
+        if (ijk[a] < 0 || ijk[a] >= (int)n[a]) break;
+        tnext[a] += tdelta[a];
+    }
+#ifdef USE_ATOMICS
+    atom_add(steps, nsteps);
+#else
+    *steps += nsteps;
+#endif
+}
+
+__kernel void trace_beams(
+    const long b_begin, const long b_end,
+    __global const double *origin, __global const double *direction,
+    __global const long *echo_start, __global const double *echo_range,
+    __global const double *echo_weight, __global const uchar *echo_kind,
+    __global const double *tail, __global const double *max_range,
+    __global const double *gval,
+    const double lx, const double ly, const double lz, const double h,
+    const int nx, const int ny, const int nz,
+    __global double *acc, __global ulong *steps)
+{
+#ifdef USE_ATOMICS
+    const long b = b_begin + get_global_id(0);
+    if (b >= b_end) return;
+    trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
+              max_range, gval, lx, ly, lz, h, nx, ny, nz, acc, steps);
+#else
+    const long c = get_global_id(0);
+    const long nc = get_global_size(0);
+    const long nvox = (long)nx * ny * nz;
+    __global double *mine = acc + c * nvox * NF;
+    for (long b = b_begin + c; b < b_end; b += nc)
+        trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
+                  max_range, gval, lx, ly, lz, h, nx, ny, nz, mine, steps + c);
+#endif
+}
