@@ -138,6 +138,14 @@ class SyntheticTree:
     crown_center: np.ndarray = field(default_factory=lambda: np.zeros(3))
     params: TreeParams | None = None
     seed: int | None = None
+    leaf_angle: LeafAngle | None = None
+    leaf_azimuth: str = "uniform"
+
+    def __post_init__(self):
+        if self.leaf_angle is None:
+            self.leaf_angle = self.params.leaf_angle_model if self.params else LeafAngle("uniform")
+        if self.params is not None:
+            self.leaf_azimuth = self.params.leaf_azimuth
 
     @property
     def n_leaves(self) -> int:
@@ -208,11 +216,8 @@ class SyntheticTree:
         ijk = np.argwhere((leaf > 0) | (bark > 0))
         lad = leaf[tuple(ijk.T)] / vol
         wood = 1.0 - np.exp(-bark[tuple(ijk.T)] / (4.0 * vol) * voxel_size)
-        p = self.params
-        angle = p.leaf_angle_model if p else LeafAngle("uniform")
-        azimuth = p.leaf_azimuth if p else "uniform"
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
-                     wood_kind="probability", leaf_angle=angle, leaf_azimuth=azimuth,
+                     wood_kind="probability", leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
                      crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,
                      meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size})
 
@@ -505,12 +510,14 @@ def load_tree(path: "str | os.PathLike") -> SyntheticTree:
 
 
 def make_leaf_slab(*, lad: float, size=(4.0, 4.0, 1.0), leaf_angle="spherical", leaf_length=0.05,
-                   leaf_width=0.025, origin=(0.0, 0.0, 0.0), seed: int = 0) -> SyntheticTree:
+                   leaf_width=0.025, origin=(0.0, 0.0, 0.0), seed: int = 0, ground: bool = False,
+                   ground_half_size: float = 50.0) -> SyntheticTree:
     """A box of randomly placed, randomly oriented leaves (a Poisson Boolean model).
 
     The number of leaves is Poisson with mean ``lad * volume / leaf_area``, so
     the gap probability along a straight path of length L inside the slab is
-    exactly ``exp(-G(theta) * lad * L)`` (edge effects aside).
+    exactly ``exp(-G(theta) * lad * L)`` (edge effects aside).  With
+    ``ground=True`` a Lambertian ground square lies at z = 0.
     """
     rng = np.random.default_rng(seed)
     size = np.asarray(size, dtype=float)
@@ -520,9 +527,18 @@ def make_leaf_slab(*, lad: float, size=(4.0, 4.0, 1.0), leaf_angle="spherical", 
     la = LeafAngle(leaf_angle)
     normals = sample_leaf_normals(n, la, rng)
     v, t = _leaf_mesh(centers, normals, leaf_length, leaf_width, rng)
-    return SyntheticTree(vertices=v, triangles=t.astype(np.int64), material=np.full(len(t), Material.LEAF, np.uint8),
-                         leaf_normals=normals, leaf_centers=centers, ground_z=None,
-                         crown_center=np.asarray(origin) + size / 2)
+    mat = np.full(len(t), Material.LEAF, np.uint8)
+    if ground:
+        g = ground_half_size
+        c = np.asarray(origin, float)[:2] + size[:2] / 2
+        gv = np.array([[c[0] - g, c[1] - g, 0], [c[0] + g, c[1] - g, 0], [c[0] + g, c[1] + g, 0],
+                       [c[0] - g, c[1] + g, 0]], float)
+        t = np.concatenate([t, np.array([[0, 1, 2], [0, 2, 3]]) + len(v)])
+        v = np.concatenate([v, gv])
+        mat = np.concatenate([mat, np.full(2, Material.GROUND, np.uint8)])
+    return SyntheticTree(vertices=v, triangles=t.astype(np.int64), material=mat,
+                         leaf_normals=normals, leaf_centers=centers, ground_z=0.0 if ground else None,
+                         crown_center=np.asarray(origin) + size / 2, leaf_angle=la)
 
 
 def make_wall(*, center=(10.0, 0.0, 0.0), normal=(-1.0, 0.0, 0.0), half_size=5.0,
