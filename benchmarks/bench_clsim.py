@@ -110,7 +110,9 @@ def section_paper_vs_exact(args, lines, sim, img):
             r = out[lad, mode]
             ax.plot(r.time_ns, r.waveform * 1e9, ls, label=f"{mode} total")
             ax.plot(r.time_ns, r.by_order[0] * 1e9, ls, lw=0.8, label=f"{mode} order 1")
-        ax.set_xlim(2380, 2415)
+        wf = out[lad, "exact"].waveform
+        nz = np.nonzero(wf > 1e-3 * wf.max())[0]
+        ax.set_xlim(out[lad, "exact"].time_ns[nz[0]] - 3, out[lad, "exact"].time_ns[nz[-1]] + 3)
         ax.set_title(f"LAD {lad:g} m$^2$/m$^3$")
         ax.set_xlabel("time after emission (ns)")
         ax.set_ylabel("received power (1e-9 of emitted energy / ns)")

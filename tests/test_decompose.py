@@ -120,6 +120,75 @@ def test_echo_positions_along_the_pulse():
     np.testing.assert_allclose(p, [[1.0, 2.1, 298.505]])
 
 
+def test_clipped_echo_recovered_from_its_flanks():
+    """An 8-bit echo of height 300 clipped at 255: censoring the clipped samples
+    recovers the height without bias and with calibrated standard errors; fitting
+    them as values (saturation=None) is biased low by tens of counts."""
+    rng = np.random.default_rng(21)
+    t = np.arange(80.0)
+    z, bias_plain = [], []
+    for _ in range(100):
+        y = np.minimum(np.round(10.0 + gaussian_sum(t, [300.0, 60.0], [40.0, 55.0], [2.5, 3.0])
+                                + rng.normal(0.0, 1.5, t.size)), 255.0)
+        c = decompose(y)
+        assert len(c) == 2
+        z.append((c.amplitude[0] - 300.0) / c.amplitude_se[0])
+        np.testing.assert_allclose(decompose(y, saturation=255).amplitude, c.amplitude)
+        bias_plain.append(decompose(y, saturation=None).amplitude[0] - 300.0)
+    # mean of 100 unit normals: SE 0.1; scatter of z: 1 within 25 %
+    assert abs(np.mean(z)) < 0.4 and 0.75 < np.std(z) < 1.25, (np.mean(z), np.std(z))
+    assert np.mean(bias_plain) < -20.0
+
+
+def test_echo_cut_by_the_record_end():
+    rng = np.random.default_rng(1)
+    t = np.arange(31.0)
+    y = 5.0 + gaussian_sum(t, [100.0], [31.0], [3.0]) + rng.normal(0.0, 1.0, t.size)
+    c = decompose(y)
+    assert len(c) == 1
+    assert abs(c.location_ns[0] - 31.0) < 4 * c.location_se_ns[0]
+    assert abs(c.amplitude[0] - 100.0) < 4 * c.amplitude_se[0]
+    assert detect_peaks(y, edges=True).location_ns[-1] == 30.0
+
+
+def test_non_gaussian_pulse_is_not_split_but_resolved_echoes_are():
+    """A strong echo with an exponential tail (not a Gaussian) is one echo: an extra
+    Gaussian under it would lower the BIC but is not resolved (Sparrow). Two
+    Gaussians 3 sigma apart are resolved and both reported."""
+    rng = np.random.default_rng(2)
+    n = 100
+    t = np.arange(n, dtype=float)
+    pulse = np.convolve(np.exp(-0.5 * ((t - 8.0) / 1.5) ** 2), np.exp(-t / 2.0))[:n]
+    pulse = np.roll(pulse / pulse.max(), 30)
+    for _ in range(10):
+        assert len(decompose(3.0 + 200.0 * pulse + rng.normal(0.0, 1.0, n))) == 1
+        two = 3.0 + gaussian_sum(t, [150.0, 100.0], [40.0, 47.5], [2.5, 2.5])
+        assert len(decompose(two + rng.normal(0.0, 1.0, n))) == 2
+
+
+def test_no_data_zeros_are_left_out():
+    """A record with a baseline of 200 counts and a run of zero samples (no-data fill
+    between two digitised segments): the zeros are not fitted as signal."""
+    rng = np.random.default_rng(4)
+    t = np.arange(120.0)
+    clean = 200.0 + gaussian_sum(t, [150.0, 60.0], [30.0, 90.0], [3.0, 4.0])
+    y = np.round(clean + rng.normal(0.0, 2.0, t.size))
+    y[60:70] = 0.0
+    c = decompose(y)
+    assert len(c) == 2
+    for got, se, true in ((c.amplitude, c.amplitude_se, [150.0, 60.0]),
+                          (c.location_ns, c.location_se_ns, [30.0, 90.0])):
+        assert np.all(np.abs(got - true) < 4 * se), (got, se)
+    assert abs(c.baseline - 200.0) < 4 * c.baseline_se
+
+
+def test_bad_saturation():
+    with pytest.raises(InputError, match="saturation"):
+        decompose(np.ones(10), saturation="clip")
+    with pytest.raises(InputError, match="saturation"):
+        decompose(np.ones(10), saturation=-1.0)
+
+
 @pytest.mark.realdata
 def test_peer_expectations_pass_rate(shared_data):
     bench = _bench()
@@ -130,9 +199,10 @@ def test_peer_expectations_pass_rate(shared_data):
     print(f"pass rate {res['n_pass']}/{res['n']} = {res['rate']:.1%}, assertions "
           f"{res['assert_rate']:.1%}")
     assert res["n"] == 69
-    # measured 37/69 tests (53.6 %) and 79.8 % of assertions; see docs/waveforms.md
-    assert res["rate"] >= 0.50
-    assert res["assert_rate"] >= 0.75
+    # measured 42/69 tests (60.9 %) and 80.4 % of assertions (a NaN estimate counts as a
+    # failure); the goal of 90 % is not reached, see docs/waveforms.md
+    assert res["rate"] >= 0.58
+    assert res["assert_rate"] >= 0.78
 
 
 @pytest.mark.realdata
@@ -146,13 +216,17 @@ def test_all_neon_waveforms_decompose(shared_data):
         assert len(c) >= 1, i
         for col in c.COLUMNS[:3]:
             assert np.all(np.isfinite(getattr(c, col))), (i, col)
-        # the fit explains the signal: residual RMS far below the signal amplitude
-        resid = w - c.model(np.arange(w.size, dtype=float))
+        # the fit explains the signal: residual RMS far below the signal amplitude (over
+        # the samples with data: 8 records hold runs of zeros, no-data fill between two
+        # digitised segments, which decompose leaves out)
+        data = w != 0
+        resid = (w - c.model(np.arange(w.size, dtype=float)))[data]
         if np.sqrt(np.mean(resid ** 2)) >= 0.1 * (w.max() - c.baseline):
             poor.append(i)
     print(f"poorly fitted (residual RMS >= 10 % of the signal): {poor}")
-    # measured: 4 of 500 (144, 158, 267, 413: broad canopy returns); see docs/waveforms.md
-    assert len(poor) <= 10
+    # measured: none of 500 (before the no-data zeros were left out: 4, the records
+    # 103, 183, 413, 415 with such gaps); see docs/waveforms.md
+    assert len(poor) <= 2
 
 
 def test_detect_peaks_plateau_and_terrace():

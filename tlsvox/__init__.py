@@ -5,14 +5,20 @@ that use it, so ``import tlsvox`` stays light.
 """
 
 from .errors import InputError, TlsvoxError
+from .estimators import Estimator
+from .grid import VoxelGrid
 from .leafangle import LeafAngle, LeafAngleKind
 from .materials import Material, Optics
 from .scene import Scene
 from .versions import show_versions
+from .voxelize import voxelize
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "Estimator",
+    "VoxelGrid",
+    "voxelize",
     "InputError",
     "LeafAngle",
     "LeafAngleKind",

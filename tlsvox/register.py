@@ -81,6 +81,11 @@ __all__ = [
 
 #: fewest points a scan needs to be registered at all
 MIN_POINTS = 50
+#: largest tilt between two levelled scans' frames: a levelled scanner's
+#: compensator keeps each frame within a fraction of a degree of vertical.
+#: Rules out flipped fits of near-coplanar target layouts (which need a few
+#: degrees of tilt); pass levelled=False for tilted (e.g. mobile) scans.
+MAX_TILT_DEG = 2.0
 
 
 class RegistrationError(TlsvoxError):
@@ -305,8 +310,13 @@ def detect_targets(scan: Scan, *, min_reflectance_db: float = 0.0,
     return np.array(centres, dtype=np.float64).reshape(-1, 3)
 
 
-def match_targets(source, reference, *, tolerance_m: float = 0.03,
-                  min_side_m: float = 0.5) -> tuple[np.ndarray, np.ndarray] | None:
+def _tilt_deg(T) -> float:
+    """Angle (degrees) between z and the rotated z axis of ``T``."""
+    return float(np.degrees(np.arccos(np.clip(np.asarray(T)[2, 2], -1.0, 1.0))))
+
+
+def match_targets(source, reference, *, tolerance_m: float = 0.03, min_side_m: float = 0.5,
+                  max_tilt_deg: float | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """Correspondences between two target sets from their inter-target distances.
 
     Every triangle of source targets is compared with every ordered triangle
@@ -323,14 +333,17 @@ def match_targets(source, reference, *, tolerance_m: float = 0.03,
         Accepted error of a target centre distance.
     min_side_m : float, default 0.5
         Shortest triangle side used (short sides fix the rotation poorly).
+    max_tilt_deg : float, optional
+        Skip transforms that tilt the z axis by more (levelled scanners):
+        targets at evenly spaced heights also fit upside down.
 
     Returns
     -------
     (pairs, T) or None
         ``pairs`` (M, 2) int: source index, reference index (M >= 3);
         ``T`` the rigid fit on them.  None when no 3 targets match, or when
-        two different transforms explain the targets equally well
-        (a symmetric layout): then targets cannot decide.
+        another transform matches as many targets with an RMSE within 3x
+        the best (a symmetric layout): then targets cannot decide.
     """
     a = np.asarray(source, dtype=np.float64).reshape(-1, 3)
     b = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
@@ -355,6 +368,8 @@ def match_targets(source, reference, *, tolerance_m: float = 0.03,
             T = rigid_fit(a[tri_a[ia]], b[tri_b[ib]])
         except InputError:
             continue
+        if max_tilt_deg is not None and _tilt_deg(T) > max_tilt_deg:
+            continue
         d = np.linalg.norm(_apply(T, a)[:, None, :] - b[None, :, :], axis=2)
         pairs = []
         used = set()
@@ -377,7 +392,10 @@ def match_targets(source, reference, *, tolerance_m: float = 0.03,
     for cand in runner_up:
         # another transform that fits as many targets but puts them elsewhere: ambiguous
         moved = np.linalg.norm(_apply(cand[3], a) - _apply(best[3], a), axis=1).max()
-        if cand[0] == best[0] and moved > tolerance_m:
+        # ... and nearly as well: within 3x the best RMSE (taken as the
+        # centre noise, at least 2 mm)
+        as_good = -cand[1] < 3.0 * max(-best[1], 0.002)
+        if cand[0] == best[0] and moved > tolerance_m and as_good:
             return None
     return best[2], best[3]
 
@@ -657,7 +675,8 @@ def register_pair(source: Scan, reference: Scan, *, method: "str | RegistrationM
         blob) is not reproduced by independent samples.
     levelled : bool, default True
         Scanners are levelled: drop the tilt of each RANSAC hypothesis before
-        ICP (ICP recovers residual tilt).
+        ICP (ICP recovers residual tilt), and reject target matches that tilt
+        by more than :data:`MAX_TILT_DEG` (upside-down fits of symmetric layouts).
     seed : int, default 0
         First RANSAC seed.
 
@@ -695,7 +714,8 @@ def register_pair(source: Scan, reference: Scan, *, method: "str | RegistrationM
                       target_radius_m=target_radius_m)
             ts, tr = detect_targets(source, **kw), detect_targets(reference, **kw)
             n_targets = (len(ts), len(tr))
-            found = match_targets(ts, tr, tolerance_m=target_tolerance_m)
+            found = match_targets(ts, tr, tolerance_m=target_tolerance_m,
+                                  max_tilt_deg=MAX_TILT_DEG if levelled else None)
             if found is not None:
                 pairs, T0 = found
                 used = "targets"
@@ -715,7 +735,7 @@ def register_pair(source: Scan, reference: Scan, *, method: "str | RegistrationM
             Tg = global_fpfh(src_og, ref_og, voxel_m=global_voxel_m, seed=seed + h)
             if levelled:
                 Tg = level_transform(Tg)
-            Th, st = refine_icp(source.xyz, reference.xyz, Tg, voxel_sizes=voxel_sizes[:-1] or voxel_sizes)
+            Th, st = refine_icp(source.xyz, reference.xyz, Tg, voxel_sizes=voxel_sizes[:1])
             cands.append(Th)
             figs.append(st[-1])
         groups = _consensus(cands, rot_deg=consensus_rot_deg, trans_m=consensus_trans_m)

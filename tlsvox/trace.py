@@ -392,8 +392,14 @@ class Tracer:
         bufs = [buf(beams.origin), buf(beams.direction), buf(beams.echo_start), buf(beams.echo_range),
                 buf(beams.echo_weight), buf(beams.echo_kind), buf(beams.tail), buf(beams.max_range),
                 buf(beams.g)]
-        acc_dev = cl.Buffer(ctx, mf.READ_WRITE, size=max(acc_bytes, 8))
-        cl.enqueue_fill_buffer(q, acc_dev, np.float64(0.0), 0, max(acc_bytes, 8))
+        host_acc = None
+        if self.atomics:
+            acc_dev = cl.Buffer(ctx, mf.READ_WRITE, size=max(acc_bytes, 8))
+            cl.enqueue_fill_buffer(q, acc_dev, np.float64(0.0), 0, max(acc_bytes, 8))
+        else:
+            # CPU device: the kernel works in host memory directly (no copies)
+            host_acc = np.zeros((self.copies, grid.n_voxels, NF), dtype=np.float64)
+            acc_dev = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=host_acc)
         steps_dev = cl.Buffer(ctx, mf.READ_WRITE, size=8 * self.copies)
         cl.enqueue_fill_buffer(q, steps_dev, np.uint64(0), 0, 8 * self.copies)
         lo = grid.lower
@@ -419,14 +425,20 @@ class Tracer:
         finally:
             if bar is not None:
                 bar.close()
-        acc = np.empty((self.copies, grid.n_voxels, NF), dtype=np.float64)
-        cl.enqueue_copy(q, acc, acc_dev)
         steps = np.empty(self.copies, dtype=np.uint64)
         cl.enqueue_copy(q, steps, steps_dev)
-        q.finish()
-        total = acc[0]
-        for c in range(1, self.copies):
-            total += acc[c]
+        if self.atomics:
+            total = np.empty((grid.n_voxels, NF), dtype=np.float64)
+            cl.enqueue_copy(q, total, acc_dev)
+            q.finish()
+        else:
+            mapped, _ = cl.enqueue_map_buffer(q, acc_dev, cl.map_flags.READ, 0, host_acc.shape,
+                                              host_acc.dtype, is_blocking=True)
+            total = np.array(mapped[0])
+            for c in range(1, self.copies):
+                total += mapped[c]
+            del mapped
+        acc_dev.release()
         seconds = time.perf_counter() - t_start
         return VoxelStats(grid, total, n_beams=n, n_steps=int(steps.sum()), seconds=seconds,
                           device=self.name)

@@ -1,0 +1,98 @@
+"""Registration and classification time (medians) and accuracy on the synthetic scan pair.
+
+Scans the default synthetic tree (tlsvox.synthetic) from the paper's two
+positions with the RIEGL VZ-400 preset (or a coarser step with --step), then
+times: target registration, FPFH + ICP registration, and per-scan
+classification with and without geometric refinement.  Writes
+docs/bench/register_classify.md.
+
+    python benchmarks/bench_register_classify.py [--step 0.06] [--repeats 3] [--small]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tlsvox.classify import classify_scan, score
+from tlsvox.register import pose_error, register_pair, true_relative_transform
+from tlsvox.scanner import ScannerPreset, paper_scan_poses, simulate_scan
+from tlsvox.synthetic import TreeParams, make_tree
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def timed(fn, repeats):
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--step", type=float, default=0.06, help="angular step, degrees (VZ-400: 0.06)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--small", action="store_true", help="the small test tree instead of the default")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "register_classify.md"))
+    args = ap.parse_args(argv)
+
+    params = (TreeParams(height=8.0, crown_base=2.0, crown_radius=3.0, total_leaf_area=60.0, trunk_radius=0.15)
+              if args.small else TreeParams())
+    tree = make_tree(params, seed=3)
+    preset = ScannerPreset.riegl_vz400(zenith_step_deg=args.step, azimuth_step_deg=args.step)
+    A, B = [simulate_scan(tree, pose=p, preset=preset, seed=k + 1, scan_id=k, name=f"scan{k}", progress=False)
+            for k, p in enumerate(paper_scan_poses(tree))]
+    T_true = true_relative_transform(B, A)
+    rows = []
+    for method in ("targets", "fpfh"):
+        reps = args.repeats if method == "targets" else max(1, args.repeats // 3)
+        t, r = timed(lambda: register_pair(B, A, method=method), reps)
+        rot, tr = pose_error(r.transform, T_true)
+        rows.append((method, t, reps, rot, tr * 1000, r.fitness, r.inlier_rmse_m * 1000))
+        print(rows[-1])
+    cls_rows, tables = [], []
+    for s in (A, B):
+        for refine in (False, True):
+            t, c = timed(lambda: classify_scan(s, refine=refine), args.repeats)
+            sc = score(c.labels, s.truth_material)
+            cls_rows.append((s.name, len(s), refine, t, sc.precision["leaf"], sc.recall["leaf"],
+                             sc.precision["wood"], sc.recall["wood"], c.leaf_wood_threshold))
+            tables.append(f"**{s.name}, refine={refine}**\n\n{sc.table()}\n")
+            print(cls_rows[-1])
+    lines = [
+        "# Registration and classification on the synthetic scan pair",
+        "",
+        f"`python benchmarks/bench_register_classify.py --step {args.step} --repeats {args.repeats}"
+        + (" --small" if args.small else "") + "`",
+        "",
+        f"Tree: {'small test tree' if args.small else 'default (13.6 m oak-like)'}, seed 3; scans at the paper's "
+        f"two positions, RIEGL VZ-400 preset, step {args.step} deg: {len(A):,} and {len(B):,} echoes. "
+        f"Machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}. "
+        "Times are medians of the repeats (wall clock, s).",
+        "",
+        "| registration | median s | repeats | rotation error deg | translation error mm | fitness | inlier RMSE mm |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for m, t, reps, rot, tr, fit, rmse in rows:
+        lines.append(f"| {m} | {t:.2f} | {reps} | {rot:.4f} | {tr:.2f} | {fit:.3f} | {rmse:.1f} |")
+    lines += ["", "| classification | echoes | refine | median s | leaf P | leaf R | wood P | wood R | threshold |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for name, n, ref, t, lp, lr, wp, wr, th in cls_rows:
+        lines.append(f"| {name} | {n:,} | {ref} | {t:.2f} | {lp:.3f} | {lr:.3f} | {wp:.3f} | {wr:.3f} | {th:.3f} |")
+    lines += ["", "Confusion matrices (rows truth, columns label):", ""] + tables
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

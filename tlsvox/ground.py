@@ -1,0 +1,132 @@
+"""The ground plane under a scene: given, or fitted by RANSAC on the lowest points.
+
+:func:`fit_ground` keeps the lowest point of every ``cell`` x ``cell`` metre
+column (ground is what the lowest returns see), fits a plane with Open3D's
+RANSAC (``segment_plane``), and reports its height at the centre and its tilt.
+The scene file stores a horizontal plane (``ground_z``); a tilt above a few
+degrees is reported so a user knows the approximation.
+
+Examples
+--------
+>>> g = GroundPlane.horizontal(1.5)
+>>> float(g.height_at([[0.0, 0.0]])[0]), g.tilt_deg
+(1.5, 0.0)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["GroundPlane", "fit_ground", "ground_mask"]
+
+
+@dataclass(frozen=True)
+class GroundPlane:
+    """Plane ``a x + b y + c z + d = 0`` with ``c > 0`` (normal pointing up).
+
+    Attributes
+    ----------
+    coefficients : (4,) float
+    z_center : float, metres
+        Plane height at ``center_xy``.
+    center_xy : (2,) float, metres
+    inlier_rmse : float, metres
+    n_inliers : int
+    """
+
+    coefficients: tuple
+    z_center: float
+    center_xy: tuple = (0.0, 0.0)
+    inlier_rmse: float = 0.0
+    n_inliers: int = 0
+
+    @classmethod
+    def horizontal(cls, z: float, center_xy=(0.0, 0.0)) -> "GroundPlane":
+        """A given horizontal plane at height ``z`` (metres)."""
+        z = float(z)
+        if not np.isfinite(z):
+            raise InputError(f"ground_z={z!r} must be a finite height in metres")
+        return cls((0.0, 0.0, 1.0, -z), z, tuple(float(v) for v in center_xy))
+
+    @property
+    def normal(self) -> np.ndarray:
+        n = np.asarray(self.coefficients[:3], dtype=np.float64)
+        return n / np.linalg.norm(n)
+
+    @property
+    def tilt_deg(self) -> float:
+        """Angle between the plane's normal and vertical, degrees."""
+        return float(np.degrees(np.arccos(np.clip(abs(self.normal[2]), 0.0, 1.0))))
+
+    def height_at(self, xy) -> np.ndarray:
+        """Plane height (metres) at (N, 2) horizontal positions."""
+        a, b, c, d = self.coefficients
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        return -(a * xy[:, 0] + b * xy[:, 1] + d) / c
+
+    def distance(self, points) -> np.ndarray:
+        """Signed height (metres) of (N, 3) points above the plane, along its normal."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        a, b, c, d = self.coefficients
+        return (p @ np.array([a, b, c]) + d) / np.linalg.norm([a, b, c])
+
+
+def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, num_iterations: int = 2000,
+               seed: int = 0) -> GroundPlane:
+    """Fit the ground plane by RANSAC on the lowest point of each column.
+
+    Parameters
+    ----------
+    points : (N, 3) float, metres, world frame
+    cell : float, metres
+        Column size for picking the lowest points.
+    distance_threshold : float, metres
+        RANSAC inlier distance.
+    num_iterations : int
+    seed : int
+        Seeds Open3D's RANSAC (``o3d.utility.random.seed``).
+
+    Returns
+    -------
+    GroundPlane
+    """
+    import open3d as o3d
+
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) < 3:
+        raise InputError(f"points: need at least 3 points to fit a ground plane, got {len(p)}")
+    if not (np.isfinite(cell) and cell > 0):
+        raise InputError(f"cell={cell!r} must be a positive size in metres, e.g. 1.0")
+    ij = np.floor(p[:, :2] / cell).astype(np.int64)
+    key = (ij[:, 0] - ij[:, 0].min()) * (ij[:, 1].max() - ij[:, 1].min() + 1) + (ij[:, 1] - ij[:, 1].min())
+    order = np.lexsort((p[:, 2], key))
+    first = np.ones(len(order), bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    low = p[order[first]]
+    if len(low) < 3:
+        raise InputError(
+            f"only {len(low)} ground columns of {cell} m: the points cover too small an area; use a smaller cell"
+        )
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(low))
+    o3d.utility.random.seed(int(seed))
+    plane, inliers = pc.segment_plane(distance_threshold=float(distance_threshold), ransac_n=3,
+                                      num_iterations=int(num_iterations))
+    a, b, c, d = (float(v) for v in plane)
+    if c < 0:
+        a, b, c, d = -a, -b, -c, -d
+    if c < 1e-6:
+        raise InputError("the fitted ground plane is vertical: the lowest points are not ground")
+    centre = 0.5 * (p[:, :2].min(axis=0) + p[:, :2].max(axis=0))
+    z_c = float(-(a * centre[0] + b * centre[1] + d) / c)
+    res = (low[inliers] @ np.array([a, b, c]) + d) / np.linalg.norm([a, b, c])
+    return GroundPlane((a, b, c, d), z_c, tuple(float(v) for v in centre),
+                       float(np.sqrt(np.mean(res**2))) if len(res) else 0.0, len(inliers))
+
+
+def ground_mask(points, plane: GroundPlane, *, tolerance: float = 0.15) -> np.ndarray:
+    """(N,) bool: points within ``tolerance`` metres above (or any depth below) the plane."""
+    return plane.distance(points) < float(tolerance)
