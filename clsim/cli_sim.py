@@ -51,6 +51,10 @@ def register(subparsers) -> None:
                    help="next-event estimation, or analog counting through the virtual aperture")
     p.add_argument("--max-order", type=int, default=3, help="highest scattering order")
     p.add_argument("--leaf-off", action="store_true", help="drop the leaves (wood and ground only)")
+    p.add_argument("--hotspot", action="store_true",
+                   help="single-scattering returns retrace their free incoming path (transmittance 1), "
+                        "as explicit leaves do with a monostatic sensor; default: turbid, independent "
+                        "return (the paper's model). NEE only")
     p.add_argument("--off-nadir", type=float, default=None, help="override the off-nadir angle, degrees")
     p.add_argument("--fov", type=float, default=None, help="override the receiver FOV half angle, mrad")
     p.add_argument("--batches", type=int, default=16, help="batches for standard errors")
@@ -106,7 +110,7 @@ def cmd_simulate(args) -> int:
             sim = Simulator(device=args.device)
         kw = dict(photons=args.photons, seed=args.seed, mode=args.mode, detect=args.detect,
                   max_order=args.max_order, leaf_off=args.leaf_off, batches=args.batches,
-                  trace=args.trace)
+                  trace=args.trace, hotspot=args.hotspot)
         if not args.reference:
             kw["progress"] = args.progress
         res = sim.run(scene, sensor, **kw)

@@ -8,21 +8,34 @@ echoes (Hofton et al. 2000; Wagner et al. 2006)
 The steps, each an option of :func:`decompose`:
 
 1. Baseline ``b`` and noise standard deviation are estimated robustly (lowest
-   fifth of the samples; median absolute first difference).
+   fifth of the samples; median absolute first difference). Exact zeros more
+   than 4 noise sigma below the baseline are no-data fill (the gap between
+   two digitised segments of a NEON record) and are left out of the fit.
 2. Optional deconvolution with a measured system impulse response
    (Richardson-Lucy; Zhou et al. 2017 used it on the same NEON waveforms).
 3. Candidate echoes: local maxima of the (optionally Gaussian-smoothed)
    waveform plus "terraces" (runs of equal samples on a rising or falling
-   flank, the trace of a weak echo riding on a strong one in 8-bit data),
-   kept when they rise ``min_amplitude`` above the baseline.
+   flank, the trace of a weak echo riding on a strong one in 8-bit data)
+   plus echoes cut by the ends of the record, kept when they rise
+   ``min_amplitude`` above the baseline. Initial width: the full width at half
+   maximum between the linearly interpolated half-maximum crossings of the two
+   flanks (Hofton et al. 2000); a flank that a neighbouring echo stops before
+   half height gives the Gaussian through its valley sample instead.
 4. Levenberg-Marquardt least squares (MINPACK ``lmder`` through
    :func:`scipy.optimize.leastsq`) with the analytic Jacobian; location,
-   width, amplitude of every echo and the baseline are free.
-5. Component count: echoes that are not significant (amplitude under half the
+   width, amplitude of every echo and the baseline are free. Start values:
+   the detected locations and widths, with amplitudes and baseline from the
+   linear least-squares fit at those locations and widths. Clipped
+   (saturated) samples are censored: they count only where the model falls
+   below them (Tobin 1958), so the unclipped flanks set height and width.
+5. Component count: echoes that are not significant (amplitude under the
    detection threshold or under two standard errors) or not resolvable
-   (sigma under 0.3 sample) are dropped and the fit repeated; then echoes are
-   added one at a time at the largest smoothed residual, each kept only if
-   the Bayesian information criterion decreases (Schwarz 1978).
+   (sigma under 0.3 sample) are dropped and the fit repeated; then an echo is
+   added at the largest smoothed residual when, fitted alone to the residual,
+   it is resolved from every echo already there by Sparrow's criterion (the
+   pair's sum shows two features: four inflection points), and kept after the
+   refit of all echoes only if the Bayesian information criterion decreases
+   (Schwarz 1978). The search stops at the first rejected residual peak.
 6. Standard errors from the covariance ``s^2 (J^T J)^{-1}`` with
    ``s^2 = RSS / (n - p)``.
 
@@ -41,6 +54,10 @@ Schwarz, G. (1978). Estimating the dimension of a model. Ann. Stat. 6(2),
     461-464. doi:10.1214/aos/1176344136
 Lucy, L. B. (1974). An iterative technique for the rectification of observed
     distributions. AJ 79, 745. doi:10.1086/111605
+Sparrow, C. M. (1916). On spectroscopic resolving power. ApJ 44, 76.
+    doi:10.1086/142271
+Tobin, J. (1958). Estimation of relationships for limited dependent
+    variables. Econometrica 26(1), 24-36. doi:10.2307/1907382
 """
 
 from __future__ import annotations
@@ -65,6 +82,9 @@ __all__ = [
 
 FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 _MIN_SIGMA_SAMPLES = 0.3
+# LM stops when the relative change of the RSS or of the parameters is under 1e-6:
+# a millionth of a parameter, far below any standard error of 8-16 bit waveforms
+_LM_TOL = 1e-6
 
 
 @dataclass
@@ -232,44 +252,56 @@ def _runs(y: np.ndarray):
 
 
 def _half_width(y: np.ndarray, i0: int, i1: int, height: float, base: float, step: int):
-    """Gaussian standard deviation seen from one flank of the peak run [i0, i1].
+    """Half width at half maximum of the peak run [i0, i1] seen from one flank, samples.
 
-    Walks down the flank while it does not rise again, to the first sample
-    under half height; inverts the Gaussian through that sample,
-    ``sigma = d / sqrt(2 ln(h / y))`` (exact for a Gaussian, unlike linear
-    interpolation of the half-maximum crossing on a coarse grid). None when
-    the flank rises again before reaching half height.
+    Walks down the flank (``step`` -1: left, +1: right) from the edge of the
+    peak's run of equal samples. When the flank falls below half height before
+    it rises again, the half-maximum crossing is interpolated linearly between
+    the two samples around it (Hofton et al. 2000). When a neighbouring echo
+    stops the flank first (it rises again above half height), the Gaussian is
+    inverted through the valley sample, ``d sqrt(ln 2 / ln(h / v))``: the
+    neighbour adds to ``v``, so this is an upper bound on the half width. At
+    the end of the record the last sample is used the same way. None when no
+    sample of the flank lies below the peak height.
     """
     h = height - base
+    half = 0.5 * h
     j = i1 if step > 0 else i0
-    centre = 0.5 * (i0 + i1)
-    prev = y[j]
+    prev = y[j] - base
+    edge = j
     while 0 <= j + step < y.size:
-        nxt = y[j + step]
+        nxt = y[j + step] - base
         if nxt > prev:
-            return None
-        if nxt - base < 0.5 * h:
-            v = nxt - base
-            d = abs(j + step - centre)
-            if v <= 0:  # fell to the baseline: interpolate the crossing linearly
-                frac = (prev - base - 0.5 * h) / (prev - nxt) if prev != nxt else 0.0
-                return abs(j + step * frac - centre) * 2.0 / FWHM_PER_SIGMA
-            return d / np.sqrt(2.0 * np.log(h / v))
+            break
+        if nxt < half:
+            return abs(j - edge) + (prev - half) / (prev - nxt)
         prev = nxt
         j += step
-    return None
+    v = y[j] - base
+    if j == edge or not 0 < v < h:
+        return None
+    return abs(j - edge) * np.sqrt(np.log(2.0) / np.log(h / v))
 
 
-def _detect(y: np.ndarray, base: float, threshold: float, terraces: bool):
+def _detect(y: np.ndarray, base: float, threshold: float, terraces: bool, edges: bool):
     """Candidate echoes (location, height, sigma guess) in sample units."""
     starts, ends = _runs(y)
     vals = y[starts]
     out = []
-    for r in range(1, len(starts) - 1):
-        up_in = vals[r] > vals[r - 1]
-        up_out = vals[r + 1] > vals[r]
-        is_max = up_in and not up_out
-        is_terrace = terraces and (ends[r] > starts[r]) and (up_in == up_out)
+    last = len(starts) - 1
+    for r in range(last + 1):
+        if r in (0, last):
+            if not edges:
+                continue
+            # an echo cut by the end of the record (the waveform still rising at its last
+            # sample, or already falling at its first) is an echo too: its maximum is the edge
+            is_max = last > 0 and (vals[1] < vals[0] if r == 0 else vals[r] > vals[r - 1])
+            is_terrace = False
+        else:
+            up_in = vals[r] > vals[r - 1]
+            up_out = vals[r + 1] > vals[r]
+            is_max = up_in and not up_out
+            is_terrace = terraces and (ends[r] > starts[r]) and (up_in == up_out)
         if not (is_max or is_terrace):
             continue
         height = vals[r]
@@ -279,12 +311,15 @@ def _detect(y: np.ndarray, base: float, threshold: float, terraces: bool):
         lo = _half_width(y, i0, i1, height, base, -1)
         hi = _half_width(y, i0, i1, height, base, +1)
         widths = [w for w in (lo, hi) if w is not None]
-        out.append((0.5 * (i0 + i1), height - base, float(np.mean(widths)) if widths else np.nan))
+        # FWHM = plateau length + the two half widths (the mean one where a flank is missing)
+        fwhm = (i1 - i0) + 2.0 * float(np.mean(widths)) if widths else np.nan
+        out.append((0.5 * (i0 + i1), height - base, fwhm / FWHM_PER_SIGMA))
     return out
 
 
 def detect_peaks(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=None,
-                 baseline=None, smooth_ns: float = 0.0, terraces: bool = True) -> Components:
+                 baseline=None, smooth_ns: float = 0.0, terraces: bool = True,
+                 edges: bool = False) -> Components:
     """Initial echo guesses: local maxima and terraces above a threshold.
 
     Parameters
@@ -307,13 +342,18 @@ def detect_peaks(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitu
         ns (0: none).
     terraces : bool
         Also report runs of equal samples on a flank (weak overlapping echoes).
+    edges : bool
+        Also report an echo cut by the record: the first (last) sample when the
+        waveform falls from (rises to) the edge. :func:`decompose` uses them.
 
     Returns
     -------
     Components
         Guesses; amplitude is the sample height above the baseline, location
-        the centre of the peak's run of equal samples, sigma from the half
-        maximum crossings (NaN when neither flank reaches half height).
+        the centre of the peak's run of equal samples, sigma from the full
+        width at half maximum (interpolated half-maximum crossings; see
+        ``_half_width``; NaN only when neither flank has a sample below the
+        peak).
         Standard errors are NaN.
 
     Examples
@@ -328,7 +368,7 @@ def detect_peaks(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitu
     base = b_est if baseline is None else float(baseline)
     thr = 4.0 * sigma if min_amplitude is None else float(min_amplitude)
     ys = gaussian_filter1d(y, smooth_ns / dt) if smooth_ns > 0 else y
-    cand = _detect(ys, base, thr, terraces)
+    cand = _detect(ys, base, thr, terraces, edges)
     if not cand:
         return Components.empty(baseline=base, noise_sigma=sigma)
     loc, amp, sig = (np.array(c, dtype=float) for c in zip(*cand))
@@ -339,63 +379,72 @@ def detect_peaks(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitu
 
 # ------------------------------------------------------------- the fit ---
 
-def _model_jac(p: np.ndarray, t: np.ndarray):
-    k = (p.size - 1) // 3
-    a, m, s = p[0:3 * k:3], p[1:3 * k:3], p[2:3 * k:3]
-    z = (t[:, None] - m) / s
-    e = np.exp(-0.5 * z * z)
-    model = p[-1] + e @ a
-    jac = np.empty((t.size, p.size))
-    jac[:, 0:3 * k:3] = e
-    ae = a * e
-    jac[:, 1:3 * k:3] = ae * z / s
-    jac[:, 2:3 * k:3] = ae * z * z / s
-    jac[:, -1] = 1.0
-    return model, jac
-
-
 def _fit(y: np.ndarray, t: np.ndarray, amp, loc, sig, base, fit_baseline: bool,
-         max_nfev: int):
-    """Levenberg-Marquardt fit; returns (params, cov or None, rss)."""
-    p0 = np.empty(3 * len(amp) + 1)
-    p0[0:-1:3], p0[1:-1:3], p0[2:-1:3] = amp, loc, sig
-    p0[-1] = base
-    free = np.ones(p0.size, bool)
-    free[-1] = fit_baseline
-    full = p0.copy()
-    k = len(amp)
-    jac = np.empty((t.size, p0.size))
-    jac[:, -1] = 1.0
-    cache = {}
+         max_nfev: int, censored=None):
+    """Levenberg-Marquardt fit; returns (params, free mask, cov or None, rss).
 
-    def parts(q):
-        key = q.tobytes()
-        if cache.get("key") != key:
-            full[free] = q
-            a, m, s = full[0:3 * k:3], full[1:3 * k:3], full[2:3 * k:3]
-            z = (t[:, None] - m) / s
-            e = np.exp(-0.5 * z * z)
-            cache.update(key=key, z=z, e=e, a=a.copy(), s=s.copy(), r=full[-1] + e @ a - y)
-        return cache
+    ``censored`` (boolean mask or None) marks saturated samples: their true
+    value is at least the recorded one, so they contribute a residual only
+    where the model falls below them (one-sided, Tobit-like least squares).
+    The Jacobian is built in column-major layout (``col_deriv``) so MINPACK
+    uses it without a copy.
+    """
+    k = len(amp)
+    # internal layout [a_1..a_k, mu_1..mu_k, sigma_1..sigma_k, b]: contiguous slices
+    q0 = np.concatenate([np.asarray(amp, float), np.asarray(loc, float),
+                         np.asarray(sig, float), [float(base)]])
+    nf = q0.size if fit_baseline else q0.size - 1
+    y_b = y if fit_baseline else y - float(base)
+    jac = np.empty((nf, t.size))
+    if fit_baseline:
+        jac[-1] = 1.0
+    last = {"key": None}
 
     def f(q):
-        return parts(q)["r"]
+        a, m, s = q[:k], q[k:2 * k], q[2 * k:3 * k]
+        z = t - m[:, None]  # (k, n), scaled in place
+        z /= s[:, None]
+        e = np.square(z)
+        e *= -0.5
+        np.exp(e, out=e)
+        r = a @ e
+        r -= y_b
+        if fit_baseline:
+            r += q[3 * k]
+        if censored is not None:
+            r[censored] = np.minimum(r[censored], 0.0)
+        last.update(key=q.tobytes(), z=z, e=e, a_s=a / s, r=r)
+        return r
 
     def df(q):
-        c = parts(q)
-        z, e, a, s = c["z"], c["e"], c["a"], c["s"]
-        ae = a * e
-        jac[:, 0:3 * k:3] = e
-        jac[:, 1:3 * k:3] = ae * z / s
-        jac[:, 2:3 * k:3] = ae * z * z / s
-        return jac[:, free] if not free.all() else jac
+        # MINPACK asks for the Jacobian at the last point where it evaluated f
+        if q.tobytes() != last["key"]:
+            f(q)
+        z, e = last["z"], last["e"]
+        jac[:k] = e
+        dm = jac[k:2 * k]
+        np.multiply(e, last["a_s"][:, None], out=dm)
+        dm *= z
+        np.multiply(dm, z, out=jac[2 * k:3 * k])
+        if censored is not None:
+            jac[:, censored & (last["r"] >= 0.0)] = 0.0
+        return jac
 
     with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
         q, cov, info, _msg, _ier = optimize.leastsq(
-            f, p0[free], Dfun=df,
-            full_output=True, maxfev=max_nfev)
-    full[free] = q
+            f, q0[:nf], Dfun=df, col_deriv=True, full_output=True, maxfev=max_nfev,
+            ftol=_LM_TOL, xtol=_LM_TOL)
+    # back to the public layout [a_1, mu_1, sigma_1, ..., b]
+    order = np.append(np.arange(3 * k).reshape(3, k).T.reshape(-1), 3 * k)
+    qf = q0.copy()
+    qf[:nf] = q
+    full = qf[order]
     full[2:-1:3] = np.abs(full[2:-1:3])
+    free = np.zeros(full.size, bool)
+    free[:full.size if fit_baseline else full.size - 1] = True
+    if cov is not None:
+        sel = order[:nf] if fit_baseline else order[:-1]
+        cov = cov[np.ix_(sel, sel)]
     r = info["fvec"]
     rss = float(r @ r)
     return full, free, cov, rss
@@ -480,7 +529,7 @@ def deconvolve(samples, impulse, *, iterations: int = 30, baseline=None) -> np.n
 def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=None,
               smooth_ns: float = 1.0, terraces: bool = True, max_components: int = 12,
               add_components: bool = True, fit_baseline: bool = True, baseline=None,
-              impulse=None, deconvolution_iterations: int = 30,
+              impulse=None, deconvolution_iterations: int = 30, saturation="auto",
               max_nfev: int = 400) -> Components:
     """Gaussian decomposition of one waveform (see the module docstring).
 
@@ -503,7 +552,8 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     max_components : int
         Upper bound on the number of echoes.
     add_components : bool
-        Add echoes at residual maxima while the BIC decreases.
+        Add echoes at residual maxima while the BIC decreases; a new echo must
+        be resolved from the others where it appears (Sparrow's criterion).
     fit_baseline : bool
         Fit the baseline (else hold it at ``baseline`` or the estimate).
     baseline : float, optional
@@ -514,6 +564,15 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         deconvolved signal (time zero at the impulse peak, baseline 0).
     deconvolution_iterations : int
         Richardson-Lucy iterations.
+    saturation : "auto", float or None
+        Clipped samples are censored: the true value is at least the recorded
+        one, so they count in the fit only where the model falls below them
+        (the unsaturated flanks then set the echo's height and width).
+        ``"auto"``: a run of 3 or more equal samples at the record maximum
+        (a Gaussian echo sampled at 1 ns cannot give three equal top samples
+        unless it is clipped or wider than the quantisation allows);
+        a number: the digitiser's full-scale value (samples at or above it are
+        clipped); None: no censoring.
     max_nfev : int
         Function evaluations per Levenberg-Marquardt run.
 
@@ -525,7 +584,8 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     Raises
     ------
     InputError
-        Samples not 1-D, not finite, fewer than 4; non-positive ``dt_ns``.
+        Samples not 1-D, not finite, fewer than 4; non-positive ``dt_ns``;
+        ``saturation`` neither "auto", None nor a positive number.
 
     Examples
     --------
@@ -539,6 +599,13 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     dt = _positive(dt_ns, "dt_ns")
     if int(max_components) < 1:
         raise InputError(f"max_components must be >= 1; got {max_components!r}")
+    # no-data fill (exact zeros far below the baseline, e.g. the gap between two digitised
+    # segments of a NEON record) is left out of the fit; detection sees it interpolated
+    valid = _gaps(y) if impulse is None else None
+    if valid is not None:
+        keep = np.flatnonzero(valid)
+        y = y.copy()
+        y[~valid] = np.interp(np.flatnonzero(~valid), keep, y[keep])
     base0, sigma = noise_level(y)
     if baseline is not None:
         base0 = float(baseline)
@@ -548,95 +615,45 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         sigma = noise_level(y)[1]
     thr = 4.0 * sigma if min_amplitude is None else float(min_amplitude)
     n = y.size
-    t = np.arange(n, dtype=float)
     smooth = smooth_ns / dt
     ys = gaussian_filter1d(y, smooth) if smooth > 0 else y
-    cand = _detect(ys, base0, thr, terraces)
-    default_sig = max(1.0, 2.0 / dt)
+    # clipping is a property of the recorded samples: validate always, censor only when
+    # the fit is to them (a deconvolved waveform has no clipped samples of its own)
+    censored = _saturated(np.asarray(samples, dtype=float) if impulse is not None else y,
+                          saturation)
+    if impulse is not None:
+        censored = None
+    cand = _detect(ys, base0, thr, terraces, True)
     if not cand:
         return Components.empty(baseline=base0, noise_sigma=sigma,
                                 rss=float(np.sum((y - base0) ** 2)))
+    # at least one degree of freedom left for the standard errors: 3 K + 1 < n
+    k_max = max(1, min(int(max_components), (n - 2) // 3))
     cand.sort(key=lambda c: -c[1])
-    cand = cand[:int(max_components)]
+    cand = cand[:k_max]
     amp = np.array([c[1] for c in cand])
     loc = np.array([c[0] for c in cand])
-    sig = np.array([c[2] if np.isfinite(c[2]) else default_sig for c in cand])
-    sig = np.clip(sig, 0.5, n / 2.0)
-
-    def fit(a, m, s, b):
-        return _fit(y, t, a, m, s, b, fit_baseline, max_nfev)
-
-    def prune(p, free, cov, rss):
-        while True:
-            a, m, s, b = _split(p)
-            se = _standard_errors(p, free, cov, rss, n)
-            se_a = se[0:-1:3]
-            bad = ((a < thr) | (s < _MIN_SIGMA_SAMPLES) | (s > n) | (m < -0.5)
-                   | (m > n - 0.5) | ~np.isfinite(a) | (np.isfinite(se_a) & (a < 2.0 * se_a)))
-            if not bad.any():
-                return p, free, cov, rss
-            keep = ~bad
-            if not keep.any():
-                # a detected echo exists: keep the strongest well-formed one rather than none
-                usable = (np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES) & (s <= n)
-                          & (m >= -0.5) & (m <= n - 0.5))
-                if not usable.any():
-                    return None
-                keep[int(np.argmax(np.where(usable, a, -np.inf)))] = True
-                return fit(a[keep], m[keep], s[keep], b)
-            p, free, cov, rss = fit(a[keep], m[keep], s[keep], b)
-
-    state = prune(*fit(amp, loc, sig, base0))
-    if state is None and fit_baseline:
-        # every echo was rejected after a free-baseline fit: retry with the baseline fixed
-        return decompose(samples, dt_ns=dt_ns, t0_ns=t0_ns, min_amplitude=min_amplitude,
-                         smooth_ns=smooth_ns, terraces=terraces, max_components=max_components,
-                         add_components=add_components, fit_baseline=False, baseline=base0,
-                         max_nfev=max_nfev)
+    sig = np.array([c[2] for c in cand])
+    sig = np.clip(np.where(np.isfinite(sig), sig, max(1.0, 2.0 / dt)), 0.5, n / 2.0)
+    amp, base_start = _linear_start(y, amp, loc, sig, base0, fit_baseline, valid, censored)
+    opts = dict(y=y, valid=valid, thr=thr, smooth=smooth, k_max=k_max, censored=censored,
+                add_components=add_components, max_nfev=max_nfev)
+    n_fit = n if valid is None else int(valid.sum())
+    state = _order_and_fit(amp, loc, sig, base_start, fit_baseline=fit_baseline, **opts)
+    if fit_baseline and (state is None or state[3] > 25.0 * sigma * sigma * n_fit):
+        # every echo rejected, or residual RMS above 5 noise sigma: LM wandered off with
+        # the baseline (seen on a few NEON waveforms with long tails); retry with the
+        # baseline held at its robust estimate and keep the better fit
+        alt = _order_and_fit(amp, loc, sig, base0, fit_baseline=False, **opts)
+        if alt is not None and (state is None or alt[3] < state[3]):
+            state = alt
     if state is None:
         return Components.empty(baseline=base0, noise_sigma=sigma,
                                 rss=float(np.sum((y - base0) ** 2)))
     p, free, cov, rss = state
-    if add_components:
-        bic = _bic(rss, n, int(free.sum()))
-        tried = np.zeros(n, bool)
-        failures = 0
-        while (p.size - 1) // 3 < int(max_components) and failures < 3:
-            a, m, s, b = _split(p)
-            model = _model_jac(p, t)[0]
-            r = y - model
-            rs = gaussian_filter1d(r, max(smooth, 1.0))
-            rs[tried] = -np.inf
-            j = int(np.argmax(rs))
-            if rs[j] < thr:
-                break
-            s_new = float(np.median(s))
-            trial = prune(*fit(np.append(a, max(r[j], rs[j])), np.append(m, float(j)),
-                               np.append(s, s_new), b))
-            ok = trial is not None
-            if ok:
-                bic_new = _bic(trial[3], n, int(trial[1].sum()))
-                ok = bic_new < bic - 1e-9 and (trial[0].size - 1) // 3 > (p.size - 1) // 3
-            if not ok:
-                # this residual peak did not give a better model: try the next one
-                tried[max(0, j - 2):j + 3] = True
-                failures += 1
-                continue
-            p, free, cov, rss = trial
-            bic = bic_new
-            tried[:] = False
-            failures = 0
-    if fit_baseline and rss > 25.0 * sigma * sigma * n:
-        # residual RMS above 5 noise sigma: LM wandered off with the baseline (seen on a
-        # few NEON waveforms with long tails); retry with the baseline held at its robust
-        # estimate and keep the better fit
-        alt = decompose(samples, dt_ns=dt_ns, t0_ns=t0_ns, min_amplitude=min_amplitude,
-                        smooth_ns=smooth_ns, terraces=terraces, max_components=max_components,
-                        add_components=add_components, fit_baseline=False, baseline=base0,
-                        max_nfev=max_nfev)
-        if len(alt) and alt.rss < rss:
-            return alt
-    se = _standard_errors(p, free, cov, rss, n)
+    n_fit -= 0 if censored is None else int(censored[valid].sum() if valid is not None
+                                               else censored.sum())
+    se = _standard_errors(p, free, cov, rss, n_fit)
     a, m, s, b = _split(p)
     order = np.argsort(m)
     return Components(
@@ -644,6 +661,186 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         amplitude_se=se[0:-1:3][order], location_se_ns=se[1:-1:3][order] * dt,
         sigma_se_ns=se[2:-1:3][order] * dt, baseline=b, baseline_se=float(se[-1]),
         noise_sigma=sigma, rss=rss)
+
+
+def _linear_start(y, amp, loc, sig, base, fit_baseline, valid, censored):
+    """Start amplitudes (and baseline) by linear least squares at the guessed locations
+    and widths: sample heights include the tails of overlapping echoes, the linear
+    solution does not. Falls back to the heights when an amplitude comes out <= 0."""
+    use = np.ones(y.size, bool)
+    if valid is not None:
+        use &= valid
+    if censored is not None:
+        use &= ~censored
+    t = np.flatnonzero(use).astype(float)
+    z = (t[:, None] - loc) / sig
+    design = np.exp(-0.5 * z * z)
+    target = y[use]
+    if fit_baseline:
+        design = np.column_stack([design, np.ones(t.size)])
+    else:
+        target = target - base
+    if t.size <= design.shape[1]:
+        return amp, base
+    coef = np.linalg.lstsq(design, target, rcond=None)[0]
+    a = coef[:amp.size]
+    if not np.all(a > 0):
+        return amp, base
+    return a, (float(coef[-1]) if fit_baseline else base)
+
+
+def _gaps(y: np.ndarray):
+    """Mask of samples with data (False: no-data zeros), or None when there is no gap.
+
+    Exact zeros are no-data fill when the rest of the record has its baseline more
+    than 4 noise standard deviations above zero (noise cannot reach them).
+    """
+    zero = y == 0.0
+    if not zero.any() or zero.sum() > y.size - 4:
+        return None
+    b, s = noise_level(y[~zero])
+    return ~zero if b > 4.0 * s else None
+
+
+def _saturated(y: np.ndarray, saturation):
+    """Mask of clipped samples, or None (see ``saturation`` in :func:`decompose`)."""
+    if saturation is None:
+        return None
+    if isinstance(saturation, bool):
+        raise InputError(f"saturation must be 'auto', None or the digitiser's full-scale "
+                         f"value (a number); got {saturation!r}")
+    if isinstance(saturation, str):
+        if saturation != "auto":
+            raise InputError(f"saturation must be 'auto', None or the digitiser's full-scale "
+                             f"value (a number); got {saturation!r}")
+        top = y.max()
+        starts, ends = _runs(y)
+        at_top = (y[starts] == top) & (ends - starts + 1 >= 3)
+        if not at_top.any():
+            return None
+        mask = np.zeros(y.size, bool)
+        for i0, i1 in zip(starts[at_top], ends[at_top]):
+            mask[i0:i1 + 1] = True
+        return mask
+    level = _positive(saturation, "saturation")
+    mask = y >= level
+    return mask if mask.any() else None
+
+
+def _resolved(m: np.ndarray, s: np.ndarray, a: np.ndarray, j: int) -> bool:
+    """Whether echo ``j`` is resolved from each other echo (Sparrow's criterion).
+
+    Two echoes are resolved when their sum shows two features, two maxima or a
+    maximum and a shoulder: four inflection points instead of the single
+    Gaussian's two. For two equal Gaussians this happens beyond a separation
+    of 2 sigma (where the sum's curvature at the midpoint changes sign).
+    """
+    for i in range(m.size):
+        if i == j:
+            continue
+        lo = min(m[i] - 3 * s[i], m[j] - 3 * s[j])
+        hi = max(m[i] + 3 * s[i], m[j] + 3 * s[j])
+        x = np.linspace(lo, hi, 400)
+        curv = 0.0
+        for k in (i, j):
+            z = (x - m[k]) / s[k]
+            curv = curv + a[k] * (z * z - 1.0) * np.exp(-0.5 * z * z) / s[k] ** 2
+        if np.count_nonzero(np.diff(np.sign(curv)) != 0) < 4:
+            return False
+    return True
+
+
+def _order_and_fit(amp, loc, sig, base, *, y, valid, thr, smooth, k_max, censored,
+                   add_components, max_nfev, fit_baseline):
+    """Fit, prune insignificant echoes, add resolved echoes at residual peaks (BIC).
+
+    ``valid`` (mask or None) selects the samples fitted; ``y`` has its gaps filled.
+    Returns (params, free, cov, rss) or None when no echo survives.
+    """
+    t = np.arange(y.size, dtype=float)
+    if valid is None:
+        y_fit, t_fit, cens_fit = y, t, censored
+    else:
+        y_fit, t_fit = y[valid], t[valid]
+        cens_fit = None if censored is None else censored[valid]
+    n = y_fit.size
+
+    def fit(a, m, s, b):
+        return _fit(y_fit, t_fit, a, m, s, b, fit_baseline, max_nfev, cens_fit)
+
+    def prune(p, free, cov, rss):
+        while True:
+            a, m, s, b = _split(p)
+            se = _standard_errors(p, free, cov, rss, n)
+            se_a = se[0:-1:3]
+            # significant: fitted height at least the detection threshold and two
+            # standard errors; resolvable: sigma >= 0.3 sample; peak inside the record
+            # or at most one sigma beyond its ends (an echo cut by the record)
+            bad = ((a < thr) | (s < _MIN_SIGMA_SAMPLES) | (s > t.size) | (m < -s)
+                   | (m > t.size - 1 + s) | ~np.isfinite(a)
+                   | (np.isfinite(se_a) & (a < 2.0 * se_a)))
+            if not bad.any():
+                return p, free, cov, rss
+            keep = ~bad
+            if not keep.any():
+                # a detected echo exists: keep the strongest well-formed one rather than none
+                usable = (np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES) & (s <= t.size)
+                          & (m >= -s) & (m <= t.size - 1 + s))
+                if not usable.any():
+                    return None
+                keep[int(np.argmax(np.where(usable, a, -np.inf)))] = True
+                return fit(a[keep], m[keep], s[keep], b)
+            p, free, cov, rss = fit(a[keep], m[keep], s[keep], b)
+
+    state = prune(*fit(amp, loc, sig, base))
+    if state is None or not add_components:
+        return state
+    p, free, cov, rss = state
+    n_eff = n - (0 if cens_fit is None else int(cens_fit.sum()))
+    bic = _bic(rss, n_eff, int(free.sum()))
+    # residual peaks are tried from the highest down. One that is not resolved from the
+    # echoes already there is passed over (it is the pulse's departure from a Gaussian,
+    # e.g. the tail of the system response, not a target); the search stops at the first
+    # resolved one that does not lower the BIC (a lower residual peak is even less likely
+    # to)
+    skipped = np.zeros(y.size, bool)
+    while (p.size - 1) // 3 < k_max:
+        a, m, s, b = _split(p)
+        r = y - b - gaussian_sum(t, a, m, s)
+        if censored is not None:
+            r[censored] = 0.0
+        if valid is not None:
+            r[~valid] = 0.0
+        rs = gaussian_filter1d(r, max(smooth, 1.0))
+        rs[skipped] = -np.inf
+        j = int(np.argmax(rs))
+        if rs[j] < thr:
+            break
+        # one Gaussian fitted to the residual, the other echoes held
+        hw = [w for w in (_half_width(rs, j, j, rs[j], 0.0, -1),
+                          _half_width(rs, j, j, rs[j], 0.0, +1)) if w is not None]
+        s0 = max(float(np.mean(hw)) / np.sqrt(2.0 * np.log(2.0)), 0.5) if hw else float(
+            np.median(s))
+        lone = _fit(r if valid is None else r[valid], t_fit, [max(r[j], rs[j])], [float(j)],
+                    [s0], 0.0, False, max_nfev, cens_fit)[0]
+        if not _resolved(np.append(m, lone[1]), np.append(s, lone[2]),
+                         np.append(a, lone[0]), a.size):
+            # pass over this residual feature: mask it to its half-maximum width
+            lo = j - (hw[0] if hw else 2.0)
+            hi = j + (hw[-1] if hw else 2.0)
+            skipped[max(0, int(np.floor(lo))):int(np.ceil(hi)) + 1] = True
+            continue
+        trial = prune(*fit(np.append(a, lone[0]), np.append(m, lone[1]),
+                           np.append(s, lone[2]), b))
+        if trial is None or (trial[0].size - 1) // 3 <= (p.size - 1) // 3:
+            break
+        bic_new = _bic(trial[3], n_eff, int(trial[1].sum()))
+        if bic_new >= bic:
+            break
+        p, free, cov, rss = trial
+        bic = bic_new
+        skipped[:] = False
+    return p, free, cov, rss
 
 
 def _standard_errors(p, free, cov, rss, n) -> np.ndarray:

@@ -52,7 +52,7 @@ PARAMS_DTYPE = np.dtype([
     ("ground_z", "<f4"), ("has_ground", "<i4"), ("leaf_R", "<f4"), ("leaf_T", "<f4"),
     ("wood_R", "<f4"), ("wood_T", "<f4"), ("ground_R", "<f4"), ("crown_c", "<f4", 2),
     ("outward", "<i4"), ("ds", "<f4"), ("t0_ns", "<f4"), ("dt_ns", "<f4"), ("nbins", "<i4"),
-    ("max_order", "<i4"), ("n_batches", "<i4"), ("n_trace", "<i4"),
+    ("max_order", "<i4"), ("n_batches", "<i4"), ("n_trace", "<i4"), ("hotspot", "<i4"),
 ])
 
 
@@ -132,7 +132,8 @@ def _int_arg(name, value, lo, hi):
 
 def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
                 detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
-                bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0) -> RunSetup:
+                bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
+                hotspot: bool = False) -> RunSetup:
     """Check the inputs and build the run's parameters (see :meth:`Simulator.run`)."""
     if not isinstance(scene, Scene):
         raise InputError(f"scene must be a tlsvox.scene.Scene (Scene.load(path)), got {type(scene).__name__}")
@@ -229,16 +230,21 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     r["max_order"] = max_order
     r["n_batches"] = batches
     r["n_trace"] = trace
+    r["hotspot"] = bool(hotspot)
 
     ppf = scene.leaf_angle.ppf(np.linspace(0.0, 1.0, NTAB)).astype(np.float64)
     gtab = np.asarray(scene.leaf_angle.G(np.arccos(np.linspace(0.0, 1.0, NG))), dtype=np.float64)
     if sensor.fov_mrad < sensor.divergence_mrad:
         flags.append(f"receiver FOV ({sensor.fov_mrad} mrad) is narrower than the beam divergence "
                      f"({sensor.divergence_mrad} mrad): part of the footprint is not seen")
+    if hotspot and detect is Detect.ANALOG:
+        flags.append("hotspot applies to next-event estimation only; analog detection keeps the "
+                     "turbid (independent) return path")
     if photons < batches:
         flags.append(f"photons ({photons}) < batches ({batches}): standard errors use fewer batches")
     settings = dict(
         mode=mode.value, detect=detect.value, photons=photons, seed=int(seed), max_order=max_order,
+        hotspot=bool(hotspot),
         leaf_off=bool(leaf_off), batches=batches, bin_ns=bin_ns, step_m=step_m,
         sensor=sensor.to_dict(), target=target.tolist(), sensor_position=S.tolist(),
         range_ref_m=R_ref, optics={k: list(v) for k, v in optics.items()},
@@ -507,7 +513,7 @@ class Simulator:
     def run(self, scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
             detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
             bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
-            chunk: int = 1 << 20, progress: bool = False) -> SimulationResult:
+            chunk: int = 1 << 20, progress: bool = False, hotspot: bool = False) -> SimulationResult:
         """Simulate one pulse of ``sensor`` over ``scene``.
 
         Parameters
@@ -542,10 +548,16 @@ class Simulator:
             Photons per kernel launch.
         progress : bool
             Show a tqdm progress bar.
+        hotspot : bool
+            Correlated return for single scattering: with a monostatic sensor
+            the return path of an order-1 event retraces the incoming one,
+            which was free, so its transmittance is 1 (exact for explicit
+            leaves; a turbid medium would apply exp(-tau) twice).  Higher
+            orders return independently.  See docs/method.md.
         """
         setup = prepare_run(scene, sensor, photons=photons, seed=seed, mode=mode, detect=detect,
                             max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
-                            step_m=step_m, target=target, trace=trace)
+                            step_m=step_m, target=target, trace=trace, hotspot=hotspot)
         return self.run_setup(setup, chunk=chunk, progress=progress)
 
     def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False) -> SimulationResult:

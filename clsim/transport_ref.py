@@ -92,6 +92,7 @@ class _Transport:
         self.edges = setup.edges_ns
         self.exact = setup.mode is Mode.EXACT
         self.nee = setup.detect is Detect.NEE
+        self.hotspot = bool(setup.p["hotspot"])
         B, K, F = setup.batches, setup.max_order, len(self.edges) - 1
         self.hist = np.zeros((B, K, 2, F))
         self.stats = np.zeros((B, len(STAT_NAMES)))
@@ -421,7 +422,10 @@ class _Transport:
             return
         i = a[ok]
         self.shadow += i.size
-        Tr = self.walk(x[i], drx[ok], r[ok], i, shadow=True)
+        if self.hotspot and k == 1:
+            Tr = np.ones(i.size)  # the return retraces the free incoming path
+        else:
+            Tr = self.walk(x[i], drx[ok], r[ok], i, shadow=True)
         val = w[i] * f[ok] * Tr * cosr[ok] * self.norm_nee / r[ok] ** 2
         pos = Tr > 0
         kind = (ev[ok] == GROUND).astype(np.int64)
@@ -451,11 +455,11 @@ class ReferenceSimulator:
     def run(self, scene, sensor, *, photons: int, seed: int, mode="exact", detect="nee",
             max_order: int = 3, leaf_off: bool = False, batches: int = 16, bin_ns: float = 0.05,
             step_m: float = 0.02, target=None, trace: int = 0, chunk: int = 1 << 16,
-            photon_ids=None) -> SimulationResult:
+            photon_ids=None, hotspot: bool = False) -> SimulationResult:
         """See :meth:`clsim.Simulator.run`.  ``photon_ids`` replays chosen photons only."""
         setup = prepare_run(scene, sensor, photons=photons, seed=seed, mode=mode, detect=detect,
                             max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
-                            step_m=step_m, target=target, trace=trace)
+                            step_m=step_m, target=target, trace=trace, hotspot=hotspot)
         return self.run_setup(setup, chunk=chunk, photon_ids=photon_ids)
 
     def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 16, photon_ids=None) -> SimulationResult:

@@ -6,7 +6,10 @@ that use it, so ``import tlsvox`` stays light.
 
 from .errors import InputError, TlsvoxError
 from .estimators import Estimator
+from .classify import PointClass, classify_scan
 from .grid import VoxelGrid
+from .io import read_any
+from .register import RegistrationError, register_pair, register_scans
 from .leafangle import LeafAngle, LeafAngleKind
 from .materials import Material, Optics
 from .scene import Scene
@@ -16,6 +19,12 @@ from .voxelize import voxelize
 __version__ = "0.1.0"
 
 __all__ = [
+    "PointClass",
+    "RegistrationError",
+    "classify_scan",
+    "read_any",
+    "register_pair",
+    "register_scans",
     "Estimator",
     "VoxelGrid",
     "voxelize",

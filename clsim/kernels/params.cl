@@ -28,6 +28,7 @@ typedef struct {
     int max_order;
     int n_batches;
     int n_trace;
+    int hotspot;        /* 1: single-scattering returns retrace their free incoming path (T = 1) */
 } params_t;
 
 /* stats[] slots: fixed-point weights (x 2^32) unless noted */

@@ -314,7 +314,8 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
             const float f = bsdf(m, drx, R, T);
             if (cosr >= P->cos_fov && f > 0.0f) {
                 shadow += 1u;
-                const float Tr = transmittance(&S, x, drx, r, &rng, &steps);
+                /* hot spot: a single-scattering return retraces its incoming path, which was free */
+                const float Tr = (P->hotspot && k == 1) ? 1.0f : transmittance(&S, x, drx, r, &rng, &steps);
                 if (Tr > 0.0f)
                     tally(hist, stats, P, batch, k, ev == EV_GROUND, (L + r) / 0.299792458f,
                           w * f * Tr * cosr * P->norm_nee / (r * r));
