@@ -61,10 +61,10 @@ class TreeParams:
     children_per_branch: int = 3
     leaf_cluster_sigma: float = 0.35
     ground_half_size: float = 40.0
-    n_targets: int = 4
+    n_targets: int = 5
     target_distance: float = 8.0
     target_radius: float = 0.05
-    target_height: float = 0.10
+    target_height: float = 0.20
 
     def __post_init__(self):
         positive = ("height", "crown_radius", "trunk_radius", "leaf_length", "leaf_width",
@@ -468,9 +468,14 @@ def make_tree(params: TreeParams | None = None, *, seed: int = 0) -> SyntheticTr
     ground_t = np.array([[0, 1, 2], [0, 2, 3]])
 
     # retro-reflective cylinder targets on the ground around the tree
-    az = np.deg2rad(20.0) + 2 * np.pi * np.arange(p.n_targets) / max(p.n_targets, 1)
-    heights = 1.2 + 0.25 * (np.arange(p.n_targets) % 4)
-    targets = np.column_stack([p.target_distance * np.cos(az), p.target_distance * np.sin(az), heights])
+    # an irregular layout (distances, azimuth gaps and heights all differ), so that no
+    # rotation or reflection maps the target set onto itself: registration by
+    # inter-target distances is then unambiguous
+    k = np.arange(p.n_targets)
+    az = np.deg2rad(60.0) + 2 * np.pi * k / max(p.n_targets, 1) + np.deg2rad(9.0) * np.sin(2.3 * k + 0.5)
+    dist = p.target_distance * (1.0 + 0.12 * np.sin(1.7 * k + 0.3))
+    heights = 1.25 + 0.9 * ((0.618 * k + 0.2) % 1.0)
+    targets = np.column_stack([dist * np.cos(az), dist * np.sin(az), heights])
     if p.n_targets:
         tc = np.column_stack([targets - [0, 0, p.target_height / 2], targets + [0, 0, p.target_height / 2],
                               np.full(p.n_targets, p.target_radius)])
