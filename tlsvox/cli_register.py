@@ -37,8 +37,12 @@ Classify the echoes of each scan as leaf, wood, noise, ground or target.
 
 Per scan: a two-Gaussian fit to the reflectance of the vegetation echoes,
 leaf/wood threshold midway between the means (or at equal posterior),
-noise below 50 %% of the nominal leaf reflectance, optional geometric
-refinement of branch edges.  Writes OUT/NAME.classified.laz per scan (LAS
+optional geometric refinement of branch edges.  Methods (--method):
+neighbourhood (default) fits the mean dB reflectance of each echo and its
+10 nearest neighbours, on the echoes of single-echo pulses, and calls an
+echo noise when it has no neighbour within 10 scan-grid steps; echo does the
+same per echo; paper is the paper's rule (noise below 50 %% of the nominal
+leaf reflectance).  Writes OUT/NAME.classified.laz per scan (LAS
 classification: 2 ground, 5 leaf, 7 noise, 64 wood, 65 target) and
 OUT/classification.json with thresholds, fits and, for simulated scans,
 the confusion matrix and precision/recall against the truth.
@@ -67,6 +71,10 @@ def register(subparsers) -> None:
     c.add_argument("-o", "--output", required=True, help="output folder")
     c.add_argument("--rule", default="midway", choices=["midway", "equal_posterior"],
                    help="leaf/wood threshold rule (default: midway, the paper's)")
+    c.add_argument("--method", default="neighbourhood", choices=["neighbourhood", "echo", "paper"],
+                   help="classification method (default: neighbourhood)")
+    c.add_argument("--incidence-correction", action="store_true",
+                   help="divide reflectance by the estimated incidence cosine before the fit")
     c.add_argument("--refine", action="store_true", help="geometric refinement of branch edges")
     c.add_argument("--no-ground", action="store_true", help="do not set the ground plane apart")
     c.add_argument("--plot", action="store_true", help="also write the reflectance histograms (PNG)")
@@ -114,7 +122,8 @@ def cmd_classify(args) -> int:
     out = Path(args.output)
     try:
         scans = [read_any(p, scan_id=k, require_reflectance=True) for k, p in enumerate(args.scans)]
-        results = [classify_scan(s, rule=args.rule, refine=args.refine, ground=not args.no_ground)
+        results = [classify_scan(s, method=args.method, rule=args.rule, refine=args.refine,
+                                 incidence_correction=args.incidence_correction, ground=not args.no_ground)
                    for s in scans]
     except TlsvoxError as err:
         return _fail(err)

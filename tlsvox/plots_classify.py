@@ -25,7 +25,11 @@ CLASS_COLORS = {
 
 def plot_reflectance_histograms(results: list[Classification], path: "str | os.PathLike", *,
                                 truth: list | None = None, bins: int = 120) -> Path:
-    """Histogram of apparent reflectance per scan with the fitted Gaussians and thresholds.
+    """Histogram of the classification feature per scan with the fitted Gaussians and thresholds.
+
+    The feature is what the leaf/wood threshold split: apparent reflectance
+    (``paper``, ``echo``) or neighbourhood-mean reflectance in dB
+    (``neighbourhood``, the default), see :class:`tlsvox.classify.Classification`.
 
     Parameters
     ----------
@@ -49,31 +53,38 @@ def plot_reflectance_histograms(results: list[Classification], path: "str | os.P
     fig, axes = plt.subplots(n, 1, figsize=(7.5, 3.0 * n), squeeze=False)
     for k, (c, ax) in enumerate(zip(results, axes[:, 0])):
         veg = np.isin(c.labels, [PointClass.LEAF, PointClass.WOOD, PointClass.NOISE])
-        rho = c.reflectance[veg]
-        hi = max(0.7, float(np.percentile(rho, 99.5)) if len(rho) else 0.7)
-        edges = np.linspace(0.0, hi, bins + 1)
-        ax.hist(rho, edges, color="0.6", label="vegetation echoes", density=True)
+        paper = c.feature is None or np.isfinite(c.noise_threshold)
+        x_all = c.reflectance if paper else c.feature
+        veg &= np.isfinite(x_all)
+        val = x_all[veg]
+        if paper:
+            lo, hi = 0.0, max(0.7, float(np.percentile(val, 99.5)) if len(val) else 0.7)
+        else:
+            lo, hi = (np.percentile(val, [0.2, 99.8]) if len(val) else (-20.0, 0.0))
+        edges = np.linspace(lo, hi, bins + 1)
+        ax.hist(val, edges, color="0.6", label="vegetation echoes", density=True)
         if truth is not None:
             t = np.asarray(truth[k])[veg]
             for mat, name, col in ((1, "truth leaf", "tab:green"), (2, "truth bark", "saddlebrown")):
-                sel = rho[t == mat]
+                sel = val[t == mat]
                 if len(sel):
-                    w = np.full(len(sel), 1.0 / (len(rho) * (edges[1] - edges[0])))
+                    w = np.full(len(sel), 1.0 / (len(val) * (edges[1] - edges[0])))
                     ax.hist(sel, edges, histtype="step", color=col, weights=w, label=name)
-        x = np.linspace(0, hi, 400)
+        x = np.linspace(lo, hi, 400)
         comp = c.mixture.component_pdf(x)
-        fit_mask = c.reflectance[veg] >= c.noise_threshold
-        scale = fit_mask.mean() if len(fit_mask) else 1.0
+        scale = float(np.mean(val >= c.noise_threshold)) if paper and len(val) else 1.0
         ax.plot(x, comp[:, 0] * scale, "g-", lw=1.5, label="leaf Gaussian")
         ax.plot(x, comp[:, 1] * scale, "-", color="saddlebrown", lw=1.5, label="wood Gaussian")
-        ax.axvline(c.noise_threshold, color="k", ls=":", label=f"noise {c.noise_threshold:.3f}")
+        if paper:
+            ax.axvline(c.noise_threshold, color="k", ls=":", label=f"noise {c.noise_threshold:.3f}")
         ax.axvline(c.leaf_wood_threshold, color="k", ls="--",
                    label=f"leaf/wood {c.leaf_wood_threshold:.3f} ({c.rule})")
-        ax.set_xlim(0, hi)
+        ax.set_xlim(lo, hi)
         ax.set_ylabel("density")
-        ax.set_title(f"{c.scan_name}: apparent reflectance")
+        ax.set_title(f"{c.scan_name}: {c.method}, {c.feature_label}")
         ax.legend(fontsize=7, loc="upper right")
-    axes[-1, 0].set_xlabel("apparent reflectance (1 = white Lambertian target)")
+    axes[-1, 0].set_xlabel("apparent reflectance (1 = white Lambertian target)" if n == 1 and (
+        results[0].feature is None or np.isfinite(results[0].noise_threshold)) else "feature (see titles)")
     fig.tight_layout()
     path = Path(path)
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))

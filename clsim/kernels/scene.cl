@@ -79,7 +79,13 @@ inline int walker_next(walker_t *w, __global const params_t *P, __global const i
                        uint *steps)
 {
     const float h = P->h;
+    /* safety net: a ray crosses at most nx + ny + nz voxel faces */
+    int budget = 2 * (P->shape[0] + P->shape[1] + P->shape[2]) + 64;
     while (w->t < w->t_end) {
+        if (--budget < 0) {
+            w->t = w->t_end;
+            return 0;
+        }
         if (!inside_grid(w->v, P)) {
             w->t = w->t_end;
             return 0;
@@ -99,6 +105,11 @@ inline int walker_next(walker_t *w, __global const params_t *P, __global const i
             w->t = fmax(w->t, t_b);
             const float3 p = (w->o + w->d * t_b) / h;
             int3 nv = clamp(convert_int3_rtn(p), (int3)(0), (int3)(P->shape[0] - 1, P->shape[1] - 1, P->shape[2] - 1));
+            /* float32 rounding of p must never move the walk backwards (it could
+             * bounce between two bricks forever): indices only move along the ray */
+            nv = select(nv, max(nv, v), s > 0);
+            nv = select(nv, min(nv, v), s < 0);
+            nv = select(nv, v, s == 0);
             if (ax == 0) nv.x = (c.x + s.x) * BRICK + (s.x > 0 ? 0 : BRICK - 1);
             else if (ax == 1) nv.y = (c.y + s.y) * BRICK + (s.y > 0 ? 0 : BRICK - 1);
             else nv.z = (c.z + s.z) * BRICK + (s.z > 0 ? 0 : BRICK - 1);
