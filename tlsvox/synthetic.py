@@ -14,7 +14,7 @@ Examples
 >>> round(tree.leaf_area(), 9)
 5.0
 >>> tree.n_leaves > 0 and tree.targets.shape
-(4, 3)
+(5, 3)
 """
 
 from __future__ import annotations
