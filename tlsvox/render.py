@@ -36,13 +36,16 @@ def reflectance_colors(reflectance_db, *, vmin=-20.0, vmax=0.0) -> np.ndarray:
     return colormap(np.nan_to_num(reflectance_db, nan=vmin), vmin=vmin, vmax=vmax, name="inferno")
 
 
-def _o3d_renderer(width, height):
+_SIDE = 1200  # one square renderer per process: Filament hangs when a second one is made
+
+
+def _o3d_renderer():
+    """The process's one OffscreenRenderer (square, ``_SIDE`` pixels)."""
     import open3d as o3d
 
-    key = (width, height)
-    if key not in _RENDERER:
-        _RENDERER[key] = o3d.visualization.rendering.OffscreenRenderer(width, height)
-    r = _RENDERER[key]
+    if "renderer" not in _RENDERER:
+        _RENDERER["renderer"] = o3d.visualization.rendering.OffscreenRenderer(_SIDE, _SIDE)
+    r = _RENDERER["renderer"]
     r.scene.clear_geometry()
     return r
 
@@ -94,7 +97,7 @@ def _as_o3d(item):
 def _render_o3d(items, path, eye, center, up, fov, width, height, point_size, background):
     import open3d as o3d
 
-    r = _o3d_renderer(width, height)
+    r = _o3d_renderer()
     r.scene.set_background(list(background) + [1.0])
     for k, item in enumerate(items):
         g = _as_o3d(item)
@@ -103,6 +106,9 @@ def _render_o3d(items, path, eye, center, up, fov, width, height, point_size, ba
             mat.shader = "defaultLit"
             if not g.has_vertex_normals():
                 g.compute_vertex_normals()
+        elif isinstance(g, o3d.geometry.LineSet):
+            mat.shader = "unlitLine"
+            mat.line_width = 2.0
         else:
             mat.shader = "defaultUnlit"
             mat.point_size = float(point_size)
@@ -110,8 +116,19 @@ def _render_o3d(items, path, eye, center, up, fov, width, height, point_size, ba
     r.scene.scene.set_sun_light([-0.4, 0.3, -0.85], [1.0, 1.0, 1.0], 90000)
     r.scene.scene.enable_sun_light(True)
     r.setup_camera(float(fov), np.asarray(center, float), np.asarray(eye, float), np.asarray(up, float))
-    img = r.render_to_image()
-    atomic_write(path, lambda tmp: o3d.io.write_image(str(tmp), img))
+    from PIL import Image
+
+    img = Image.fromarray(np.asarray(r.render_to_image()))
+    # centre-crop the square picture to the requested aspect, then scale
+    aspect = width / height
+    if aspect >= 1.0:
+        keep = int(round(_SIDE / aspect))
+        box = (0, (_SIDE - keep) // 2, _SIDE, (_SIDE - keep) // 2 + keep)
+    else:
+        keep = int(round(_SIDE * aspect))
+        box = ((_SIDE - keep) // 2, 0, (_SIDE - keep) // 2 + keep, _SIDE)
+    img = img.crop(box).resize((int(width), int(height)))
+    atomic_write(path, lambda tmp: img.save(tmp, format="PNG"))
 
 
 def _render_mpl(items, path, eye, center, width, height, title):
@@ -124,6 +141,9 @@ def _render_mpl(items, path, eye, center, width, height, title):
     for item in items:
         if isinstance(item, tuple):
             pts, cols = item
+        elif hasattr(item, "lines"):  # LineSet: its end points, in red
+            pts = np.asarray(item.points)
+            cols = np.tile([0.85, 0.1, 0.1], (len(pts), 1))
         else:  # Open3D geometry
             if hasattr(item, "points"):
                 pts = np.asarray(item.points)
@@ -155,3 +175,28 @@ def _render_mpl(items, path, eye, center, width, height, title):
         ax.set_title(title)
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
     plt.close(fig)
+
+
+def voxel_mesh(centers, size: float, colors, *, shrink: float = 0.9):
+    """Open3D TriangleMesh of axis-aligned cubes (one per voxel), coloured per voxel.
+
+    Parameters
+    ----------
+    centers : (M, 3) float, metres
+    size : float, metres
+        Voxel edge; cubes are drawn ``shrink`` times smaller so that they read apart.
+    colors : (M, 3) float in [0, 1]
+    """
+    import open3d as o3d
+
+    c = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    col = np.asarray(colors, dtype=np.float64).reshape(-1, 3)
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]) * size * shrink
+    faces = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                      [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+    verts = (c[:, None, :] + corners[None]).reshape(-1, 3)
+    tris = (faces[None] + 8 * np.arange(len(c))[:, None, None]).reshape(-1, 3)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(tris))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.repeat(col, 8, axis=0))
+    mesh.compute_vertex_normals()
+    return mesh

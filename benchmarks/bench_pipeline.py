@@ -1,0 +1,415 @@
+"""Speed against accuracy for the whole pipeline: voxel size and photon count.
+
+On the default synthetic oak (``make_tree(seed=1)``) the waveform a pulse
+would really record is known: the explicit-geometry mesh reference
+(:class:`clsim.meshref.MeshReferenceSimulator`, high photon count, cached on
+disk) is "the truth".  Against it, for a nadir pulse through the crown centre
+and an oblique pulse near the crown edge:
+
+Axis 1, voxel size (photons fixed high): voxel scenes built two ways,
+"exact LAD" (``tree.truth_scene``: the mesh's own leaf area and wood per voxel)
+and "TLS pipeline" (two simulated scans -> register -> classify -> VoxLAD via
+``tlsvox.pipeline.scene_from_scans``), each simulated with the hot-spot option
+(and, at one size, without it).  Scored by waveform NRMSE and 1 - r; the time
+to build the scene and the simulation time are reported separately.
+
+Axis 2, photon count, on the 0.2 m exact-LAD scene: NRMSE against the mesh
+and against a 1e7-photon voxel run of the same scene (Monte Carlo noise alone,
+without the model error), and the simulation time.
+
+Times are medians of ``--repeats`` runs for the simulations (errors: medians
+over the same runs, different seeds); scene building is timed once per size.
+Writes docs/bench/pipeline.md and docs/img/pipeline_speed_accuracy.png.
+
+    .venv/bin/python benchmarks/bench_pipeline.py           # about 10 min on 2 cores (first run)
+    .venv/bin/python benchmarks/bench_pipeline.py --quick   # fewer points and photons, about 4 min
+
+The mesh references and the 1e7-photon voxel runs are cached under
+``out/bench_cache`` (keyed by their settings and by the simulators' source), so
+a second run skips them; ``--no-cache`` recomputes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import pickle
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CACHE_SOURCES = ["clsim/meshref.py", "clsim/simulator.py", "clsim/waveform.py", "clsim/sensor.py",
+                 "tlsvox/synthetic.py", "tlsvox/scene.py"]
+
+
+def log(msg):
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
+def source_hash() -> str:
+    h = hashlib.sha1()
+    files = [ROOT / p for p in CACHE_SOURCES] + sorted((ROOT / "clsim" / "kernels").glob("*"))
+    for p in files:
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def cached(cache_dir, key: dict, compute):
+    """Pickle ``compute()`` under a name hashed from ``key`` (None cache_dir: no caching)."""
+    if cache_dir is None:
+        return compute(), False
+    name = hashlib.sha1(repr(sorted(key.items())).encode()).hexdigest()[:16]
+    path = Path(cache_dir) / f"{key['what']}-{name}.pkl"
+    if path.exists():
+        with open(path, "rb") as fh:
+            return pickle.load(fh), True
+    value = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "wb") as fh:
+        pickle.dump(value, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(tmp, path)
+    return value, False
+
+
+def noise_nrmse(result) -> float:
+    """Monte Carlo noise of a result's waveform, as an NRMSE (from its batches)."""
+    from clsim.waveform import digitize
+
+    fb = result.fine_batches.sum(axis=(1, 2))  # (B, F)
+    ok = result.batch_photons > 0
+    s = result.settings["sensor"]
+    _, wb = digitize(result.fine_edges_ns, fb[ok], sampling_ghz=s["sampling_ghz"], pulse_fwhm_ns=s["pulse_fwhm_ns"])
+    if wb.shape[-1] != result.waveform.shape[-1]:  # pragma: no cover - settings keys differ
+        return float("nan")
+    se = wb.std(axis=0, ddof=1) / np.sqrt(ok.sum())
+    return float(np.sqrt(np.mean(se**2)) / result.waveform.max())
+
+
+def median(v):
+    return float(statistics.median(v))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="fewer voxel sizes and photon counts")
+    ap.add_argument("--sizes", default=None, help="voxel sizes for the exact-LAD scene, m "
+                    "(default 0.05,0.1,0.2,0.4; quick 0.2,0.4)")
+    ap.add_argument("--tls-sizes", default=None, help="voxel sizes for the TLS pipeline, m "
+                    "(default 0.1,0.2,0.4; quick 0.2,0.4)")
+    ap.add_argument("--hotspot-off-size", type=float, default=0.2,
+                    help="voxel size also simulated without the hot-spot option")
+    ap.add_argument("--pulses", default="nadir-centre,oblique-edge")
+    ap.add_argument("--photons-mesh", type=int, default=None, help="mesh reference (default 1M; quick 300k)")
+    ap.add_argument("--photons-voxel", type=int, default=None, help="voxel-size axis (default 1M; quick 300k)")
+    ap.add_argument("--photons-series", default=None,
+                    help="photon axis (default 1e3,1e4,1e5,1e6,3e6; quick 1e3,1e4,1e5,1e6)")
+    ap.add_argument("--photons-ref", type=int, default=None,
+                    help="voxel run that stands for the noise-free voxel model (default 1e7; quick 3e6)")
+    ap.add_argument("--repeats", type=int, default=3, help="simulation runs per point (median)")
+    ap.add_argument("--max-order", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=1, help="tree seed")
+    ap.add_argument("--cache", default=str(ROOT / "out" / "bench_cache"))
+    ap.add_argument("--no-cache", action="store_true")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "pipeline.md"))
+    ap.add_argument("--png", default=str(ROOT / "docs" / "img" / "pipeline_speed_accuracy.png"))
+    args = ap.parse_args(argv)
+    q = args.quick
+    sizes = [float(v) for v in (args.sizes or ("0.2,0.4" if q else "0.05,0.1,0.2,0.4")).split(",") if v]
+    tls_sizes = [float(v) for v in (args.tls_sizes if args.tls_sizes is not None else
+                                   ("0.2,0.4" if q else "0.1,0.2,0.4")).split(",") if v]
+    n_mesh = args.photons_mesh or (300_000 if q else 1_000_000)
+    n_vox = args.photons_voxel or (300_000 if q else 1_000_000)
+    series = [int(float(v)) for v in (args.photons_series or ("1e3,1e4,1e5,1e6" if q else
+                                                               "1e3,1e4,1e5,1e6,3e6")).split(",")]
+    n_ref = args.photons_ref or (3_000_000 if q else 10_000_000)
+    cache_dir = None if args.no_cache else args.cache
+    K = args.max_order
+    t_start = time.perf_counter()
+    load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+
+    import clsim
+    from clsim.budget import default_pulses, waveform_metrics
+    from clsim.meshref import MeshReferenceSimulator
+    from clsim.sensor import C_M_PER_NS
+    from tlsvox.pipeline import scene_from_scans
+    from tlsvox.scanner import paper_scan_poses, simulate_scan
+    from tlsvox.synthetic import make_tree
+
+    src = source_hash()
+    tree = make_tree(seed=args.seed)
+    base = clsim.Sensor.preset("ahab-chiroptera-i")
+    allp = {p.name: p for p in default_pulses(crown_center=tree.crown_center[:2], crown_radius=6.0)}
+    pulses = [allp[n] for n in args.pulses.split(",")]
+    twin_size = 0.2
+    twin = tree.truth_scene(twin_size)
+    sim = clsim.Simulator()
+    device = sim.device_name
+    sim.run(twin, pulses[0].sensor(base), photons=2000, seed=0, max_order=K, hotspot=True)  # builds the kernel
+    MeshReferenceSimulator().run(tree, pulses[0].sensor(base), photons=100, seed=0, max_order=1, twin=twin)  # BVH
+
+    # -- the truth: mesh reference per pulse ----------------------------------------
+    refs, ref_time, ref_noise = {}, {}, {}
+    for p in pulses:
+        s = p.sensor(base)
+        key = dict(what="mesh", tree=args.seed, pulse=repr(p), photons=n_mesh, seed=7, K=K, twin=twin_size,
+                   sensor=repr(s), src=src)
+
+        def run_mesh(p=p, s=s):
+            t0 = time.perf_counter()
+            r = MeshReferenceSimulator().run(tree, s, photons=n_mesh, seed=7, max_order=K, target=p.target,
+                                             twin=twin)
+            r.elapsed_s = time.perf_counter() - t0
+            return r
+
+        refs[p.name], hit = cached(cache_dir, key, run_mesh)
+        ref_time[p.name] = refs[p.name].elapsed_s
+        ref_noise[p.name] = noise_nrmse(refs[p.name])
+        log(f"mesh reference {p.name}: {n_mesh:,} photons, {ref_time[p.name]:.1f} s"
+            f"{' (cached)' if hit else ''}; own noise NRMSE {ref_noise[p.name]:.4f}")
+
+    def score(res, p, ref=None):
+        s = p.sensor(base)
+        m = waveform_metrics(res, ref if ref is not None else refs[p.name],
+                             ground_time_ns=2.0 * s.range_m / C_M_PER_NS)
+        return m
+
+    def simulate(scene, photons, hot, seeds, ref_of=None):
+        """Median time and metrics over seeds, per pulse -> {pulse: dict}."""
+        out = {}
+        for p in pulses:
+            s = p.sensor(base)
+            times, nrmse, one_r, tot, nrmse2 = [], [], [], [], []
+            for sd in seeds:
+                t0 = time.perf_counter()
+                res = sim.run(scene, s, photons=photons, seed=sd, max_order=K, target=p.target, hotspot=hot)
+                times.append(time.perf_counter() - t0)
+                m = score(res, p)
+                nrmse.append(m["nrmse"])
+                one_r.append(1.0 - m["r"])
+                tot.append(m["total"])
+                if ref_of is not None:
+                    nrmse2.append(score(res, p, ref_of[p.name])["nrmse"])
+            out[p.name] = dict(time=median(times), nrmse=median(nrmse), one_r=median(one_r), total=median(tot),
+                               nrmse_vox=median(nrmse2) if nrmse2 else float("nan"),
+                               noise=noise_nrmse(res))
+        return out
+
+    seeds = list(range(1, args.repeats + 1))
+    rows = []
+
+    # -- axis 1a: exact-LAD scenes ---------------------------------------------------
+    for h in sizes:
+        t0 = time.perf_counter()
+        scene = twin if h == twin_size else tree.truth_scene(h)
+        t_scene = time.perf_counter() - t0
+        if h == twin_size:  # time a fresh build too
+            t0 = time.perf_counter()
+            tree.truth_scene(h)
+            t_scene = time.perf_counter() - t0
+        for hot in ((True, False) if abs(h - args.hotspot_off_size) < 1e-9 else (True,)):
+            res = simulate(scene, n_vox, hot, seeds)
+            rows.append(dict(axis="voxel", source="exact LAD", h=h, hot=hot, photons=n_vox, scene_s=t_scene,
+                             voxels=len(scene.lad), per=res))
+            log(f"exact LAD {h:g} m hot={hot}: scene {t_scene:.1f} s; "
+                + "; ".join(f"{k} nrmse {v['nrmse']:.3f} 1-r {v['one_r']:.3f} {v['time']:.1f} s"
+                            for k, v in res.items()))
+        if h != twin_size:
+            del scene
+
+    # -- axis 1b: TLS pipeline scenes ------------------------------------------------
+    scan_s, tls_skipped = float("nan"), []
+    if tls_sizes:
+        t0 = time.perf_counter()
+        scans = [simulate_scan(tree, pose=pp, seed=i, scan_id=i + 1, name=f"scan{i + 1}", progress=False)
+                 for i, pp in enumerate(paper_scan_poses(tree))]
+        scan_s = time.perf_counter() - t0
+        n_pulses = sum(len(s.pulses) for s in scans)
+        log(f"two simulated scans: {n_pulses:,} pulses, {scan_s:.1f} s")
+    for h in tls_sizes:
+        for s in scans:
+            s.pose = None  # scene_from_scans sets the poses: start from unknown poses every time
+        t0 = time.perf_counter()
+        try:
+            pr = scene_from_scans(scans, voxel_size=h, progress=False)
+        except Exception as err:  # noqa: BLE001 - e.g. the memory guard at small voxel sizes
+            tls_skipped.append((h, f"{type(err).__name__}: {err}"))
+            log(f"TLS pipeline {h:g} m skipped: {err}")
+            continue
+        t_scene = time.perf_counter() - t0
+        for hot in ((True, False) if abs(h - args.hotspot_off_size) < 1e-9 else (True,)):
+            res = simulate(pr.scene, n_vox, hot, seeds)
+            rows.append(dict(axis="voxel", source="TLS pipeline", h=h, hot=hot, photons=n_vox, scene_s=t_scene,
+                             scene_parts=dict(pr.timings), voxels=len(pr.scene.lad), per=res))
+            log(f"TLS pipeline {h:g} m hot={hot}: scene {t_scene:.1f} s {pr.timings}; "
+                + "; ".join(f"{k} nrmse {v['nrmse']:.3f} 1-r {v['one_r']:.3f} {v['time']:.1f} s"
+                            for k, v in res.items()))
+        del pr
+
+    # -- axis 2: photon count on the 0.2 m exact-LAD scene ------------------------------
+    vref, vref_time = {}, {}
+    for p in pulses:
+        s = p.sensor(base)
+        key = dict(what="voxref", tree=args.seed, pulse=repr(p), photons=n_ref, seed=999, K=K, h=twin_size,
+                   hot=True, sensor=repr(s), src=src)
+
+        def run_ref(p=p, s=s):
+            t0 = time.perf_counter()
+            r = sim.run(twin, s, photons=n_ref, seed=999, max_order=K, target=p.target, hotspot=True)
+            r.elapsed_s = time.perf_counter() - t0
+            r.traces = None
+            return r
+
+        vref[p.name], hit = cached(cache_dir, key, run_ref)
+        vref_time[p.name] = vref[p.name].elapsed_s
+        m = score(vref[p.name], p)
+        log(f"voxel reference {p.name}: {n_ref:,} photons {vref_time[p.name]:.1f} s{' (cached)' if hit else ''}; "
+            f"vs mesh nrmse {m['nrmse']:.4f}, own noise {noise_nrmse(vref[p.name]):.4f}")
+    prow = []
+    for n in series:
+        res = simulate(twin, n, True, [1000 + 10 * n // 1000 + sd for sd in seeds], ref_of=vref)
+        prow.append(dict(axis="photons", source="exact LAD", h=twin_size, hot=True, photons=n, per=res))
+        log(f"photons {n:,}: " + "; ".join(f"{k} nrmse {v['nrmse']:.3f} vs-vox {v['nrmse_vox']:.4f} "
+                                            f"{v['time']:.2f} s" for k, v in res.items()))
+    total_s = time.perf_counter() - t_start
+
+    # -- report -------------------------------------------------------------------------
+    pn = [p.name for p in pulses]
+
+    def mean_over(r, k):
+        return float(np.mean([r["per"][n][k] for n in pn]))
+
+    lines = []
+    cmd = "benchmarks/bench_pipeline.py" + ("" if argv is None and len(sys.argv) <= 1 else
+                                           " " + " ".join(sys.argv[1:] if argv is None else argv))
+    lines += ["# Whole pipeline: speed against waveform accuracy", "",
+              f"Written by `.venv/bin/python {cmd}` on {time.strftime('%Y-%m-%d %H:%M')} in "
+              f"{total_s / 60:.1f} min (cached parts not counted).", "",
+              f"Machine: {platform.machine()}, {os.cpu_count()} logical CPUs shared with other jobs "
+              f"(load average {load0:.1f} at start, so times are upper bounds); OpenCL device `{device}` "
+              f"(PoCL on the CPU); mesh reference on Open3D/Embree (CPU). Python {platform.python_version()}.", "",
+              f"Tree: the default synthetic oak (`make_tree(seed={args.seed})`, "
+              f"{tree.leaf_area():.0f} m2 of leaves). Sensor `{base.name}` ({base.altitude_m:g} m, "
+              f"{base.divergence_mrad:g} mrad divergence, {base.pulse_fwhm_ns:g} ns pulse), "
+              f"`max_order={K}`. Pulses: "
+              + ", ".join(f"`{p.name}` (target {p.target[0]:g}, {p.target[1]:g} m; {p.off_nadir_deg:g} deg "
+                          f"off nadir)" for p in pulses) + ".", "",
+              f"**Truth**: the explicit-geometry mesh reference, {n_mesh:,} photons per pulse ("
+              + ", ".join(f"{ref_time[n]:.0f} s" for n in pn) + "; its own Monte Carlo noise, from its 16 "
+              "batches, is NRMSE " + ", ".join(f"{ref_noise[n]:.4f}" for n in pn) + "). "
+              "NRMSE = RMS waveform difference / reference peak; r = Pearson correlation of the waveforms; "
+              "E ratio = total received energy, model / mesh. Errors and times are medians over "
+              f"{args.repeats} runs with different seeds; the error columns give each pulse ("
+              + " / ".join(pn) + ").", ""]
+
+    lines += ["## 1. Voxel size (scene source, hot spot)", "",
+              f"{n_vox:,} photons per run. `scene s` = building the voxel scene: for exact LAD "
+              "`tree.truth_scene` (mesh leaf and bark area per voxel); for the TLS pipeline "
+              "`scene_from_scans` = register + classify + voxelise/VoxLAD (one run each; the simulated "
+              f"scans themselves took {scan_s:.0f} s and are not counted). `sim s` = one waveform "
+              "simulation (median, per pulse).", "",
+              "| scene | voxel | hot spot | voxels | scene s | sim s | NRMSE | 1 - r | E ratio |",
+              "|---|---:|---|---:|---:|---:|---|---|---|"]
+    for r in rows:
+        per = r["per"]
+        parts = ""
+        if "scene_parts" in r:
+            sp = r["scene_parts"]
+            parts = f" ({sp.get('register', 0):.0f} + {sp.get('classify', 0):.0f} + {sp.get('voxelize', 0):.0f})"
+        lines.append(f"| {r['source']} | {r['h']:g} m | {'on' if r['hot'] else 'off'} | {r['voxels']:,} | "
+                     f"{r['scene_s']:.1f}{parts} | " + " / ".join(f"{per[n]['time']:.1f}" for n in pn) + " | "
+                     + " / ".join(f"{per[n]['nrmse']:.3f}" for n in pn) + " | "
+                     + " / ".join(f"{per[n]['one_r']:.3f}" for n in pn) + " | "
+                     + " / ".join(f"{per[n]['total']:.2f}" for n in pn) + " |")
+    for h, msg in tls_skipped:
+        lines += ["", f"TLS pipeline at {h:g} m skipped: {msg}"]
+    if 0.05 not in tls_sizes and not tls_skipped:
+        lines += ["", "TLS pipeline at 0.05 m not run by default: voxelising the two scans at 5 cm needs "
+                  "about 8.4 GiB for tracing and estimation (15.7 M voxels x 576 bytes, see "
+                  "docs/bench/voxelize.md), above the 6 GiB guard and more than a shared 24 GB machine "
+                  "should give one benchmark (`--tls-sizes 0.05,...` tries it)."]
+
+    lines += ["", "## 2. Photon count (exact-LAD scene, 0.2 m, hot spot on)", "",
+              f"`NRMSE vs mesh` is the total error; `NRMSE vs voxel 1e{np.log10(n_ref):.0f}` compares with a "
+              f"{n_ref:,}-photon run of the same voxel scene (" + ", ".join(f"{vref_time[n]:.0f} s" for n in pn)
+              + "): the Monte Carlo noise alone. `noise` is the run's own noise estimated from its 16 batches.",
+              "", "| photons | sim s | photons/s | NRMSE vs mesh | NRMSE vs voxel ref | noise (batches) | 1 - r vs mesh |",
+              "|---:|---:|---:|---|---|---|---|"]
+    for r in prow:
+        per = r["per"]
+        t = mean_over(r, "time")
+        lines.append(f"| {r['photons']:,} | " + " / ".join(f"{per[n]['time']:.2f}" for n in pn)
+                     + f" | {r['photons'] / t:,.0f} | "
+                     + " / ".join(f"{per[n]['nrmse']:.4f}" for n in pn) + " | "
+                     + " / ".join(f"{per[n]['nrmse_vox']:.4f}" for n in pn) + " | "
+                     + " / ".join(f"{per[n]['noise']:.4f}" for n in pn) + " | "
+                     + " / ".join(f"{per[n]['one_r']:.3f}" for n in pn) + " |")
+    lines += ["", "![speed against accuracy](../img/pipeline_speed_accuracy.png)", ""]
+
+    # -- chart ----------------------------------------------------------------------------
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(13, 5.2))
+    style = {("exact LAD", True): ("o", "tab:green"), ("exact LAD", False): ("o", "lightgreen"),
+             ("TLS pipeline", True): ("s", "tab:blue"), ("TLS pipeline", False): ("s", "lightblue")}
+    done = set()
+    for src_name in ("exact LAD", "TLS pipeline"):
+        rr = [r for r in rows if r["source"] == src_name and r["hot"]]
+        if rr:
+            xs = [r["scene_s"] + mean_over(r, "time") for r in rr]
+            ax[0].plot(xs, [mean_over(r, "nrmse") for r in rr], "-", color=style[src_name, True][1], lw=0.8)
+    for r in rows:
+        mk, col = style[r["source"], r["hot"]]
+        lab = f"{r['source']}, hot spot {'on' if r['hot'] else 'off'}"
+        x, y = r["scene_s"] + mean_over(r, "time"), mean_over(r, "nrmse")
+        ax[0].loglog(x, y, mk, color=col, mec="k", ms=8, label=None if lab in done else lab)
+        done.add(lab)
+        ax[0].annotate(f"{r['h'] * 100:g} cm", (x, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
+    floor = float(np.mean([ref_noise[n] for n in pn]))
+    ax[0].axhline(floor, color="grey", ls=":", lw=1, label="mesh reference's own noise")
+    ax[0].set(xlabel="scene building + one simulation (s)", ylabel="waveform NRMSE vs mesh (mean of pulses)",
+              title=f"Voxel size ({n_vox:.0e} photons)")
+    ax[0].legend(fontsize=8, loc="best")
+    ax[0].grid(alpha=0.3, which="both")
+    xs = [mean_over(r, "time") for r in prow]
+    y1 = [mean_over(r, "nrmse") for r in prow]
+    y2 = [mean_over(r, "nrmse_vox") for r in prow]
+    ax[1].loglog(xs, y1, "o-", color="tab:red", mec="k", label="vs mesh (total error)")
+    ax[1].loglog(xs, y2, "^-", color="tab:purple", mec="k", label=f"vs voxel run of {n_ref:.0e} photons (MC noise)")
+    for r, x, y in zip(prow, xs, y1):
+        ax[1].annotate(f"{r['photons']:.0e}", (x, y), textcoords="offset points", xytext=(4, 5), fontsize=8)
+    for r, x, y in zip(prow, xs, y2):
+        ax[1].annotate(f"{r['photons']:.0e}", (x, y), textcoords="offset points", xytext=(4, -11), fontsize=8)
+    ax[1].axhline(floor, color="grey", ls=":", lw=1, label="mesh reference's own noise")
+    ax[1].set(xlabel="simulation time (s)", ylabel="waveform NRMSE (mean of pulses)",
+              title=f"Photon count (exact LAD, {twin_size:g} m, hot spot on)")
+    ax[1].legend(fontsize=8)
+    ax[1].grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    png = Path(args.png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    from tlsvox.scene import atomic_write
+
+    atomic_write(png, lambda tmp: fig.savefig(tmp, format="png", dpi=110))
+    plt.close(fig)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    text = "\n".join(lines).rstrip() + "\n"
+    atomic_write(out, lambda tmp: Path(tmp).write_text(text))
+    print(text)
+    log(f"wrote {out} and {png} in {total_s:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,123 @@
+"""Pictures of simulated waveforms and photon paths (the paper's Fig. 8 and 9).
+
+Open3D is imported only inside :func:`render_traces`; matplotlib inside each
+function, so importing this module stays light.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tlsvox.scene import atomic_write
+
+from .sensor import C_M_PER_NS
+
+__all__ = ["plot_waveforms", "render_traces"]
+
+
+def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis=True) -> Path:
+    """Overlay waveforms, drawn against height above ground when ``ground_time_ns`` is given.
+
+    Parameters
+    ----------
+    curves : list of (label, SimulationResult) or (label, time_ns, waveform)
+    path : PNG path (written atomically)
+    ground_time_ns : float, optional
+        Ground return time on the beam axis; the x axis becomes height (m).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 6.0))
+    for item in curves:
+        if len(item) == 2:
+            label, res = item
+            t, w = res.time_ns, res.waveform
+        else:
+            label, t, w = item
+        if ground_time_ns is not None and height_axis:
+            y = (ground_time_ns - np.asarray(t)) * C_M_PER_NS / 2.0
+            ax.plot(w, y, lw=1.3, label=label)
+        else:
+            ax.plot(t, w, lw=1.3, label=label)
+    if ground_time_ns is not None and height_axis:
+        ax.set_ylabel("height above ground (m)")
+        ax.set_xlabel("received power (fraction of emitted energy / ns)")
+        ax.set_ylim(-2.0, None)
+        ax.axhline(0.0, color="0.6", lw=0.6)
+    else:
+        ax.set_xlabel("time after emission (ns)")
+        ax.set_ylabel("received power (fraction of emitted energy / ns)")
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
+    if title:
+        ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+    return path
+
+
+def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: float = 8.0,
+                  width: int = 1000, height: int = 1100) -> str:
+    """Headless Open3D render of photon paths over the voxel scene (paper Fig. 8).
+
+    Parameters
+    ----------
+    result : SimulationResult
+        Run with ``trace=N`` (first events of N photons).
+    scene : tlsvox.Scene
+    path : PNG path
+    approach_m : float
+        The incoming leg is drawn from this height above the scene's top.
+
+    Returns
+    -------
+    str
+        The renderer used (``open3d`` or ``matplotlib``).
+    """
+    import open3d as o3d
+
+    from tlsvox.render import colormap, render, voxel_mesh
+
+    from .errors import InputError
+
+    if result.traces is None:
+        raise InputError("the result has no photon traces; run with trace=N")
+    c = scene.centers()
+    keep = np.argsort(-scene.lad)[:max_voxels]
+    cols = colormap(np.log10(np.maximum(scene.lad[keep], 1e-3)), vmin=-1.5, vmax=1.0, name="Greens")
+    cols = 0.35 + 0.5 * cols  # pale, so the paths stand out
+    items = [voxel_mesh(c[keep], scene.voxel_size, cols, shrink=0.6)]
+    lo, hi = scene.extent
+    top = hi[2] + approach_m
+    pts, lines, colors = [], [], []
+    palette = {1: (0.1, 0.6, 0.1), 2: (0.5, 0.3, 0.1), 3: (0.4, 0.4, 0.4), 0: (0.1, 0.2, 0.9)}
+    for tr in result.traces:
+        ok = tr[:, 3] > -9
+        p = tr[ok].astype(np.float64)
+        if len(p) < 2:
+            continue
+        d = p[1, :3] - p[0, :3]
+        if p[0, 2] > top and d[2] < 0:
+            p[0, :3] = p[1, :3] + d * (top - p[1, 2]) / d[2]
+        base = len(pts)
+        pts.extend(p[:, :3].tolist())
+        for k in range(len(p) - 1):
+            lines.append([base + k, base + k + 1])
+            colors.append((0.85, 0.1, 0.1) if k == 0 else palette.get(int(p[k, 3]), (0.9, 0.4, 0.0)))
+    if lines:
+        ls = o3d.geometry.LineSet(o3d.utility.Vector3dVector(np.asarray(pts)),
+                                  o3d.utility.Vector2iVector(np.asarray(lines, dtype=np.int32)))
+        ls.colors = o3d.utility.Vector3dVector(np.asarray(colors))
+        items.append(ls)
+    centre = 0.5 * (lo + hi)
+    centre[2] = 0.5 * (lo[2] + top)
+    span = float(max(hi[0] - lo[0], top - lo[2]))
+    eye = centre + np.array([0.0, -1.6 * span, 0.25 * span])
+    return render(items, path, eye=eye, center=centre, width=width, height=height)
