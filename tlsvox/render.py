@@ -74,13 +74,75 @@ def render(items, path, *, eye, center, up=(0.0, 0.0, 1.0), fov_deg=45.0, width=
     path = Path(path)
     if backend in ("auto", "open3d") and os.environ.get("VOXLIDAR_NO_O3D_RENDER") != "1":
         try:
-            _render_o3d(items, path, eye, center, up, fov_deg, width, height, point_size, background)
+            _render_o3d_subprocess(items, path, eye, center, up, fov_deg, width, height, point_size,
+                                   background)
             return "open3d"
         except Exception:  # noqa: BLE001 - any renderer failure falls back to matplotlib
             if backend == "open3d":
                 raise
     _render_mpl(items, path, eye, center, width, height, title)
     return "matplotlib"
+
+
+RENDER_TIMEOUT_S = 240
+
+
+def _render_o3d_subprocess(items, path, eye, center, up, fov, width, height, point_size, background):
+    """Render in a child process: Filament on software Vulkan can hang after several
+    large scenes in one process; a child with a deadline keeps the caller safe."""
+    import json
+    import subprocess
+    import sys
+    import tempfile
+
+    import open3d as o3d
+
+    with tempfile.TemporaryDirectory(prefix="voxlidar-render-") as tmp:
+        tmp = Path(tmp)
+        files = []
+        for k, item in enumerate(items):
+            if isinstance(item, tuple):
+                f = tmp / f"g{k}.npz"
+                np.savez(f, points=np.asarray(item[0], np.float64), colors=np.asarray(item[1], np.float64))
+            elif isinstance(item, o3d.geometry.TriangleMesh):
+                f = tmp / f"g{k}.ply"
+                o3d.io.write_triangle_mesh(str(f), item, write_ascii=False)
+            elif isinstance(item, o3d.geometry.LineSet):
+                f = tmp / f"g{k}.lines.npz"
+                np.savez(f, points=np.asarray(item.points), lines=np.asarray(item.lines),
+                         colors=np.asarray(item.colors))
+            else:
+                f = tmp / f"g{k}.npz"
+                pts = np.asarray(item.points)
+                cols = np.asarray(item.colors) if item.has_colors() else np.full((len(pts), 3), 0.3)
+                np.savez(f, points=pts, colors=cols)
+            files.append(str(f))
+        spec = dict(files=files, path=str(Path(path).resolve()), eye=list(map(float, eye)),
+                    center=list(map(float, center)), up=list(map(float, up)), fov=float(fov), width=int(width),
+                    height=int(height), point_size=float(point_size), background=list(map(float, background)))
+        (tmp / "spec.json").write_text(json.dumps(spec))
+        done = subprocess.run([sys.executable, "-m", "tlsvox.render", str(tmp / "spec.json")],
+                              capture_output=True, text=True, timeout=RENDER_TIMEOUT_S)
+        if done.returncode != 0 or not Path(path).exists():
+            raise RuntimeError(f"offscreen renderer failed: {done.stderr[-500:]}")
+
+
+def _load_items(files):
+    import open3d as o3d
+
+    items = []
+    for f in files:
+        if f.endswith(".lines.npz"):
+            z = np.load(f)
+            ls = o3d.geometry.LineSet(o3d.utility.Vector3dVector(z["points"]), o3d.utility.Vector2iVector(z["lines"]))
+            ls.colors = o3d.utility.Vector3dVector(z["colors"])
+            items.append(ls)
+        elif f.endswith(".ply"):
+            items.append(o3d.io.read_triangle_mesh(f))
+        else:
+            z = np.load(f)
+            items.append((z["points"], z["colors"]))
+    return items
 
 
 def _as_o3d(item):
@@ -103,9 +165,17 @@ def _render_o3d(items, path, eye, center, up, fov, width, height, point_size, ba
         g = _as_o3d(item)
         mat = o3d.visualization.rendering.MaterialRecord()
         if isinstance(g, o3d.geometry.TriangleMesh):
-            mat.shader = "defaultLit"
-            if not g.has_vertex_normals():
-                g.compute_vertex_normals()
+            # Lighting is baked into the vertex colours and everything is drawn unlit:
+            # Filament on Mesa's software Vulkan hangs when lit meshes and unlit
+            # points share a renderer.
+            g = o3d.geometry.TriangleMesh(g)
+            g.compute_vertex_normals()
+            n = np.asarray(g.vertex_normals)
+            base = np.asarray(g.vertex_colors) if g.has_vertex_colors() else np.full((len(n), 3), 0.6)
+            light = np.array([-0.45, -0.55, 0.70]) / np.linalg.norm([-0.45, -0.55, 0.70])
+            shade = 0.45 + 0.55 * np.abs(n @ light)
+            g.vertex_colors = o3d.utility.Vector3dVector(np.clip(base * shade[:, None], 0.0, 1.0))
+            mat.shader = "defaultUnlit"
         elif isinstance(g, o3d.geometry.LineSet):
             mat.shader = "unlitLine"
             mat.line_width = 2.0
@@ -113,8 +183,6 @@ def _render_o3d(items, path, eye, center, up, fov, width, height, point_size, ba
             mat.shader = "defaultUnlit"
             mat.point_size = float(point_size)
         r.scene.add_geometry(f"g{k}", g, mat)
-    r.scene.scene.set_sun_light([-0.4, 0.3, -0.85], [1.0, 1.0, 1.0], 90000)
-    r.scene.scene.enable_sun_light(True)
     r.setup_camera(float(fov), np.asarray(center, float), np.asarray(eye, float), np.asarray(up, float))
     from PIL import Image
 
@@ -200,3 +268,12 @@ def voxel_mesh(centers, size: float, colors, *, shrink: float = 0.9):
     mesh.vertex_colors = o3d.utility.Vector3dVector(np.repeat(col, 8, axis=0))
     mesh.compute_vertex_normals()
     return mesh
+
+
+if __name__ == "__main__":  # child process of _render_o3d_subprocess
+    import json
+    import sys
+
+    _spec = json.loads(Path(sys.argv[1]).read_text())
+    _render_o3d(_load_items(_spec["files"]), Path(_spec["path"]), _spec["eye"], _spec["center"], _spec["up"],
+                _spec["fov"], _spec["width"], _spec["height"], _spec["point_size"], _spec["background"])
