@@ -185,7 +185,8 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
         occ = scene.dense("occluded")
         visible = ~occ & ((lad > 0) | (truth_area > 0))
         sc_all = score_lad(lad, truth_area / vol, voxel_volume=vol)
-        sc_vis = score_lad(lad, truth_area / vol, mask=visible, voxel_volume=vol)
+        sc_vis = score_lad(np.where(visible, lad, 0.0), np.where(visible, truth_area / vol, 0.0), mask=visible,
+                           voxel_volume=vol)
     rep.summary["lad"] = {"all": sc_all, "visible": sc_vis}
     with rep.stage("figures: voxels"):
         c = scene.centers()
@@ -215,7 +216,7 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
             "|---|---:|---:|---:|---:|---:|\n"
             f"| all voxels | {sc_all['total_area']:.1f} | {sc_all['true_area']:.1f} | {100 * sc_all['area_error']:+.1f} % | "
             f"{sc_all['rmse']:.3f} | {sc_all['bias']:+.4f} |\n"
-            f"| non-occluded voxels | {sc_vis['total_area']:.1f} | {sc_vis['true_area']:.1f} | "
+            f"| voxels not flagged occluded | {sc_vis['total_area']:.1f} | {sc_vis['true_area']:.1f} | "
             f"{100 * sc_vis['area_error']:+.1f} % | {sc_vis['rmse']:.3f} | {sc_vis['bias']:+.4f} |\n")
     rep.figure(out / "fig6_lad_voxels.png", "LAD voxels (colour: log LAD)")
     rep.figure(out / "fig7_wood_voxels.png", "Wood probability voxels")
