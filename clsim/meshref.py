@@ -39,33 +39,13 @@ from tlsvox.materials import Material
 from .errors import InputError
 from .sensor import C_M_PER_NS
 from .simulator import STAT_NAMES, Detect, assemble_result, prepare_run
+from .transport_ref import _dot, cosine_dir as _cosine_dir
 
 __all__ = ["MeshReferenceSimulator"]
 
 _S = {n: i for i, n in enumerate(STAT_NAMES)}
 RR_THRESHOLD, RR_SURVIVE = 0.1, 0.5
 EPS = 2e-4  # m: offset off a surface, well above float32 rounding at scene scale
-
-
-def _onb(m):
-    s = np.where(m[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (s + m[:, 2])
-    b = m[:, 0] * m[:, 1] * a
-    b1 = np.column_stack([1.0 + s * m[:, 0] ** 2 * a, s * b, -s * m[:, 0]])
-    b2 = np.column_stack([b, s + m[:, 1] ** 2 * a, -m[:, 1]])
-    return b1, b2
-
-
-def _cosine_dir(m, u1, u2):
-    b1, b2 = _onb(m)
-    r, ph = np.sqrt(u1), 2.0 * np.pi * u2
-    v = (r * np.cos(ph))[:, None] * b1 + (r * np.sin(ph))[:, None] * b2 \
-        + np.sqrt(np.maximum(0.0, 1.0 - u1))[:, None] * m
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
 
 
 class MeshReferenceSimulator:
