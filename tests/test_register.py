@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from tlsvox.errors import InputError
-from tlsvox.register import (RegistrationError, detect_targets, match_targets, pose_error,
-                             read_transforms, register_pair, register_scans, rigid_fit,
-                             rotation_about_z, true_relative_transform, write_registered)
+from tlsvox.register import (RegistrationError, coincidence, detect_targets, global_fpfh,
+                             match_targets, pose_error, read_transforms, register_pair,
+                             register_scans, rigid_fit, rotation_about_z,
+                             true_relative_transform, write_registered)
 from tlsvox.scan import Scan
 
 LAYOUT = np.array([[6.0, 2.0, 0.5], [-5.0, 4.0, 0.9], [2.0, -6.5, 0.4], [-3.0, -5.0, 1.3]])
@@ -60,9 +61,11 @@ def toy_scan(seed, P, name, *, layout=LAYOUT, crown_seed=7, shift=(0.0, 0.0), no
     # other_plot: a different stand (leaning thinner stem, other branches, no wall)
     lean, r_stem, phase = ((0.15, 0.0, 1.0), 0.18, 2.1) if other_plot else ((0, 0, 1), 0.25, 0.4)
     add(_cyl(rng, (0, 0, 0), lean, r_stem, 4.0, 5000), -3.7, 2)
+    # other_plot: branches at other heights and angles (the same ones turned would overlap)
+    z0, dz, rise = (1.7, 0.6, 0.4) if other_plot else (2.2, 0.35, 0.7)
     for k in range(3 if other_plot else 5):
-        az = k * 1.3 + phase
-        add(_cyl(rng, (0, 0, 2.2 + 0.35 * k), (np.cos(az), np.sin(az), 0.7), 0.07, 2.5, 1200), -3.7, 2)
+        az = k * (2.0 if other_plot else 1.3) + phase
+        add(_cyl(rng, (0, 0, z0 + dz * k), (np.cos(az), np.sin(az), rise), 0.07, 2.5, 1200), -3.7, 2)
     if not other_plot:
         add(np.column_stack([np.full(3000, 9.0), rng.uniform(-9, -3, 3000), rng.uniform(0, 2.5, 3000)]),
             -2.0, 3)
@@ -170,14 +173,51 @@ def test_icp_from_a_perturbed_start(toy_pair):
 
 def test_no_overlap_is_a_clear_failure(toy_pair):
     A, _ = toy_pair
-    # another plot 200 m away: its own stem, branches, crown and target layout
-    other = toy_scan(3, pose(190.0, 10.0, 1.7, 80.0), "far", layout=LAYOUT[:, [1, 0, 2]] * [1.3, 0.7, 1],
-                     crown_seed=99, shift=(200.0, 0.0), other_plot=True)
+    other = _far_plot()
     with pytest.raises(RegistrationError) as info:
         register_pair(other, A, method="auto")
     msg = str(info.value)
-    assert "fitness" in msg
-    assert info.value.figures  # the figures come with the error
+    assert "fitness" in msg and "coincidence ratio" in msg
+    # every FPFH peak was finished by ICP and refused, with its figures
+    assert info.value.figures["candidates"]
+    assert info.value.figures["coincidence"]["coincidence_ratio"] < 2.0
+
+
+def _far_plot():
+    """Another plot 200 m away: its own stem, branches, crown and target layout."""
+    return toy_scan(3, pose(190.0, 10.0, 1.7, 80.0), "far", layout=LAYOUT[:, [1, 0, 2]] * [1.3, 0.7, 1],
+                    crown_seed=99, shift=(200.0, 0.0), other_plot=True)
+
+
+def test_fpfh_without_targets_is_accurate_and_repeatable(toy_pair):
+    A, B = toy_pair
+    T_true = true_relative_transform(B, A)
+    r1 = register_pair(B, A, method="fpfh", seed=5)
+    r2 = register_pair(B, A, method="fpfh", seed=5)
+    rot, tr = pose_error(r1.transform, T_true)
+    assert r1.method == "fpfh" and r1.coincidence["coincidence_ratio"] >= 2.0
+    assert rot < 0.5 and tr < 0.05  # the issue's goal without targets
+    # seeded NumPy RANSAC, no threads: the same seed gives the same coarse transform, bit
+    # for bit; Open3D's multithreaded ICP then sums in a varying order (last-bit differences)
+    off_ground = [s.xyz[s.truth_material != 3] for s in (B, A)]
+    np.testing.assert_array_equal(global_fpfh(*off_ground, seed=1), global_fpfh(*off_ground, seed=1))
+    np.testing.assert_allclose(r1.transform, r2.transform, rtol=0, atol=1e-9)
+    assert r1.hypothesis_groups == r2.hypothesis_groups
+
+
+def test_coincidence_separates_right_from_wrong_alignment(toy_pair):
+    A, B = toy_pair
+    T_true = true_relative_transform(B, A)
+    # half a turn about a vertical axis 1 m from the stem: crown on crown, stem beside stem
+    W = np.eye(4)
+    W[:3, :3] = rotation_about_z(180.0)
+    W[:3, 3] = [2.0, 0.0, 0.0]
+    T_wrong = np.linalg.inv(A.pose_true) @ W @ B.pose_true
+    right, wrong = coincidence(B.xyz, A.xyz, T_true), coincidence(B.xyz, A.xyz, T_wrong)
+    assert right["coincidence_ratio"] > 10.0 and wrong["coincidence_ratio"] < 2.0
+    with pytest.raises(RegistrationError, match="by chance") as info:
+        register_pair(B, A, method="icp", init=T_wrong, voxel_sizes=(0.08,))
+    assert info.value.figures["coincidence"]["coincidence_ratio"] < 2.0
 
 
 def test_register_scans_and_write_merged(toy_pair, tmp_path):
@@ -261,5 +301,14 @@ def test_synthetic_scans_without_overlap_fail(synthetic_pair):
         return Scan(xyz=scan.xyz[keep], reflectance_db=scan.reflectance_db[keep],
                     pose_true=scan.pose_true, name=name)
 
-    with pytest.raises(RegistrationError, match="fitness"):
-        register_pair(half(B, 1, "east"), half(A, -1, "west"), method="auto")
+    east, west = half(B, 1, "east"), half(A, -1, "west")
+    # the crown's halves are alike: half a turn lays one on the other with a coarse
+    # fitness of 0.6-0.8 (default tree); only the coincidence test tells it is wrong.
+    # Seeded NumPy RANSAC: the same answer every run (it used to be flaky).
+    messages = set()
+    for _ in range(2):
+        with pytest.raises(RegistrationError, match="fitness") as info:
+            register_pair(east, west, method="auto")
+        assert info.value.figures["coincidence"]["coincidence_ratio"] < 2.0
+        messages.add(str(info.value).split("scored")[0])
+    assert len(messages) == 1
