@@ -21,8 +21,9 @@ Times are medians of ``--repeats`` runs for the simulations (errors: medians
 over the same runs, different seeds); scene building is timed once per size.
 Writes docs/bench/pipeline.md and docs/img/pipeline_speed_accuracy.png.
 
-    .venv/bin/python benchmarks/bench_pipeline.py           # about 10 min on 2 cores (first run)
+    .venv/bin/python benchmarks/bench_pipeline.py           # 9-11 min on 2 shared cores
     .venv/bin/python benchmarks/bench_pipeline.py --quick   # fewer points and photons, about 4 min
+    .venv/bin/python benchmarks/bench_pipeline.py --replot  # table + chart again from the last run's figures
 
 The mesh references and the 1e7-photon voxel runs are cached under
 ``out/bench_cache`` (keyed by their settings and by the simulators' source), so
@@ -33,9 +34,11 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import os
 import pickle
 import platform
+import shlex
 import statistics
 import sys
 import time
@@ -120,7 +123,12 @@ def main(argv=None) -> int:
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "pipeline.md"))
     ap.add_argument("--png", default=str(ROOT / "docs" / "img" / "pipeline_speed_accuracy.png"))
+    ap.add_argument("--replot", action="store_true",
+                    help="rewrite the table and chart from the last run's figures (<cache>/pipeline_last.json)")
     args = ap.parse_args(argv)
+    if args.replot:
+        report(json.loads((Path(args.cache) / "pipeline_last.json").read_text()), Path(args.out), Path(args.png))
+        return 0
     q = args.quick
     sizes = [float(v) for v in (args.sizes or ("0.2,0.4" if q else "0.05,0.1,0.2,0.4")).split(",") if v]
     tls_sizes = [float(v) for v in (args.tls_sizes if args.tls_sizes is not None else
@@ -279,136 +287,148 @@ def main(argv=None) -> int:
         log(f"photons {n:,}: " + "; ".join(f"{k} nrmse {v['nrmse']:.3f} vs-vox {v['nrmse_vox']:.4f} "
                                             f"{v['time']:.2f} s" for k, v in res.items()))
     total_s = time.perf_counter() - t_start
+    cmd = shlex.join(["benchmarks/bench_pipeline.py", *(sys.argv[1:] if argv is None else argv)])
+    data = dict(cmd=cmd, date=time.strftime("%Y-%m-%d %H:%M"), total_s=total_s, load0=load0, device=device,
+                machine=platform.machine(), cpus=os.cpu_count(), python=platform.python_version(),
+                tree_seed=args.seed, leaf_area=float(tree.leaf_area()),
+                sensor=dict(name=base.name, altitude_m=base.altitude_m, divergence_mrad=base.divergence_mrad,
+                            pulse_fwhm_ns=base.pulse_fwhm_ns),
+                K=K, repeats=args.repeats, twin_size=twin_size,
+                pulses=[dict(name=p.name, target=list(p.target), off_nadir_deg=p.off_nadir_deg) for p in pulses],
+                n_mesh=n_mesh, ref_time=ref_time, ref_noise=ref_noise, n_vox=n_vox, scan_s=scan_s,
+                tls_sizes=tls_sizes, tls_skipped=tls_skipped, rows=rows, n_ref=n_ref, vref_time=vref_time,
+                prow=prow)
+    if cache_dir is not None:
+        Path(cache_dir).mkdir(parents=True, exist_ok=True)
+        (Path(cache_dir) / "pipeline_last.json").write_text(json.dumps(data, indent=1))
+    report(data, Path(args.out), Path(args.png))
+    log(f"wrote {args.out} and {args.png} in {total_s:.0f} s")
+    return 0
 
-    # -- report -------------------------------------------------------------------------
-    pn = [p.name for p in pulses]
 
-    def mean_over(r, k):
-        return float(np.mean([r["per"][n][k] for n in pn]))
+def report(d: dict, out: Path, png: Path) -> None:
+    """Write the Markdown table and the two-panel chart from the measured figures."""
+    from tlsvox.scene import atomic_write
 
-    lines = []
-    cmd = "benchmarks/bench_pipeline.py" + ("" if argv is None and len(sys.argv) <= 1 else
-                                           " " + " ".join(sys.argv[1:] if argv is None else argv))
-    lines += ["# Whole pipeline: speed against waveform accuracy", "",
-              f"Written by `.venv/bin/python {cmd}` on {time.strftime('%Y-%m-%d %H:%M')} in "
-              f"{total_s / 60:.1f} min (cached parts not counted).", "",
-              f"Machine: {platform.machine()}, {os.cpu_count()} logical CPUs shared with other jobs "
-              f"(load average {load0:.1f} at start, so times are upper bounds); OpenCL device `{device}` "
-              f"(PoCL on the CPU); mesh reference on Open3D/Embree (CPU). Python {platform.python_version()}.", "",
-              f"Tree: the default synthetic oak (`make_tree(seed={args.seed})`, "
-              f"{tree.leaf_area():.0f} m2 of leaves). Sensor `{base.name}` ({base.altitude_m:g} m, "
-              f"{base.divergence_mrad:g} mrad divergence, {base.pulse_fwhm_ns:g} ns pulse), "
-              f"`max_order={K}`. Pulses: "
-              + ", ".join(f"`{p.name}` (target {p.target[0]:g}, {p.target[1]:g} m; {p.off_nadir_deg:g} deg "
-                          f"off nadir)" for p in pulses) + ".", "",
-              f"**Truth**: the explicit-geometry mesh reference, {n_mesh:,} photons per pulse ("
-              + ", ".join(f"{ref_time[n]:.0f} s" for n in pn) + "; its own Monte Carlo noise, from its 16 "
-              "batches, is NRMSE " + ", ".join(f"{ref_noise[n]:.4f}" for n in pn) + "). "
-              "NRMSE = RMS waveform difference / reference peak; r = Pearson correlation of the waveforms; "
-              "E ratio = total received energy, model / mesh. Errors and times are medians over "
-              f"{args.repeats} runs with different seeds; the error columns give each pulse ("
-              + " / ".join(pn) + ").", ""]
+    pn = [p["name"] for p in d["pulses"]]
+    rows, prow = d["rows"], d["prow"]
+    sen = d["sensor"]
 
-    lines += ["## 1. Voxel size (scene source, hot spot)", "",
-              f"{n_vox:,} photons per run. `scene s` = building the voxel scene: for exact LAD "
-              "`tree.truth_scene` (mesh leaf and bark area per voxel); for the TLS pipeline "
-              "`scene_from_scans` = register + classify + voxelise/VoxLAD (one run each; the simulated "
-              f"scans themselves took {scan_s:.0f} s and are not counted). `sim s` = one waveform "
-              "simulation (median, per pulse).", "",
+    def per(r, k):
+        return " / ".join(f"{r['per'][n][k]:{fmt}}" for n, fmt in zip(pn, [FMT[k]] * len(pn)))
+
+    lines = ["# Whole pipeline: speed against waveform accuracy", "",
+             f"Written by `.venv/bin/python {d['cmd']}` on {d['date']} in {d['total_s'] / 60:.1f} min "
+             "(parts read from the cache not counted).", "",
+             f"Machine: {d['machine']}, {d['cpus']} logical CPUs shared with other jobs (load average "
+             f"{d['load0']:.1f} at start, so times are upper bounds); OpenCL device `{d['device']}` (PoCL on "
+             f"the CPU); mesh reference on Open3D/Embree (CPU). Python {d['python']}.", "",
+             f"Tree: the default synthetic oak (`make_tree(seed={d['tree_seed']})`, {d['leaf_area']:.0f} m2 of "
+             f"leaves). Sensor `{sen['name']}` ({sen['altitude_m']:g} m, {sen['divergence_mrad']:g} mrad "
+             f"divergence: a footprint about 0.36 m wide; {sen['pulse_fwhm_ns']:g} ns pulse), "
+             f"`max_order={d['K']}`. Pulses: "
+             + ", ".join(f"`{p['name']}` (beam axis meets the ground at {p['target'][0]:g}, {p['target'][1]:g} m "
+                         f"from the crown centre; {p['off_nadir_deg']:g} deg off nadir)" for p in d["pulses"]) + ".",
+             "",
+             f"**Truth**: the explicit-geometry mesh reference, {d['n_mesh']:,} photons per pulse ("
+             + ", ".join(f"{d['ref_time'][n]:.1f} s" for n in pn) + "); its own Monte Carlo noise, from its 16 "
+             "batches, is NRMSE " + " / ".join(f"{d['ref_noise'][n]:.4f}" for n in pn) + ". "
+             "NRMSE = RMS waveform difference / peak of the mesh waveform; r = Pearson correlation of the "
+             "waveforms; E ratio = total received energy, model / mesh. Errors and times are medians over "
+             f"{d['repeats']} runs with different seeds. Columns with two values give each pulse ("
+             + " / ".join(pn) + ").", ""]
+    lines += ["## 1. Voxel size, scene source and hot spot", "",
+              f"{d['n_vox']:,} photons per run. `scene s`: building the voxel scene, once per size. Exact LAD = "
+              "`tree.truth_scene` (the mesh's leaf and bark area per voxel); TLS pipeline = "
+              "`scene_from_scans` = register + classify + voxelise/VoxLAD (the three parts in brackets; the two "
+              f"simulated scans, {d['scan_s']:.0f} s, are not counted). `sim s`: one waveform simulation.", "",
               "| scene | voxel | hot spot | voxels | scene s | sim s | NRMSE | 1 - r | E ratio |",
               "|---|---:|---|---:|---:|---:|---|---|---|"]
     for r in rows:
-        per = r["per"]
         parts = ""
         if "scene_parts" in r:
             sp = r["scene_parts"]
             parts = f" ({sp.get('register', 0):.0f} + {sp.get('classify', 0):.0f} + {sp.get('voxelize', 0):.0f})"
         lines.append(f"| {r['source']} | {r['h']:g} m | {'on' if r['hot'] else 'off'} | {r['voxels']:,} | "
-                     f"{r['scene_s']:.1f}{parts} | " + " / ".join(f"{per[n]['time']:.1f}" for n in pn) + " | "
-                     + " / ".join(f"{per[n]['nrmse']:.3f}" for n in pn) + " | "
-                     + " / ".join(f"{per[n]['one_r']:.3f}" for n in pn) + " | "
-                     + " / ".join(f"{per[n]['total']:.2f}" for n in pn) + " |")
-    for h, msg in tls_skipped:
+                     f"{r['scene_s']:.1f}{parts} | {per(r, 'time')} | {per(r, 'nrmse')} | {per(r, 'one_r')} | "
+                     f"{per(r, 'total')} |")
+    for h, msg in d["tls_skipped"]:
         lines += ["", f"TLS pipeline at {h:g} m skipped: {msg}"]
-    if 0.05 not in tls_sizes and not tls_skipped:
-        lines += ["", "TLS pipeline at 0.05 m not run by default: voxelising the two scans at 5 cm needs "
+    if 0.05 not in d["tls_sizes"] and not any(h == 0.05 for h, _ in d["tls_skipped"]):
+        lines += ["", "TLS pipeline at 0.05 m is not run by default: voxelising the two scans at 5 cm needs "
                   "about 8.4 GiB for tracing and estimation (15.7 M voxels x 576 bytes, see "
-                  "docs/bench/voxelize.md), above the 6 GiB guard and more than a shared 24 GB machine "
-                  "should give one benchmark (`--tls-sizes 0.05,...` tries it)."]
-
-    lines += ["", "## 2. Photon count (exact-LAD scene, 0.2 m, hot spot on)", "",
-              f"`NRMSE vs mesh` is the total error; `NRMSE vs voxel 1e{np.log10(n_ref):.0f}` compares with a "
-              f"{n_ref:,}-photon run of the same voxel scene (" + ", ".join(f"{vref_time[n]:.0f} s" for n in pn)
-              + "): the Monte Carlo noise alone. `noise` is the run's own noise estimated from its 16 batches.",
-              "", "| photons | sim s | photons/s | NRMSE vs mesh | NRMSE vs voxel ref | noise (batches) | 1 - r vs mesh |",
+                  "docs/bench/voxelize.md), above `voxelize`'s 6 GiB guard and more than a shared 24 GB machine "
+                  "should give one benchmark (`--tls-sizes 0.05,0.1,0.2,0.4` tries it). The exact-LAD scene at "
+                  "5 cm is sparse (only occupied voxels) and costs about 1.6 GB."]
+    lines += ["", f"## 2. Photon count (exact-LAD scene, {d['twin_size']:g} m, hot spot on)", "",
+              f"`vs mesh`: the total error. `vs voxel ref`: against a {d['n_ref']:,}-photon run of the same voxel "
+              "scene (" + " / ".join(f"{d['vref_time'][n]:.1f} s" for n in pn) + "), i.e. the Monte Carlo noise "
+              "alone, without the model error. `noise`: the run's own noise estimated from its 16 batches.", "",
+              "| photons | sim s | photons/s | NRMSE vs mesh | NRMSE vs voxel ref | noise (batches) | 1 - r vs mesh |",
               "|---:|---:|---:|---|---|---|---|"]
     for r in prow:
-        per = r["per"]
-        t = mean_over(r, "time")
-        lines.append(f"| {r['photons']:,} | " + " / ".join(f"{per[n]['time']:.2f}" for n in pn)
-                     + f" | {r['photons'] / t:,.0f} | "
-                     + " / ".join(f"{per[n]['nrmse']:.4f}" for n in pn) + " | "
-                     + " / ".join(f"{per[n]['nrmse_vox']:.4f}" for n in pn) + " | "
-                     + " / ".join(f"{per[n]['noise']:.4f}" for n in pn) + " | "
-                     + " / ".join(f"{per[n]['one_r']:.3f}" for n in pn) + " |")
+        t = float(np.mean([r["per"][n]["time"] for n in pn]))
+        lines.append(f"| {r['photons']:,} | {per(r, 'time')} | {r['photons'] / t:,.0f} | {per(r, 'nrmse')} | "
+                     f"{per(r, 'nrmse_vox')} | {per(r, 'noise')} | {per(r, 'one_r')} |")
     lines += ["", "![speed against accuracy](../img/pipeline_speed_accuracy.png)", ""]
 
-    # -- chart ----------------------------------------------------------------------------
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 2, figsize=(13, 5.2))
-    style = {("exact LAD", True): ("o", "tab:green"), ("exact LAD", False): ("o", "lightgreen"),
-             ("TLS pipeline", True): ("s", "tab:blue"), ("TLS pipeline", False): ("s", "lightblue")}
-    done = set()
-    for src_name in ("exact LAD", "TLS pipeline"):
-        rr = [r for r in rows if r["source"] == src_name and r["hot"]]
-        if rr:
-            xs = [r["scene_s"] + mean_over(r, "time") for r in rr]
-            ax[0].plot(xs, [mean_over(r, "nrmse") for r in rr], "-", color=style[src_name, True][1], lw=0.8)
-    for r in rows:
-        mk, col = style[r["source"], r["hot"]]
-        lab = f"{r['source']}, hot spot {'on' if r['hot'] else 'off'}"
-        x, y = r["scene_s"] + mean_over(r, "time"), mean_over(r, "nrmse")
-        ax[0].loglog(x, y, mk, color=col, mec="k", ms=8, label=None if lab in done else lab)
-        done.add(lab)
-        ax[0].annotate(f"{r['h'] * 100:g} cm", (x, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
-    floor = float(np.mean([ref_noise[n] for n in pn]))
-    ax[0].axhline(floor, color="grey", ls=":", lw=1, label="mesh reference's own noise")
-    ax[0].set(xlabel="scene building + one simulation (s)", ylabel="waveform NRMSE vs mesh (mean of pulses)",
-              title=f"Voxel size ({n_vox:.0e} photons)")
-    ax[0].legend(fontsize=8, loc="best")
+    fig, ax = plt.subplots(1, 2, figsize=(14, 5.6))
+    colors = {"exact LAD": "tab:green", "TLS pipeline": "tab:blue"}
+    marks = dict(zip(pn, ["o", "^", "s", "D"]))
+    for src in ("exact LAD", "TLS pipeline"):
+        for n in pn:
+            rr = [r for r in rows if r["source"] == src and r["hot"]]
+            if not rr:
+                continue
+            xs = [r["scene_s"] + r["per"][n]["time"] for r in rr]
+            ys = [r["per"][n]["nrmse"] for r in rr]
+            ax[0].loglog(xs, ys, "-", marker=marks[n], color=colors[src], mec="k", ms=7, lw=0.8,
+                         label=f"{src}, {n}")
+            for r, x, y in zip(rr, xs, ys):
+                ax[0].annotate(f"{r['h'] * 100:g} cm", (x, y), textcoords="offset points", xytext=(5, 4),
+                               fontsize=7)
+            for r in (r for r in rows if r["source"] == src and not r["hot"]):
+                x, y = r["scene_s"] + r["per"][n]["time"], r["per"][n]["nrmse"]
+                ax[0].loglog(x, y, marks[n], color=colors[src], mfc="white", ms=7)
+                ax[0].annotate(f"{r['h'] * 100:g} cm, no hot spot", (x, y), textcoords="offset points",
+                               xytext=(5, -10), fontsize=7, color="dimgrey")
+    floor = float(np.mean([d["ref_noise"][n] for n in pn]))
+    ax[0].axhline(floor, color="grey", ls=":", lw=1, label="mesh reference's own MC noise")
+    ax[0].set(xlabel="scene building + one simulation (s)", ylabel="waveform NRMSE vs mesh",
+              title=f"Voxel size ({d['n_vox']:,} photons; open markers: hot spot off)")
+    ax[0].legend(fontsize=7, loc="lower right")
     ax[0].grid(alpha=0.3, which="both")
-    xs = [mean_over(r, "time") for r in prow]
-    y1 = [mean_over(r, "nrmse") for r in prow]
-    y2 = [mean_over(r, "nrmse_vox") for r in prow]
-    ax[1].loglog(xs, y1, "o-", color="tab:red", mec="k", label="vs mesh (total error)")
-    ax[1].loglog(xs, y2, "^-", color="tab:purple", mec="k", label=f"vs voxel run of {n_ref:.0e} photons (MC noise)")
-    for r, x, y in zip(prow, xs, y1):
-        ax[1].annotate(f"{r['photons']:.0e}", (x, y), textcoords="offset points", xytext=(4, 5), fontsize=8)
-    for r, x, y in zip(prow, xs, y2):
-        ax[1].annotate(f"{r['photons']:.0e}", (x, y), textcoords="offset points", xytext=(4, -11), fontsize=8)
-    ax[1].axhline(floor, color="grey", ls=":", lw=1, label="mesh reference's own noise")
-    ax[1].set(xlabel="simulation time (s)", ylabel="waveform NRMSE (mean of pulses)",
-              title=f"Photon count (exact LAD, {twin_size:g} m, hot spot on)")
-    ax[1].legend(fontsize=8)
+    for n in pn:
+        xs = [r["per"][n]["time"] for r in prow]
+        y1 = [r["per"][n]["nrmse"] for r in prow]
+        y2 = [r["per"][n]["nrmse_vox"] for r in prow]
+        ax[1].loglog(xs, y1, "-", marker=marks[n], color="tab:red", mec="k", ms=7, lw=0.8,
+                     label=f"{n}: vs mesh (total error)")
+        ax[1].loglog(xs, y2, "--", marker=marks[n], color="tab:purple", mec="k", ms=7, lw=0.8,
+                     label=f"{n}: vs {d['n_ref']:.0e}-photon voxel run (MC noise)")
+        for r, x, y in zip(prow, xs, y1):
+            ax[1].annotate(f"{r['photons']:.0e}", (x, y), textcoords="offset points", xytext=(4, 5), fontsize=7)
+        for r, x, y in zip(prow, xs, y2):
+            ax[1].annotate(f"{r['photons']:.0e}", (x, y), textcoords="offset points", xytext=(4, -11), fontsize=7)
+    ax[1].axhline(floor, color="grey", ls=":", lw=1, label="mesh reference's own MC noise")
+    ax[1].set(xlabel="simulation time (s)", ylabel="waveform NRMSE",
+              title=f"Photon count (exact LAD, {d['twin_size']:g} m, hot spot on)")
+    ax[1].legend(fontsize=7, loc="lower left")
     ax[1].grid(alpha=0.3, which="both")
     fig.tight_layout()
-    png = Path(args.png)
-    png.parent.mkdir(parents=True, exist_ok=True)
-    from tlsvox.scene import atomic_write
-
     atomic_write(png, lambda tmp: fig.savefig(tmp, format="png", dpi=110))
     plt.close(fig)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     text = "\n".join(lines).rstrip() + "\n"
     atomic_write(out, lambda tmp: Path(tmp).write_text(text))
     print(text)
-    log(f"wrote {out} and {png} in {total_s:.0f} s")
-    return 0
+
+
+FMT = dict(time=".2f", nrmse=".3f", one_r=".3f", total=".2f", nrmse_vox=".4f", noise=".4f")
 
 
 if __name__ == "__main__":
