@@ -79,7 +79,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, parse_choice
 from .io import check_scan
 from .materials import DEFAULT_OPTICS, Material
 from .reflectance import apparent_reflectance
@@ -136,15 +136,7 @@ class ThresholdRule(enum.Enum):
 
     @classmethod
     def parse(cls, value):
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError as err:
-            raise InputError(
-                f"rule={value!r} is not a threshold rule; expected one of "
-                f"{', '.join(m.value for m in cls)}"
-            ) from err
+        return parse_choice(cls, value, "rule", "threshold rule")
 
 
 class ClassifyMethod(enum.Enum):
@@ -156,15 +148,7 @@ class ClassifyMethod(enum.Enum):
 
     @classmethod
     def parse(cls, value):
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError as err:
-            raise InputError(
-                f"method={value!r} is not a classification method; expected one of "
-                f"{', '.join(m.value for m in cls)}"
-            ) from err
+        return parse_choice(cls, value, "method", "classification method")
 
 
 @dataclass(frozen=True)

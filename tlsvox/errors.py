@@ -21,3 +21,24 @@ class InputError(TlsvoxError, ValueError):
 
 class ScanFileError(TlsvoxError, OSError):
     """A scan file could not be read or written."""
+
+
+def parse_choice(enum_cls, value, label: str, what: str):
+    """The member of ``enum_cls`` for ``value`` (case-insensitive), or an InputError
+    that names the parameter and lists the valid choices.
+
+    Examples
+    --------
+    >>> import enum
+    >>> class Colour(enum.Enum):
+    ...     RED = "red"
+    >>> parse_choice(Colour, "RED", "colour", "colour").value
+    'red'
+    """
+    if isinstance(value, enum_cls):
+        return value
+    try:
+        return enum_cls(str(value).lower())
+    except ValueError:
+        choices = ", ".join(m.value for m in enum_cls)
+        raise InputError(f"{label}={value!r} is not a {what}; choose one of: {choices}") from None

@@ -73,22 +73,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, parse_choice
 from .trace import VoxelStats
 
 __all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "estimate_lad", "fill_layers", "hull_mask"]
 
 _TINY = 1e-12
-
-
-def _parse_choice(cls, value, label: str, what: str):
-    if isinstance(value, cls):
-        return value
-    try:
-        return cls(str(value).lower())
-    except ValueError:
-        choices = ", ".join(m.value for m in cls)
-        raise InputError(f"{label}={value!r} is not a {what}; choose one of: {choices}") from None
 
 
 class Estimator(str, enum.Enum):
@@ -102,7 +92,7 @@ class Estimator(str, enum.Enum):
     @classmethod
     def parse(cls, value) -> "Estimator":
         """The member for ``value``; raises listing the valid choices."""
-        return _parse_choice(cls, value, "estimator", "LAD estimator")
+        return parse_choice(cls, value, "estimator", "LAD estimator")
 
 
 class FillMode(str, enum.Enum):
@@ -114,7 +104,7 @@ class FillMode(str, enum.Enum):
     @classmethod
     def parse(cls, value) -> "FillMode":
         """The member for ``value``; raises listing the valid choices."""
-        return _parse_choice(cls, value, "fill", "fill mode")
+        return parse_choice(cls, value, "fill", "fill mode")
 
 
 class Flag(enum.IntFlag):

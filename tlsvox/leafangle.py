@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from .errors import InputError
+from .errors import InputError, parse_choice
 
 __all__ = ["LeafAngle", "LeafAngleKind", "ross_kernel", "sample_leaf_normals"]
 
@@ -61,16 +61,7 @@ class LeafAngleKind(str, enum.Enum):
     @classmethod
     def parse(cls, value: "str | LeafAngleKind") -> "LeafAngleKind":
         """Return the member for ``value`` or raise with the valid choices."""
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError:
-            choices = ", ".join(m.value for m in cls)
-            raise InputError(
-                f"leaf_angle={value!r} is not a known leaf angle distribution; "
-                f"choose one of: {choices}"
-            ) from None
+        return parse_choice(cls, value, "leaf_angle", "known leaf angle distribution")
 
 
 def ross_kernel(theta, t):

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, parse_choice
 from .scan import Scan
 
 __all__ = [
@@ -63,15 +63,7 @@ class ReflectanceSource(enum.Enum):
 
     @classmethod
     def parse(cls, value: "str | ReflectanceSource") -> "ReflectanceSource":
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError as err:
-            raise InputError(
-                f"source={value!r} is not a reflectance source; expected one of "
-                f"{', '.join(m.value for m in cls)}"
-            ) from err
+        return parse_choice(cls, value, "source", "reflectance source")
 
 
 def db_to_reflectance(db) -> np.ndarray:

@@ -66,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, TlsvoxError
+from .errors import InputError, TlsvoxError, parse_choice
 from .io import check_scan
 from .scan import Scan
 
@@ -122,15 +122,7 @@ class RegistrationMethod(enum.Enum):
 
     @classmethod
     def parse(cls, value):
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError as err:
-            raise InputError(
-                f"method={value!r} is not a registration method; expected one of "
-                f"{', '.join(m.value for m in cls)}"
-            ) from err
+        return parse_choice(cls, value, "method", "registration method")
 
 
 class TargetShape(enum.Enum):
@@ -142,15 +134,7 @@ class TargetShape(enum.Enum):
 
     @classmethod
     def parse(cls, value):
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError as err:
-            raise InputError(
-                f"target_shape={value!r} is not a target shape; expected one of "
-                f"{', '.join(m.value for m in cls)}"
-            ) from err
+        return parse_choice(cls, value, "target_shape", "target shape")
 
 
 # -- small geometry helpers -----------------------------------------------------------

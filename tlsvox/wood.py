@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, parse_choice
 from .estimators import _div
 from .trace import VoxelStats
 
@@ -50,14 +50,7 @@ class WoodMethod(str, enum.Enum):
 
     @classmethod
     def parse(cls, value) -> "WoodMethod":
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError:
-            raise InputError(
-                f"wood={value!r} is not a wood method; choose one of: {', '.join(m.value for m in cls)}"
-            ) from None
+        return parse_choice(cls, value, "wood", "wood method")
 
 
 @dataclass
