@@ -39,7 +39,7 @@ from tlsvox.materials import Material
 from .errors import InputError
 from .sensor import C_M_PER_NS
 from .simulator import STAT_NAMES, Detect, assemble_result, prepare_run
-from .transport_ref import _dot, cosine_dir as _cosine_dir
+from .transport_ref import _dot, cosine_dir as _cosine_dir, in_fov
 
 __all__ = ["MeshReferenceSimulator"]
 
@@ -143,7 +143,7 @@ class _Context:
         self.axis = np.asarray(p["axis"], np.float64)
         self.e1, self.e2 = np.asarray(p["e1"], np.float64), np.asarray(p["e2"], np.float64)
         self.sigma = float(p["beam_sigma"])
-        self.cos_fov = float(p["cos_fov"])
+        self.tan2_fov = float(np.tan(1e-3 * setup.sensor.fov_mrad)) ** 2
         self.norm = setup.range_ref_m**2
         self.edges = setup.edges_ns
         B, K, F = setup.batches, setup.max_order, len(self.edges) - 1
@@ -238,7 +238,7 @@ class _Context:
         cosr = -_dot(drx, np.broadcast_to(self.axis, drx.shape))
         c = _dot(m, drx)
         f = np.where(c > 0, R * c / np.pi, -T * c / np.pi)
-        ok = (cosr >= self.cos_fov) & (f > 0)
+        ok = (f > 0) & in_fov(-to, self.axis, self.tan2_fov)
         if not ok.any():
             return
         i = a[ok]

@@ -47,7 +47,7 @@ COUNT_STATS = ("detections", "voxel_steps", "events", "shadow_rays")
 
 PARAMS_DTYPE = np.dtype([
     ("sensor", "<f4", 3), ("axis", "<f4", 3), ("e1", "<f4", 3), ("e2", "<f4", 3),
-    ("beam_sigma", "<f4"), ("cos_fov", "<f4"), ("virt_r2", "<f4"), ("norm_nee", "<f4"),
+    ("beam_sigma", "<f4"), ("tan2_fov", "<f4"), ("virt_r2", "<f4"), ("norm_nee", "<f4"),
     ("norm_analog", "<f4"), ("h", "<f4"), ("shape", "<i4", 3), ("bshape", "<i4", 3),
     ("ground_z", "<f4"), ("has_ground", "<i4"), ("leaf_R", "<f4"), ("leaf_T", "<f4"),
     ("wood_R", "<f4"), ("wood_T", "<f4"), ("ground_R", "<f4"), ("crown_c", "<f4", 2),
@@ -209,7 +209,7 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     r["e1"] = e1
     r["e2"] = e2
     r["beam_sigma"] = 0.5e-3 * sensor.divergence_mrad
-    r["cos_fov"] = math.cos(1e-3 * sensor.fov_mrad)
+    r["tan2_fov"] = math.tan(1e-3 * sensor.fov_mrad) ** 2
     r["virt_r2"] = (0.5 * sensor.virtual_aperture_m) ** 2
     r["norm_nee"] = R_ref**2
     r["norm_analog"] = R_ref**2 / sensor.virtual_aperture_area_m2

@@ -58,6 +58,16 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+def in_fov(v, axis, tan2_fov):
+    """Rows of v (sensor -> point) inside the field of view around unit ``axis``.
+
+    Tested on the offset from the axis, as the kernel does (a cosine near 1
+    is too coarse in float32)."""
+    along = v @ axis
+    off = v - along[:, None] * axis
+    return (along > 0) & (_dot(off, off) <= tan2_fov * along**2)
+
+
 class _Transport:
     def __init__(self, setup: RunSetup):
         self.s = setup
@@ -84,7 +94,7 @@ class _Transport:
         self.cc = sc.crown_center - sc.origin[:2]
         self.outward = sc.leaf_azimuth == "outward"
         self.ds = float(p["ds"])
-        self.cos_fov = float(np.cos(1e-3 * setup.sensor.fov_mrad))
+        self.tan2_fov = float(np.tan(1e-3 * setup.sensor.fov_mrad)) ** 2
         self.sigma = 0.5e-3 * setup.sensor.divergence_mrad
         self.virt_r2 = (0.5 * setup.sensor.virtual_aperture_m) ** 2
         self.norm_nee = setup.range_ref_m**2
@@ -417,7 +427,7 @@ class _Transport:
         cosr = -_dot(drx, np.broadcast_to(self.axis, drx.shape))
         c = _dot(m, drx)
         f = np.where(c > 0, R * c / np.pi, -T * c / np.pi)
-        ok = (cosr >= self.cos_fov) & (f > 0)
+        ok = (f > 0) & in_fov(-to, self.axis, self.tan2_fov)
         if not ok.any():
             return
         i = a[ok]
@@ -436,7 +446,7 @@ class _Transport:
         den = _dot(d[ie], axis)
         sx = x[ie] - self.sensor
         along = _dot(sx, axis)
-        ok = (den < 0) & (along > 0) & (along >= self.cos_fov * np.linalg.norm(sx, axis=1))
+        ok = (den < 0) & in_fov(sx, self.axis, self.tan2_fov)
         with np.errstate(divide="ignore", invalid="ignore"):
             s = -along / den
         q = x[ie] + d[ie] * s[:, None] - self.sensor

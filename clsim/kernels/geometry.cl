@@ -2,10 +2,50 @@
 #ifndef CLSIM_GEOMETRY_CL
 #define CLSIM_GEOMETRY_CL
 
+#include "common.cl"
+
 #define CLSIM_PI 3.14159265358979323846f
 
+/* sin and cos of |x| <= pi/4 by their Taylor series to x^9 and x^10
+ * (truncation error below 3e-9, under float32 rounding). */
+CLSIM_INLINE float sincos_small(float x, float *c)
+{
+    const float x2 = x * x;
+    *c = 1.0f + x2 * (-0.5f + x2 * (1.0f / 24.0f + x2 * (-1.0f / 720.0f + x2 * (1.0f / 40320.0f
+         + x2 * (-1.0f / 3628800.0f)))));
+    return x * (1.0f + x2 * (-1.0f / 6.0f + x2 * (1.0f / 120.0f + x2 * (-1.0f / 5040.0f
+           + x2 * (1.0f / 362880.0f)))));
+}
+
+/* sin and cos of 2 pi u for u in [0, 1].  The quadrant comes from u itself,
+ * so the reduction is exact; PoCL's sin and cos spend most of their time on
+ * a general argument reduction. */
+CLSIM_INLINE float sincos_turns(float u, float *c)
+{
+    const float q = u * 4.0f;
+    const float k = rint(q);
+    float ca;
+    const float sa = sincos_small((q - k) * (0.5f * CLSIM_PI), &ca);
+    const int quadrant = (int)k & 3;
+    /* rotate (ca, sa) by quadrant * 90 degrees */
+    const float cr = quadrant == 0 ? ca : (quadrant == 1 ? -sa : (quadrant == 2 ? -ca : sa));
+    const float sr = quadrant == 0 ? sa : (quadrant == 1 ? ca : (quadrant == 2 ? -sa : -ca));
+    *c = cr;
+    return sr;
+}
+
+/* sin and cos of t in [0, pi/2]: t = pi/4 + a, |a| <= pi/4. */
+CLSIM_INLINE float sincos_quarter(float t, float *c)
+{
+    float ca;
+    const float sa = sincos_small(t - 0.25f * CLSIM_PI, &ca);
+    const float r = 0.70710678118654752f;
+    *c = r * (ca - sa);
+    return r * (sa + ca);
+}
+
 /* Orthonormal basis around unit n (Duff et al. 2017, JCGT 6(1), branchless). */
-inline void onb(float3 n, float3 *b1, float3 *b2)
+CLSIM_INLINE void onb(float3 n, float3 *b1, float3 *b2)
 {
     const float s = copysign(1.0f, n.z);
     const float a = -1.0f / (s + n.z);
@@ -15,38 +55,58 @@ inline void onb(float3 n, float3 *b1, float3 *b2)
 }
 
 /* Cosine-weighted direction about unit m. */
-inline float3 cosine_dir(float3 m, float u1, float u2)
+CLSIM_INLINE float3 cosine_dir(float3 m, float u1, float u2)
 {
     float3 b1, b2;
     onb(m, &b1, &b2);
-    const float r = sqrt(u1), ph = 2.0f * CLSIM_PI * u2;
-    return normalize(r * cos(ph) * b1 + r * sin(ph) * b2 + sqrt(fmax(0.0f, 1.0f - u1)) * m);
+    const float r = sqrt(u1);
+    float c;
+    const float s = sincos_turns(u2, &c);
+    return normalize(r * c * b1 + r * s * b2 + sqrt(fast_max(0.0f, 1.0f - u1)) * m);
 }
 
 /* Leaf normal (upper hemisphere): zenith from the inverse-CDF table, azimuth
  * uniform (u_az) or pointing away from the crown centre at x. */
-inline float3 leaf_normal(__global const float *ppf, float u_t, float u_az, float3 x,
+CLSIM_INLINE float3 leaf_normal(__global const float *ppf, float u_t, float u_az, float3 x,
                           float cx, float cy, int outward)
 {
     const float s = u_t * (float)(NTAB - 1);
     const int i = min((int)s, NTAB - 2);
     const float f = s - (float)i;
     const float t = ppf[i] * (1.0f - f) + ppf[i + 1] * f;
-    const float ph = outward ? atan2(x.y - cy, x.x - cx) : 2.0f * CLSIM_PI * u_az;
-    const float st = sin(t);
-    return (float3)(st * cos(ph), st * sin(ph), cos(t));
+    float ct, cp, sp;
+    const float st = sincos_quarter(clamp(t, 0.0f, 0.5f * CLSIM_PI), &ct);
+    if (outward) { /* azimuth atan2(dy, dx): its cosine and sine directly */
+        const float dx = x.x - cx, dy = x.y - cy, rr = dx * dx + dy * dy;
+        const float ir = rr > 0.0f ? rsqrt(rr) : 0.0f;
+        cp = rr > 0.0f ? dx * ir : 1.0f;
+        sp = dy * ir;
+    } else {
+        sp = sincos_turns(u_az, &cp);
+    }
+    return (float3)(st * cp, st * sp, ct);
+}
+
+/* Is v (sensor -> point) inside the receiver's field of view around the unit
+ * axis?  Tested on the offset from the axis, not on a cosine: cos(1 mrad) =
+ * 1 - 5e-7 lies a few float32 steps from 1, which would blur the FOV edge. */
+CLSIM_INLINE int in_fov(float3 v, float3 axis, float tan2_fov)
+{
+    const float along = fast_dot(v, axis);
+    const float3 off = v - along * axis;
+    return along > 0.0f && fast_dot(off, off) <= tan2_fov * along * along;
 }
 
 /* Side of an oriented surface element facing the incoming direction d. */
-inline float3 incident_side(float3 n, float3 d)
+CLSIM_INLINE float3 incident_side(float3 n, float3 d)
 {
-    return dot(n, d) > 0.0f ? -n : n;
+    return fast_dot(n, d) > 0.0f ? -n : n;
 }
 
 /* Bi-Lambertian BSDF value (1/sr) for incident-side normal m towards w. */
-inline float bsdf(float3 m, float3 w, float R, float T)
+CLSIM_INLINE float bsdf(float3 m, float3 w, float R, float T)
 {
-    const float c = dot(m, w);
+    const float c = fast_dot(m, w);
     return c > 0.0f ? R * c / CLSIM_PI : -T * c / CLSIM_PI;
 }
 

@@ -9,7 +9,7 @@ typedef struct {
     float e1[3];        /* unit vectors perpendicular to axis */
     float e2[3];
     float beam_sigma;   /* per-axis angular standard deviation, rad */
-    float cos_fov;      /* cosine of the receiver FOV half angle */
+    float tan2_fov;     /* squared tangent of the receiver FOV half angle */
     float virt_r2;      /* squared radius of the analog virtual aperture, m2 */
     float norm_nee;     /* R_ref^2: NEE tallies are in units of A / R_ref^2 */
     float norm_analog;  /* R_ref^2 / A_virtual */

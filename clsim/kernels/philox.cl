@@ -4,15 +4,19 @@
 #ifndef CLSIM_PHILOX_CL
 #define CLSIM_PHILOX_CL
 
-inline uint4 philox4x32_10(uint4 c, uint2 k)
+#include "common.cl"
+
+CLSIM_INLINE uint4 philox4x32_10(uint4 c, uint2 k)
 {
     for (int r = 0; r < 10; ++r) {
         if (r) {
             k.x += 0x9E3779B9u;
             k.y += 0xBB67AE85u;
         }
-        const uint lo0 = 0xD2511F53u * c.x, hi0 = mul_hi(0xD2511F53u, c.x);
-        const uint lo1 = 0xCD9E8D57u * c.z, hi1 = mul_hi(0xCD9E8D57u, c.z);
+        /* one 64-bit product gives both halves (PoCL calls mul_hi out of line) */
+        const ulong p0 = (ulong)0xD2511F53u * c.x, p1 = (ulong)0xCD9E8D57u * c.z;
+        const uint lo0 = (uint)p0, hi0 = (uint)(p0 >> 32);
+        const uint lo1 = (uint)p1, hi1 = (uint)(p1 >> 32);
         c = (uint4)(hi1 ^ c.y ^ k.x, lo1, hi0 ^ c.w ^ k.y, lo0);
     }
     return c;
@@ -24,7 +28,7 @@ typedef struct {
     uint ctr;
 } rng_t;
 
-inline void rng_init(rng_t *r, uint2 key, ulong pid)
+CLSIM_INLINE void rng_init(rng_t *r, uint2 key, ulong pid)
 {
     r->key = key;
     r->pid_lo = (uint)(pid & 0xFFFFFFFFul);
@@ -33,7 +37,7 @@ inline void rng_init(rng_t *r, uint2 key, ulong pid)
 }
 
 /* Next block of four uniforms in (0, 1). */
-inline float4 rng_next(rng_t *r)
+CLSIM_INLINE float4 rng_next(rng_t *r)
 {
     const uint4 x = philox4x32_10((uint4)(r->ctr, r->pid_lo, r->pid_hi, 0u), r->key);
     r->ctr += 1u;

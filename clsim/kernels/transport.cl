@@ -4,6 +4,7 @@
  * BRICK, NTAB, NG, TRACE_EVENTS. */
 #pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
 
+#include "common.cl"
 #include "params.cl"
 #include "philox.cl"
 #include "geometry.cl"
@@ -27,30 +28,30 @@ typedef struct {
 } scene_t;
 
 /* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]. */
-inline float g_of(__global const float *gtab, float mu)
+CLSIM_INLINE float g_of(__global const float *gtab, float mu)
 {
-    const float s = fmin(fabs(mu), 1.0f) * (float)(NG - 1);
+    const float s = fast_min(fast_abs(mu), 1.0f) * (float)(NG - 1);
     const int i = min((int)s, NG - 2);
     const float f = s - (float)i;
     return gtab[i] * (1.0f - f) + gtab[i + 1] * f;
 }
 
-inline void add_fixed(__global ulong *p, float v)
+CLSIM_INLINE void add_fixed(__global ulong *p, float v)
 {
     if (v > 0.0f)
         atom_add(p, (ulong)(v * FIXED_SCALE + 0.5f));
 }
 
-inline float ground_t(float3 o, float3 d, __global const params_t *P)
+CLSIM_INLINE float ground_t(float3 o, float3 d, __global const params_t *P)
 {
     if (!P->has_ground || !(d.z < 0.0f))
         return INFINITY;
-    return fmax(0.0f, (P->ground_z - o.z) / d.z);
+    return fast_max(0.0f, (P->ground_z - o.z) / d.z);
 }
 
 /* Next real interaction along (o, d).  Returns the event type, its distance
  * *t and the surface normal *n (leaf: sampled normal, wood: facing normal). */
-inline int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, float3 *n,
+CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, float3 *n,
                   uint *steps)
 {
     __global const params_t *P = S->P;
@@ -78,7 +79,7 @@ inline int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, fl
                     return EV_WOOD;
                 }
                 const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-                if (b.y * sig < e.x * fabs(dot(nl, d))) {
+                if (b.y * sig < e.x * fast_abs(fast_dot(nl, d))) {
                     *n = nl;
                     *t = tc;
                     return EV_LEAF;
@@ -106,7 +107,7 @@ inline int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, fl
             if (e.x + e.y > 0.0f) {
                 const float4 b = rng_next(rng);
                 const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-                if (b.x < fmin(1.0f, e.x * fabs(dot(nl, d)) * ds)) {
+                if (b.x < fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) {
                     *n = nl;
                     *t = tk;
                     return EV_LEAF;
@@ -136,7 +137,7 @@ inline int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, fl
  * voxel and T = exp(-sum sigma l) exactly (no random numbers); with outward
  * azimuths G varies inside a voxel and ratio tracking (unbiased) is used.
  * Paper mode: the product over the paper's steps. */
-inline float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t *rng, uint *steps)
+CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t *rng, uint *steps)
 {
     __global const params_t *P = S->P;
     walker_t w;
@@ -171,7 +172,7 @@ inline float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t 
             const float tc = ta + tau / sig;
             const float3 x = o + d * tc;
             const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-            T *= 1.0f - (e.x * fabs(dot(nl, d)) + e.y) / sig;
+            T *= 1.0f - (e.x * fast_abs(fast_dot(nl, d)) + e.y) / sig;
             if (T < RR_THRESHOLD) {
                 if (b.y * RR_SURVIVE < T)
                     T = RR_SURVIVE;
@@ -201,7 +202,7 @@ inline float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t 
         if (e.x + e.y > 0.0f) {
             const float4 b = rng_next(rng);
             const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-            T *= (1.0f - fmin(1.0f, e.x * fabs(dot(nl, d)) * ds)) * exp(-e.y * ds);
+            T *= (1.0f - fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) * exp(-e.y * ds);
             if (T < RR_THRESHOLD) {
                 if (b.y * RR_SURVIVE < T)
                     T = RR_SURVIVE;
@@ -215,7 +216,7 @@ inline float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t 
     return T;
 }
 
-inline void tally(__global ulong *hist, __global ulong *stats, __global const params_t *P,
+CLSIM_INLINE void tally(__global ulong *hist, __global ulong *stats, __global const params_t *P,
                   uint batch, int order, int kind, float t_ns, float value)
 {
     const float s = (t_ns - P->t0_ns) / P->dt_ns;
@@ -227,7 +228,7 @@ inline void tally(__global ulong *hist, __global ulong *stats, __global const pa
     }
 }
 
-inline void record(__global float4 *trace, ulong pid, int k, float3 x, int type, __global const params_t *P)
+CLSIM_INLINE void record(__global float4 *trace, ulong pid, int k, float3 x, int type, __global const params_t *P)
 {
     if (pid < (ulong)P->n_trace && k < TRACE_EVENTS)
         trace[pid * TRACE_EVENTS + k] = (float4)(x, (float)type);
@@ -252,8 +253,9 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     const float3 e1 = vload3(0, P->e1), e2 = vload3(0, P->e2);
     const float4 b0 = rng_next(&rng);
     const float rr = P->beam_sigma * sqrt(-2.0f * log(b0.x));
-    const float ph = 2.0f * CLSIM_PI * b0.y;
-    float3 d = normalize(axis + rr * cos(ph) * e1 + rr * sin(ph) * e2);
+    float cph;
+    const float sph = sincos_turns(b0.y, &cph);
+    float3 d = normalize(axis + rr * cph * e1 + rr * sph * e2);
     float3 x = sensor;
     float L = 0.0f, w = 1.0f;
     int last = EV_LEAF;
@@ -269,13 +271,13 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
             record(trace, pid, k, x + d * 10.0f, EV_ESCAPE, P);
 #if DETECT == 1
             if (k >= 2) {
-                const float den = dot(d, axis);
+                const float den = fast_dot(d, axis);
                 const float3 sx = x - sensor;
-                const float along = dot(sx, axis);
-                if (den < 0.0f && along > 0.0f && along >= P->cos_fov * length(sx)) {
+                const float along = fast_dot(sx, axis);
+                if (den < 0.0f && in_fov(sx, axis, P->tan2_fov)) {
                     const float s = -along / den;
                     const float3 q = x + d * s - sensor;
-                    if (dot(q, q) <= P->virt_r2) {
+                    if (fast_dot(q, q) <= P->virt_r2) {
                         tally(hist, stats, P, batch, k - 1, last == EV_GROUND, (L + s) / 0.299792458f,
                               w * P->norm_analog);
                         atom_inc(st + ST_DETECTIONS);
@@ -310,9 +312,9 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
             const float3 to = sensor - x;
             const float r = length(to);
             const float3 drx = to / r;
-            const float cosr = -dot(drx, axis);
+            const float cosr = -fast_dot(drx, axis);
             const float f = bsdf(m, drx, R, T);
-            if (cosr >= P->cos_fov && f > 0.0f) {
+            if (f > 0.0f && in_fov(-to, axis, P->tan2_fov)) {
                 shadow += 1u;
                 /* hot spot: a single-scattering return retraces its incoming path, which was free */
                 const float Tr = (P->hotspot && k == 1) ? 1.0f : transmittance(&S, x, drx, r, &rng, &steps);
