@@ -501,6 +501,8 @@ class Simulator:
             opts = [f"-I{kdir}", f"-DMODE={1 if key[0] is Mode.PAPER else 0}",
                     f"-DDETECT={1 if key[1] is Detect.ANALOG else 0}", f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}",
                     f"-DNTAB={NTAB}", f"-DNG={NG}", f"-DTRACE_EVENTS={TRACE_EVENTS}", "-cl-fast-relaxed-math"]
+            if "portable computing language" in self.device.platform.name.lower():
+                opts.append("-DCLSIM_CLANG_BUILTINS")  # PoCL compiles with clang (kernels/common.cl)
             t0 = time.perf_counter()
             try:
                 prg = self._cl.Program(self.context, src).build(options=opts)

@@ -23,10 +23,10 @@ CLSIM_INLINE float sincos_small(float x, float *c)
 CLSIM_INLINE float sincos_turns(float u, float *c)
 {
     const float q = u * 4.0f;
-    const float k = rint(q);
+    const int k = (int)(q + 0.5f); /* nearest quadrant (q >= 0) */
     float ca;
-    const float sa = sincos_small((q - k) * (0.5f * CLSIM_PI), &ca);
-    const int quadrant = (int)k & 3;
+    const float sa = sincos_small((q - (float)k) * (0.5f * CLSIM_PI), &ca);
+    const int quadrant = k & 3;
     /* rotate (ca, sa) by quadrant * 90 degrees */
     const float cr = quadrant == 0 ? ca : (quadrant == 1 ? -sa : (quadrant == 2 ? -ca : sa));
     const float sr = quadrant == 0 ? sa : (quadrant == 1 ? ca : (quadrant == 2 ? -sa : -ca));
@@ -47,7 +47,7 @@ CLSIM_INLINE float sincos_quarter(float t, float *c)
 /* Orthonormal basis around unit n (Duff et al. 2017, JCGT 6(1), branchless). */
 CLSIM_INLINE void onb(float3 n, float3 *b1, float3 *b2)
 {
-    const float s = copysign(1.0f, n.z);
+    const float s = n.z >= 0.0f ? 1.0f : -1.0f;
     const float a = -1.0f / (s + n.z);
     const float b = n.x * n.y * a;
     *b1 = (float3)(1.0f + s * n.x * n.x * a, s * b, -s * n.x);
@@ -59,10 +59,10 @@ CLSIM_INLINE float3 cosine_dir(float3 m, float u1, float u2)
 {
     float3 b1, b2;
     onb(m, &b1, &b2);
-    const float r = sqrt(u1);
+    const float r = fast_sqrt(u1);
     float c;
     const float s = sincos_turns(u2, &c);
-    return normalize(r * c * b1 + r * s * b2 + sqrt(fast_max(0.0f, 1.0f - u1)) * m);
+    return fast_normalize3(r * c * b1 + r * s * b2 + fast_sqrt(fast_max(0.0f, 1.0f - u1)) * m);
 }
 
 /* Leaf normal (upper hemisphere): zenith from the inverse-CDF table, azimuth
@@ -75,7 +75,7 @@ CLSIM_INLINE float3 leaf_normal(__global const float *ppf, float u_t, float u_az
     const float f = s - (float)i;
     const float t = ppf[i] * (1.0f - f) + ppf[i + 1] * f;
     float ct, cp, sp;
-    const float st = sincos_quarter(clamp(t, 0.0f, 0.5f * CLSIM_PI), &ct);
+    const float st = sincos_quarter(fast_min(fast_max(t, 0.0f), 0.5f * CLSIM_PI), &ct);
     if (outward) { /* azimuth atan2(dy, dx): its cosine and sine directly */
         const float dx = x.x - cx, dy = x.y - cy, rr = dx * dx + dy * dy;
         const float ir = rr > 0.0f ? rsqrt(rr) : 0.0f;

@@ -6,20 +6,34 @@
 
 #include "common.cl"
 
+/* One round on scalar words (vector lane shuffles cost more than the round
+ * on PoCL); a 64-bit product gives both halves of each multiply. */
+#define PHILOX_ROUND(k0, k1)                                                \
+    {                                                                       \
+        const ulong p0 = (ulong)0xD2511F53u * c0, p1 = (ulong)0xCD9E8D57u * c2; \
+        const uint n0 = (uint)(p1 >> 32) ^ c1 ^ (k0);                       \
+        const uint n2 = (uint)(p0 >> 32) ^ c3 ^ (k1);                       \
+        c1 = (uint)p1;                                                      \
+        c3 = (uint)p0;                                                      \
+        c0 = n0;                                                            \
+        c2 = n2;                                                            \
+    }
+
 CLSIM_INLINE uint4 philox4x32_10(uint4 c, uint2 k)
 {
-    for (int r = 0; r < 10; ++r) {
-        if (r) {
-            k.x += 0x9E3779B9u;
-            k.y += 0xBB67AE85u;
-        }
-        /* one 64-bit product gives both halves (PoCL calls mul_hi out of line) */
-        const ulong p0 = (ulong)0xD2511F53u * c.x, p1 = (ulong)0xCD9E8D57u * c.z;
-        const uint lo0 = (uint)p0, hi0 = (uint)(p0 >> 32);
-        const uint lo1 = (uint)p1, hi1 = (uint)(p1 >> 32);
-        c = (uint4)(hi1 ^ c.y ^ k.x, lo1, hi0 ^ c.w ^ k.y, lo0);
-    }
-    return c;
+    uint c0 = c.x, c1 = c.y, c2 = c.z, c3 = c.w;
+    const uint a = k.x, b = k.y;
+    PHILOX_ROUND(a, b)
+    PHILOX_ROUND(a + 0x9E3779B9u, b + 0xBB67AE85u)
+    PHILOX_ROUND(a + 2u * 0x9E3779B9u, b + 2u * 0xBB67AE85u)
+    PHILOX_ROUND(a + 3u * 0x9E3779B9u, b + 3u * 0xBB67AE85u)
+    PHILOX_ROUND(a + 4u * 0x9E3779B9u, b + 4u * 0xBB67AE85u)
+    PHILOX_ROUND(a + 5u * 0x9E3779B9u, b + 5u * 0xBB67AE85u)
+    PHILOX_ROUND(a + 6u * 0x9E3779B9u, b + 6u * 0xBB67AE85u)
+    PHILOX_ROUND(a + 7u * 0x9E3779B9u, b + 7u * 0xBB67AE85u)
+    PHILOX_ROUND(a + 8u * 0x9E3779B9u, b + 8u * 0xBB67AE85u)
+    PHILOX_ROUND(a + 9u * 0x9E3779B9u, b + 9u * 0xBB67AE85u)
+    return (uint4)(c0, c1, c2, c3);
 }
 
 typedef struct {
@@ -41,7 +55,9 @@ CLSIM_INLINE float4 rng_next(rng_t *r)
 {
     const uint4 x = philox4x32_10((uint4)(r->ctr, r->pid_lo, r->pid_hi, 0u), r->key);
     r->ctr += 1u;
-    return (convert_float4(x >> 8u) + 0.5f) * 5.9604644775390625e-08f;
+    const float q = 5.9604644775390625e-08f; /* 2^-24 */
+    return (float4)(((float)(x.x >> 8) + 0.5f) * q, ((float)(x.y >> 8) + 0.5f) * q,
+                    ((float)(x.z >> 8) + 0.5f) * q, ((float)(x.w >> 8) + 0.5f) * q);
 }
 
 #endif

@@ -8,14 +8,18 @@
 
 #define B3 (BRICK * BRICK * BRICK)
 
+/* Scalar fields, not float3/int3: the step updates one axis, and lane
+ * inserts and extracts on vectors cost more than the arithmetic on PoCL. */
 typedef struct {
-    float3 o, d, inv; /* origin, unit direction, 1/direction (inf where 0) */
-    float3 tm;        /* distance to the far plane of the current voxel per axis */
+    float3 o, d;          /* origin, unit direction */
+    float ix, iy, iz;     /* 1/direction (inf where 0) */
+    float tmx, tmy, tmz;  /* distance to the far plane of the current voxel per axis */
     float t, t_end;
-    int3 v, step;
-    int3 cb;          /* current brick cell */
-    int slot;         /* its pool slot; WALK_LOOKUP: look it up before the next step */
-    int fresh;        /* tm must be recomputed (start, or after a brick jump) */
+    int vx, vy, vz;       /* current voxel */
+    int sx, sy, sz;       /* step per axis: -1, 0, 1 */
+    int cbx, cby, cbz;    /* current brick cell */
+    int slot;             /* its pool slot; WALK_LOOKUP: look it up before the next step */
+    int fresh;            /* tm must be recomputed (start, or after a brick jump) */
 } walker_t;
 
 #define WALK_LOOKUP (-2)
@@ -27,9 +31,14 @@ CLSIM_INLINE float far_plane_t(int v, int step, float o, float inv, float cell)
     return ((float)(v + (step > 0)) * cell - o) * inv;
 }
 
+CLSIM_INLINE int sign_of(float x)
+{
+    return x > 0.0f ? 1 : (x < 0.0f ? -1 : 0);
+}
+
 /* Clip [t_start, t_limit] to the grid box; 0 when the ray misses it. */
 CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, float t_limit,
-                       __global const params_t *P)
+                             __global const params_t *P)
 {
     const float3 L = (float3)(P->shape[0], P->shape[1], P->shape[2]) * P->h;
     float t0 = t_start, t1 = t_limit;
@@ -48,14 +57,18 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
         return 0;
     w->o = o;
     w->d = d;
-    w->inv = (float3)(d.x != 0.0f ? 1.0f / d.x : INFINITY, d.y != 0.0f ? 1.0f / d.y : INFINITY,
-                      d.z != 0.0f ? 1.0f / d.z : INFINITY);
+    w->ix = d.x != 0.0f ? 1.0f / d.x : INFINITY;
+    w->iy = d.y != 0.0f ? 1.0f / d.y : INFINITY;
+    w->iz = d.z != 0.0f ? 1.0f / d.z : INFINITY;
     w->t = t0;
     w->t_end = t1;
-    const float3 p = (o + d * t0) / P->h;
-    w->v = clamp(convert_int3_rtn(p), (int3)(0), (int3)(P->shape[0] - 1, P->shape[1] - 1, P->shape[2] - 1));
-    w->step = (int3)(d.x > 0.0f ? 1 : (d.x < 0.0f ? -1 : 0), d.y > 0.0f ? 1 : (d.y < 0.0f ? -1 : 0),
-                     d.z > 0.0f ? 1 : (d.z < 0.0f ? -1 : 0));
+    const int3 v = clamp_index(convert_int3_rtn((o + d * t0) / P->h), P->shape[0], P->shape[1], P->shape[2]);
+    w->vx = v.x;
+    w->vy = v.y;
+    w->vz = v.z;
+    w->sx = sign_of(d.x);
+    w->sy = sign_of(d.y);
+    w->sz = sign_of(d.z);
     w->slot = WALK_LOOKUP;
     w->fresh = 1;
     return 1;
@@ -80,82 +93,87 @@ CLSIM_INLINE float2 voxel_value(int3 v, int slot, __global const float2 *pool)
     return pool[(size_t)slot * B3 + l.x + BRICK * (l.y + BRICK * l.z)];
 }
 
+/* Index along one axis after an empty-brick jump: the float32 position, but
+ * never behind the current voxel (rounding could otherwise bounce the walk
+ * between two bricks forever); on the exit axis, the neighbour's first voxel. */
+CLSIM_INLINE int jump_index(int p, int v, int s, int c, int exit_axis)
+{
+    if (exit_axis)
+        return (c + s) * BRICK + (s > 0 ? 0 : BRICK - 1);
+    return s > 0 ? (p > v ? p : v) : (s < 0 ? (p < v ? p : v) : v);
+}
+
 /* Next voxel segment [*ta, *tb] with non-zero extinction; 0 at the end.
  * Inside an occupied brick a step is one DDA advance and one pool load; the
  * brick index is read (and the grid bounds checked) only when the walk
  * enters another brick.  Empty bricks are crossed in one step. */
 CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global const int *index,
-                       __global const float2 *pool, float *ta, float *tb, float2 *val,
-                       uint *steps)
+                             __global const float2 *pool, float *ta, float *tb, float2 *val,
+                             uint *steps)
 {
     const float h = P->h;
     /* safety net: a ray enters at most (nx + ny + nz) / BRICK + 3 bricks */
     int budget = (P->shape[0] + P->shape[1] + P->shape[2]) / BRICK + 8;
-    const int3 s = w->step;
+    const int sx = w->sx, sy = w->sy, sz = w->sz;
     while (w->t < w->t_end) {
         if (w->slot == WALK_LOOKUP) {
-            if (--budget < 0 || !inside_grid(w->v, P)) {
+            const int3 v = (int3)(w->vx, w->vy, w->vz);
+            if (--budget < 0 || !inside_grid(v, P)) {
                 w->t = w->t_end;
                 return 0;
             }
-            const int3 v = w->v;
             const int3 c = v >> BRICK_SHIFT;
             const int slot = index[c.x + P->bshape[0] * (c.y + P->bshape[1] * c.z)];
             if (slot < 0) {
                 /* jump over the empty brick: enter the neighbour along the exit axis */
                 *steps += 1u;
                 const float cell = (float)BRICK * h;
-                const float fx = far_plane_t(c.x, s.x, w->o.x, w->inv.x, cell);
-                const float fy = far_plane_t(c.y, s.y, w->o.y, w->inv.y, cell);
-                const float fz = far_plane_t(c.z, s.z, w->o.z, w->inv.z, cell);
+                const float fx = far_plane_t(c.x, sx, w->o.x, w->ix, cell);
+                const float fy = far_plane_t(c.y, sy, w->o.y, w->iy, cell);
+                const float fz = far_plane_t(c.z, sz, w->o.z, w->iz, cell);
                 const int ax = (fx <= fy && fx <= fz) ? 0 : (fy <= fz ? 1 : 2);
                 const float t_b = fast_min(fast_min(fx, fast_min(fy, fz)), w->t_end);
                 w->t = fast_max(w->t, t_b);
-                const float3 p = (w->o + w->d * t_b) / h;
-                int3 nv = clamp(convert_int3_rtn(p), (int3)(0), (int3)(P->shape[0] - 1, P->shape[1] - 1, P->shape[2] - 1));
-                /* float32 rounding of p must never move the walk backwards (it could
-                 * bounce between two bricks forever): indices only move along the ray */
-                nv = select(nv, max(nv, v), s > 0);
-                nv = select(nv, min(nv, v), s < 0);
-                nv = select(nv, v, s == 0);
-                if (ax == 0) nv.x = (c.x + s.x) * BRICK + (s.x > 0 ? 0 : BRICK - 1);
-                else if (ax == 1) nv.y = (c.y + s.y) * BRICK + (s.y > 0 ? 0 : BRICK - 1);
-                else nv.z = (c.z + s.z) * BRICK + (s.z > 0 ? 0 : BRICK - 1);
-                w->v = nv;
+                const int3 p = clamp_index(convert_int3_rtn((w->o + w->d * t_b) / h), P->shape[0],
+                                           P->shape[1], P->shape[2]);
+                w->vx = jump_index(p.x, v.x, sx, c.x, ax == 0);
+                w->vy = jump_index(p.y, v.y, sy, c.y, ax == 1);
+                w->vz = jump_index(p.z, v.z, sz, c.z, ax == 2);
                 w->fresh = 1;
                 continue;
             }
-            w->cb = c;
+            w->cbx = c.x;
+            w->cby = c.y;
+            w->cbz = c.z;
             w->slot = slot;
             if (w->fresh) {
-                w->tm = (float3)(far_plane_t(v.x, s.x, w->o.x, w->inv.x, h),
-                                 far_plane_t(v.y, s.y, w->o.y, w->inv.y, h),
-                                 far_plane_t(v.z, s.z, w->o.z, w->inv.z, h));
+                w->tmx = far_plane_t(v.x, sx, w->o.x, w->ix, h);
+                w->tmy = far_plane_t(v.y, sy, w->o.y, w->iy, h);
+                w->tmz = far_plane_t(v.z, sz, w->o.z, w->iz, h);
                 w->fresh = 0;
             }
         }
         *steps += 1u;
-        const int3 v = w->v;
-        const float2 e = voxel_value(v, w->slot, pool);
-        const float3 tm = w->tm;
+        const int lx = w->vx & (BRICK - 1), ly = w->vy & (BRICK - 1), lz = w->vz & (BRICK - 1);
+        const float2 e = pool[(size_t)w->slot * B3 + lx + BRICK * (ly + BRICK * lz)];
         const float t_a = w->t;
         int leave;
         float t_b;
-        if (tm.x <= tm.y && tm.x <= tm.z) {
-            t_b = tm.x;
-            w->v.x += s.x;
-            w->tm.x = far_plane_t(w->v.x, s.x, w->o.x, w->inv.x, h);
-            leave = (w->v.x >> BRICK_SHIFT) != w->cb.x;
-        } else if (tm.y <= tm.z) {
-            t_b = tm.y;
-            w->v.y += s.y;
-            w->tm.y = far_plane_t(w->v.y, s.y, w->o.y, w->inv.y, h);
-            leave = (w->v.y >> BRICK_SHIFT) != w->cb.y;
+        if (w->tmx <= w->tmy && w->tmx <= w->tmz) {
+            t_b = w->tmx;
+            w->vx += sx;
+            w->tmx = far_plane_t(w->vx, sx, w->o.x, w->ix, h);
+            leave = (w->vx >> BRICK_SHIFT) != w->cbx;
+        } else if (w->tmy <= w->tmz) {
+            t_b = w->tmy;
+            w->vy += sy;
+            w->tmy = far_plane_t(w->vy, sy, w->o.y, w->iy, h);
+            leave = (w->vy >> BRICK_SHIFT) != w->cby;
         } else {
-            t_b = tm.z;
-            w->v.z += s.z;
-            w->tm.z = far_plane_t(w->v.z, s.z, w->o.z, w->inv.z, h);
-            leave = (w->v.z >> BRICK_SHIFT) != w->cb.z;
+            t_b = w->tmz;
+            w->vz += sz;
+            w->tmz = far_plane_t(w->vz, sz, w->o.z, w->iz, h);
+            leave = (w->vz >> BRICK_SHIFT) != w->cbz;
         }
         if (leave)
             w->slot = WALK_LOOKUP;

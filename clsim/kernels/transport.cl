@@ -36,10 +36,15 @@ CLSIM_INLINE float g_of(__global const float *gtab, float mu)
     return gtab[i] * (1.0f - f) + gtab[i + 1] * f;
 }
 
+CLSIM_INLINE ulong to_fixed(float v)
+{
+    return v > 0.0f ? (ulong)(v * FIXED_SCALE + 0.5f) : 0ul;
+}
+
 CLSIM_INLINE void add_fixed(__global ulong *p, float v)
 {
     if (v > 0.0f)
-        atom_add(p, (ulong)(v * FIXED_SCALE + 0.5f));
+        atom_add(p, to_fixed(v));
 }
 
 CLSIM_INLINE float ground_t(float3 o, float3 d, __global const params_t *P)
@@ -59,7 +64,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
     walker_t w;
 #if MODE == 0
     float4 b = rng_next(rng);
-    float tau = -log(b.x);
+    float tau = neg_log_unit(b.x);
     if (walker_init(&w, o, d, 0.0f, tg, P)) {
         float ta, tb;
         float2 e;
@@ -85,7 +90,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                     return EV_LEAF;
                 }
                 b = rng_next(rng); /* null collision */
-                tau = -log(b.x);
+                tau = neg_log_unit(b.x);
                 ta = tc;
             }
         }
@@ -123,7 +128,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
         }
     }
 #endif
-    if (isfinite(tg)) {
+    if (tg < INFINITY) {
         *t = tg;
         *n = (float3)(0.0f, 0.0f, 1.0f);
         return EV_GROUND;
@@ -158,7 +163,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
         return exp(-od);
     }
     float4 b = rng_next(rng);
-    float tau = -log(b.x);
+    float tau = neg_log_unit(b.x);
     if (!walker_init(&w, o, d, 0.0f, r, P))
         return T;
     while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
@@ -180,7 +185,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
                     return 0.0f;
             }
             b = rng_next(rng);
-            tau = -log(b.x);
+            tau = neg_log_unit(b.x);
             ta = tc;
         }
     }
@@ -249,17 +254,19 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     rng_t rng;
     rng_init(&rng, key, pid);
 
-    const float3 sensor = vload3(0, P->sensor), axis = vload3(0, P->axis);
-    const float3 e1 = vload3(0, P->e1), e2 = vload3(0, P->e2);
+    const float3 sensor = (float3)(P->sensor[0], P->sensor[1], P->sensor[2]);
+    const float3 axis = (float3)(P->axis[0], P->axis[1], P->axis[2]);
+    const float3 e1 = (float3)(P->e1[0], P->e1[1], P->e1[2]), e2 = (float3)(P->e2[0], P->e2[1], P->e2[2]);
     const float4 b0 = rng_next(&rng);
-    const float rr = P->beam_sigma * sqrt(-2.0f * log(b0.x));
+    const float rr = P->beam_sigma * fast_sqrt(2.0f * neg_log_unit(b0.x));
     float cph;
     const float sph = sincos_turns(b0.y, &cph);
-    float3 d = normalize(axis + rr * cph * e1 + rr * sph * e2);
+    float3 d = fast_normalize3(axis + rr * cph * e1 + rr * sph * e2);
     float3 x = sensor;
     float L = 0.0f, w = 1.0f;
     int last = EV_LEAF;
     uint steps = 0u, events = 0u, shadow = 0u;
+    ulong acc[NSTAT] = {0};
     record(trace, pid, 0, x, -2, P);
 
     for (int k = 1;; ++k) {
@@ -267,7 +274,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
         float3 n;
         const int ev = flight(&S, x, d, &rng, &t, &n, &steps);
         if (ev == EV_ESCAPE) {
-            add_fixed(st + (d.z >= 0.0f ? ST_ESC_UP : ST_ESC_DOWN), w);
+            acc[(d.z >= 0.0f ? ST_ESC_UP : ST_ESC_DOWN)] += to_fixed(w);
             record(trace, pid, k, x + d * 10.0f, EV_ESCAPE, P);
 #if DETECT == 1
             if (k >= 2) {
@@ -280,7 +287,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
                     if (fast_dot(q, q) <= P->virt_r2) {
                         tally(hist, stats, P, batch, k - 1, last == EV_GROUND, (L + s) / 0.299792458f,
                               w * P->norm_analog);
-                        atom_inc(st + ST_DETECTIONS);
+                        acc[ST_DETECTIONS] += 1ul;
                     }
                 }
             }
@@ -292,9 +299,9 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
         events += 1u;
         record(trace, pid, k, x, ev, P);
         if (ev == EV_GROUND && k == 1)
-            add_fixed(st + ST_GROUND_DIRECT, w);
+            acc[ST_GROUND_DIRECT] += to_fixed(w);
         if (k > P->max_order) {
-            add_fixed(st + ST_TRUNCATED, w);
+            acc[ST_TRUNCATED] += to_fixed(w);
             break;
         }
         float R, T;
@@ -310,7 +317,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
 #if DETECT == 0
         {
             const float3 to = sensor - x;
-            const float r = length(to);
+            const float r = fast_sqrt(fast_dot(to, to));
             const float3 drx = to / r;
             const float cosr = -fast_dot(drx, axis);
             const float f = bsdf(m, drx, R, T);
@@ -324,7 +331,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
             }
         }
         if (k == P->max_order) {
-            add_fixed(st + ST_TRUNCATED, w);
+            acc[ST_TRUNCATED] += to_fixed(w);
             break;
         }
 #endif
@@ -333,24 +340,24 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
         int reflect;
 #if MODE == 0
         if (a <= 0.0f) {
-            add_fixed(st + ST_ABSORBED, w);
+            acc[ST_ABSORBED] += to_fixed(w);
             break;
         }
         reflect = s.x * a < R;
-        add_fixed(st + ST_ABSORBED, w * (1.0f - a));
+        acc[ST_ABSORBED] += to_fixed(w * (1.0f - a));
         w *= a;
         if (w < RR_THRESHOLD) {
             if (s.w * RR_SURVIVE < w) {
-                add_fixed(st + ST_RR_ADDED, RR_SURVIVE - w);
+                acc[ST_RR_ADDED] += to_fixed(RR_SURVIVE - w);
                 w = RR_SURVIVE;
             } else {
-                add_fixed(st + ST_RR_KILLED, w);
+                acc[ST_RR_KILLED] += to_fixed(w);
                 break;
             }
         }
 #else
         if (s.x >= a) {
-            add_fixed(st + ST_ABSORBED, w);
+            acc[ST_ABSORBED] += to_fixed(w);
             record(trace, pid, k + 1, x, -1, P);
             break;
         }
@@ -358,7 +365,12 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
 #endif
         d = cosine_dir(reflect ? m : -m, s.y, s.z);
     }
-    atom_add(st + ST_VOXEL_STEPS, (ulong)steps);
-    atom_add(st + ST_EVENTS, (ulong)events);
-    atom_add(st + ST_SHADOW, (ulong)shadow);
+    acc[ST_VOXEL_STEPS] = steps;
+    acc[ST_EVENTS] = events;
+    acc[ST_SHADOW] = shadow;
+    /* one atomic per non-zero statistic and photon; integer sums keep runs
+     * bit-identical whatever the order */
+    for (int i = 0; i < NSTAT; ++i)
+        if (acc[i])
+            atom_add(st + i, acc[i]);
 }
