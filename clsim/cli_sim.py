@@ -231,23 +231,33 @@ def benchmark_scene():
 
 
 def device_benchmark(*, photons: int = 200_000, repeats: int = 3, devices=None) -> list[dict]:
-    """photons/s and voxel steps/s (medians) for each device and transport variant."""
+    """photons/s and voxel steps/s (medians) for each device and transport variant.
+
+    The variants of a device take turns run by run, so that a slow spell of a
+    shared machine falls on all of them alike."""
     from .simulator import Simulator, list_devices
 
     scene, sensor = benchmark_scene()
+    variants = (("exact", "nee", photons), ("exact", "analog", photons), ("paper", "nee", max(1, photons // 10)))
     rows = []
     for _, dev in (list_devices() if devices is None else devices):
         sim = Simulator(device=dev)
-        for mode, detect, n in (("exact", "nee", photons), ("exact", "analog", photons),
-                                ("paper", "nee", max(1, photons // 10))):
-            sim.run(scene, sensor, photons=min(n, 2000), seed=0, mode=mode, detect=detect)  # build
-            el, steps = [], []
-            for r in range(repeats):
+        for mode, detect, _ in variants:
+            sim.run(scene, sensor, photons=2000, seed=0, mode=mode, detect=detect)  # build
+        el = {v: [] for v in variants}
+        steps = {v: [] for v in variants}
+        for r in range(repeats):
+            for v in variants:
+                mode, detect, n = v
                 res = sim.run(scene, sensor, photons=n, seed=r + 1, mode=mode, detect=detect, max_order=3)
-                el.append(res.elapsed_s)
-                steps.append(res.stat("voxel_steps")[0] / res.elapsed_s)
+                el[v].append(res.elapsed_s)
+                steps[v].append(res.stat("voxel_steps")[0] / res.elapsed_s)
+        for v in variants:
+            mode, detect, n = v
             rows.append(dict(device=sim.device_name, mode=mode, detect=detect, photons=n,
-                             photons_per_s=n / statistics.median(el), steps_per_s=statistics.median(steps)))
+                             photons_per_s=n / statistics.median(el[v]),
+                             steps_per_s=statistics.median(steps[v]),
+                             steps_per_s_range=(min(steps[v]), max(steps[v]))))
     return rows
 
 

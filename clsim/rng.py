@@ -6,9 +6,11 @@ and yields four uniforms.  Work-group size, device and launch order do not
 change the numbers, and the NumPy oracle (:mod:`clsim.transport_ref`) replays
 any photon of a kernel run.  The kernel twin lives in ``kernels/philox.cl``.
 
-Uniforms are ``((x >> 8) + 0.5) * 2**-24``: 24-bit, in the open interval
-(0, 1), exactly representable in float32, so the device and the oracle see
-the same values.
+Uniforms are ``((x >> 9) + 0.5) * 2**-23``: 23 bits plus a half, in the open
+interval (0, 1) and exactly representable in float32 (24-bit significand), so
+the device and the oracle see the same values.  (With 24 bits, as before,
+every value above 1/2 needed 25 bits: float32 rounded it, and the largest
+became exactly 1.)
 
 References
 ----------
@@ -104,4 +106,4 @@ def uniforms(photon_id, block, *, seed: int) -> np.ndarray:
     out = philox4x32_10(
         (np.asarray(block, dtype=np.uint64), pid & _MASK, pid >> _S32, np.uint64(0)), (lo, hi)
     )
-    return np.stack([((x >> np.uint64(8)).astype(np.float64) + 0.5) * 2.0**-24 for x in out], axis=-1)
+    return np.stack([((x >> np.uint64(9)).astype(np.float64) + 0.5) * 2.0**-23 for x in out], axis=-1)

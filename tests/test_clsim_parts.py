@@ -27,6 +27,69 @@ def test_philox_known_answers():
     assert [hex(v) for v in got] == ["0xd16cfe09", "0x94fdcceb", "0x5001e420", "0x24126ea1"]
 
 
+KERNEL_MATH = """
+#include "common.cl"
+#include "philox.cl"
+#include "geometry.cl"
+__kernel void math(__global const float *u, __global float *out, __global uint *ph)
+{
+    const int i = get_global_id(0);
+    float c;
+    const float s = sincos_turns(u[i], &c);
+    out[6 * i] = s;
+    out[6 * i + 1] = c;
+    out[6 * i + 2] = sincos_quarter(u[i] * 1.5707963f, &c);
+    out[6 * i + 3] = c;
+    out[6 * i + 4] = neg_log_unit(u[i]);
+    out[6 * i + 5] = 0.0f;
+    if (i == 0) {
+        const uint4 a = philox4x32_10((uint4)(0xFFFFFFFFu), (uint2)(0xFFFFFFFFu));
+        const uint4 b = philox4x32_10((uint4)(0x243F6A88u, 0x85A308D3u, 0x13198A2Eu, 0x03707344u),
+                                      (uint2)(0xA4093822u, 0x299F31D0u));
+        vstore4(a, 0, ph);
+        vstore4(b, 1, ph);
+    }
+}
+"""
+
+
+def test_kernel_math_helpers():
+    """The kernels' own sin/cos of 2 pi u, sin/cos on [0, pi/2], -log u and Philox rounds
+    against float64 NumPy and the Random123 known answers (kernels/common.cl, philox.cl)."""
+    try:
+        sim = Simulator()
+    except DeviceError as err:
+        pytest.skip(str(err))
+    import pyopencl as cl
+
+    kdir = resources.files("clsim") / "kernels"
+    prg = cl.Program(sim.context, KERNEL_MATH).build(options=[f"-I{kdir}", "-DNTAB=2", "-cl-fast-relaxed-math"])
+    # the uniforms the RNG gives, ((k + 1/2) 2^-23), thinned, with both ends
+    k = np.concatenate([np.arange(0, 2**23, 97), [2**23 - 1]]).astype(np.float64)
+    u64 = (k + 0.5) * 2.0**-23
+    u = u64.astype(np.float32)
+    assert np.array_equal(u.astype(np.float64), u64)  # exact in float32
+    mf = cl.mem_flags
+    ub = cl.Buffer(sim.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=u)
+    out = np.empty((u.size, 6), np.float32)
+    ph = np.empty(8, np.uint32)
+    ob = cl.Buffer(sim.context, mf.WRITE_ONLY, out.nbytes)
+    pb = cl.Buffer(sim.context, mf.WRITE_ONLY, ph.nbytes)
+    prg.math(sim.queue, (u.size,), None, ub, ob, pb)
+    cl.enqueue_copy(sim.queue, out, ob)
+    cl.enqueue_copy(sim.queue, ph, pb)
+    x = 2 * np.pi * u.astype(np.float64)
+    assert np.abs(out[:, 0] - np.sin(x)).max() < 3e-7
+    assert np.abs(out[:, 1] - np.cos(x)).max() < 3e-7
+    t = np.float32(1.5707963) * u.astype(np.float64)
+    assert np.abs(out[:, 2] - np.sin(t)).max() < 3e-7
+    assert np.abs(out[:, 3] - np.cos(t)).max() < 3e-7
+    nl = -np.log(u.astype(np.float64))
+    assert np.max(np.abs(out[:, 4] - nl) / nl) < 1e-6
+    assert [hex(v) for v in ph] == ["0x408f276d", "0x41c83b0e", "0xa20bc7c6", "0x6d5451fd",
+                                    "0xd16cfe09", "0x94fdcceb", "0x5001e420", "0x24126ea1"]
+
+
 def test_uniforms_are_uniform():
     u = uniforms(np.repeat(np.arange(2000), 50), np.tile(np.arange(50), 2000), seed=5).ravel()
     assert u.min() > 0 and u.max() < 1

@@ -1,6 +1,6 @@
 /* Philox4x32-10 counter-based RNG (Salmon et al. 2011, doi:10.1145/2063384.2063405).
  * Twin of clsim/rng.py: block `ctr` of photon `pid` under key (seed_lo, seed_hi)
- * is philox(counter = (ctr, pid_lo, pid_hi, 0)); uniforms ((x >> 8) + 0.5) 2^-24. */
+ * is philox(counter = (ctr, pid_lo, pid_hi, 0)); uniforms ((x >> 9) + 0.5) 2^-23. */
 #ifndef CLSIM_PHILOX_CL
 #define CLSIM_PHILOX_CL
 
@@ -55,9 +55,10 @@ CLSIM_INLINE float4 rng_next(rng_t *r)
 {
     const uint4 x = philox4x32_10((uint4)(r->ctr, r->pid_lo, r->pid_hi, 0u), r->key);
     r->ctr += 1u;
-    const float q = 5.9604644775390625e-08f; /* 2^-24 */
-    return (float4)(((float)(x.x >> 8) + 0.5f) * q, ((float)(x.y >> 8) + 0.5f) * q,
-                    ((float)(x.z >> 8) + 0.5f) * q, ((float)(x.w >> 8) + 0.5f) * q);
+    /* 23 bits + 1/2 fit float32's 24-bit significand: exact, and never 0 or 1 */
+    const float q = 1.1920928955078125e-07f; /* 2^-23 */
+    return (float4)(((float)(x.x >> 9) + 0.5f) * q, ((float)(x.y >> 9) + 0.5f) * q,
+                    ((float)(x.z >> 9) + 0.5f) * q, ((float)(x.w >> 9) + 0.5f) * q);
 }
 
 #endif
