@@ -36,19 +36,24 @@ CLSIM_INLINE int sign_of(float x)
     return x > 0.0f ? 1 : (x < 0.0f ? -1 : 0);
 }
 
-/* Clip [t_start, t_limit] to the grid box; 0 when the ray misses it. */
+/* Clip [t_start, t_limit] to the grid box; 0 when the ray misses it.
+ * Three divisions (the reciprocals), the rest multiplications. */
 CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, float t_limit,
                              __global const params_t *P)
 {
-    const float3 L = (float3)(P->shape[0], P->shape[1], P->shape[2]) * P->h;
+    const float h = P->h;
+    const float ix = d.x != 0.0f ? 1.0f / d.x : INFINITY;
+    const float iy = d.y != 0.0f ? 1.0f / d.y : INFINITY;
+    const float iz = d.z != 0.0f ? 1.0f / d.z : INFINITY;
+    const float oo[3] = {o.x, o.y, o.z}, dd[3] = {d.x, d.y, d.z}, ii[3] = {ix, iy, iz};
     float t0 = t_start, t1 = t_limit;
-    const float oo[3] = {o.x, o.y, o.z}, dd[3] = {d.x, d.y, d.z}, ll[3] = {L.x, L.y, L.z};
     for (int a = 0; a < 3; ++a) {
+        const float len = (float)P->shape[a] * h;
         if (dd[a] == 0.0f) {
-            if (oo[a] < 0.0f || oo[a] > ll[a])
+            if (oo[a] < 0.0f || oo[a] > len)
                 return 0;
         } else {
-            float ta = (0.0f - oo[a]) / dd[a], tb = (ll[a] - oo[a]) / dd[a];
+            const float ta = -oo[a] * ii[a], tb = (len - oo[a]) * ii[a];
             t0 = fast_max(t0, fast_min(ta, tb));
             t1 = fast_min(t1, fast_max(ta, tb));
         }
@@ -57,12 +62,13 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
         return 0;
     w->o = o;
     w->d = d;
-    w->ix = d.x != 0.0f ? 1.0f / d.x : INFINITY;
-    w->iy = d.y != 0.0f ? 1.0f / d.y : INFINITY;
-    w->iz = d.z != 0.0f ? 1.0f / d.z : INFINITY;
+    w->ix = ix;
+    w->iy = iy;
+    w->iz = iz;
     w->t = t0;
     w->t_end = t1;
-    const int3 v = clamp_index(convert_int3_rtn((o + d * t0) / P->h), P->shape[0], P->shape[1], P->shape[2]);
+    const float ih = 1.0f / h;
+    const int3 v = clamp_index(convert_int3_rtn((o + d * t0) * ih), P->shape[0], P->shape[1], P->shape[2]);
     w->vx = v.x;
     w->vy = v.y;
     w->vz = v.z;
