@@ -130,6 +130,37 @@ def test_cli_in_process(box_scans, tmp_path, capsys):
     assert rc == 2 and "does not exist" in capsys.readouterr().err
 
 
+def test_cli_takes_poses_from_register_transforms(box_scans, tmp_path, capsys):
+    """`tlsvox voxelize --transforms` (the JSON `tlsvox register` writes) replaces the pose
+    sidecars: scans written with a wrong pose give the box's leaf area back only with it."""
+    import copy
+    import json
+
+    paths, doc = [], {"format": "tlsvox-registration-1", "scans": []}
+    for s in box_scans:
+        wrong = copy.copy(s)
+        wrong.pose = s.pose.copy()
+        wrong.pose[:3, 3] += [0.0, 2.5, 0.0]  # 2.5 m off: misses the box
+        p = tmp_path / f"{s.name}.laz"
+        wrong.write(p)
+        paths.append(str(p))
+        doc["scans"].append({"name": s.name, "pose": s.pose.tolist()})
+    tr = tmp_path / "merged.transforms.json"
+    tr.write_text(json.dumps(doc))
+    args = ["--voxel-size", "0.5", "--leaf-angle", "spherical", "--ground", "none", "--bounds=-1,-1,1,1,1,3", "-q"]
+    rc = cli_main(paths + args + ["--transforms", str(tr), "-o", str(tmp_path / "good.npz")])
+    assert rc == 0
+    assert Scene.load(tmp_path / "good.npz").total_leaf_area() == pytest.approx(LAD * 8.0, rel=0.1)
+    rc = cli_main(paths + args + ["-o", str(tmp_path / "bad.npz")])
+    assert rc == 0  # the sidecars' wrong poses: the box is not where the echoes are
+    assert Scene.load(tmp_path / "bad.npz").total_leaf_area() < 0.7 * LAD * 8.0
+    doc["scans"] = doc["scans"][:1]
+    tr.write_text(json.dumps(doc))
+    rc = cli_main(paths + args + ["--transforms", str(tr), "-o", str(tmp_path / "x.npz")])
+    assert rc == 2 and "no pose for scan(s) ['box1']" in capsys.readouterr().err
+    assert not (tmp_path / "x.npz").exists()
+
+
 @pytest.mark.slow
 def test_synthetic_oak_two_scans_20cm():
     """The procedural oak, two simulated scans, 20 cm voxels, scored against the mesh."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -77,6 +78,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="'ransac' (fit the lowest echoes), 'none', or a ground height in metres")
     p.add_argument("--bounds", type=lambda t: _floats(t, 6, "--bounds"),
                    help="xmin,ymin,zmin,xmax,ymax,zmax of the region (default: the vegetation's box)")
+    p.add_argument("--transforms", metavar="JSON",
+                   help="poses from 'tlsvox register' (its .transforms.json); they replace the "
+                        ".pose.json sidecars, matched by scan name")
     p.add_argument("--scanner-frame", action="store_true",
                    help="a single scan without pose: use its own frame as the world")
     p.add_argument("--angular-grid", type=lambda t: _floats(t, 6, "--angular-grid"),
@@ -96,6 +100,30 @@ def register(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def apply_transforms(scans, path) -> None:
+    """Set each scan's pose from a ``tlsvox register`` transforms JSON (by scan name)."""
+    from .register import read_transforms
+
+    path = Path(path)
+    if not path.is_file():
+        raise TlsvoxError(f"--transforms {path} does not exist; 'tlsvox register ... -o merged.laz' "
+                          "writes merged.transforms.json")
+    try:
+        poses = read_transforms(path)
+    except (ValueError, KeyError, TypeError) as err:
+        raise TlsvoxError(f"--transforms {path} is not a tlsvox registration JSON ({err}); "
+                          "write it with 'tlsvox register'") from None
+    missing = [s.name for s in scans if s.name not in poses]
+    if missing:
+        raise TlsvoxError(f"--transforms {path} has no pose for scan(s) {missing}; it holds "
+                          f"{sorted(poses)}. Register these scans together, or name the files alike")
+    for s in scans:
+        pose = poses[s.name]
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise TlsvoxError(f"--transforms {path}: the pose of {s.name!r} is not a finite 4x4 matrix")
+        s.pose = pose
+
+
 def run(args) -> int:
     """Handler: voxelise ``args.scans`` and write ``args.output``; returns the exit code."""
     from .amapvox import write_vox
@@ -105,6 +133,8 @@ def run(args) -> int:
 
     try:
         scans = [Scan.read(path, scan_id=i) for i, path in enumerate(args.scans)]
+        if args.transforms:
+            apply_transforms(scans, args.transforms)
         ground = args.ground
         if ground not in ("ransac", "none"):
             try:
