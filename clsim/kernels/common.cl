@@ -6,7 +6,11 @@
  * own; a call per voxel step or per Philox round costs more than the work.
  * Forcing inlining makes the transport kernel about 2x faster there, and
  * GPU compilers inline anyway. */
+#if defined(__clang__) || defined(__GNUC__)
 #define CLSIM_INLINE inline __attribute__((always_inline))
+#else
+#define CLSIM_INLINE inline
+#endif
 
 /* PoCL 3.0 also calls fmin, fmax, fabs and dot out of line.  These twins
  * compile to single instructions everywhere; they assume no NaN operands,
