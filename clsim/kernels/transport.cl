@@ -54,6 +54,45 @@ CLSIM_INLINE float ground_t(float3 o, float3 d, __global const params_t *P)
     return fast_max(0.0f, (P->ground_z - o.z) / d.z);
 }
 
+/* The paper's fixed steps: points k ds (k >= 1) inside the walker's clipped
+ * range; empty bricks are jumped over. */
+typedef struct {
+    float ds, t_end;
+    int k;
+} stepper_t;
+
+CLSIM_INLINE void stepper_init(stepper_t *p, const walker_t *w, float ds)
+{
+    p->ds = ds;
+    p->t_end = w->t_end;
+    p->k = max(1, (int)ceil(w->t / ds));
+}
+
+/* Next step point with non-zero extinction: distance *tk, position *x, value *e; 0 at the end. */
+CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d, float *tk, float3 *x,
+                              float2 *e, uint *steps)
+{
+    while ((float)p->k * p->ds < p->t_end) {
+        const float t = (float)p->k * p->ds;
+        const float3 xk = o + d * t;
+        float skip;
+        const float2 v = point_value(xk, S->P, S->index, S->pool, o, d, &skip);
+        *steps += 1u;
+        if (skip >= 0.0f) {
+            p->k = max(p->k + 1, (int)floor(skip / p->ds) + 1);
+            continue;
+        }
+        ++p->k;
+        if (v.x + v.y > 0.0f) {
+            *tk = t;
+            *x = xk;
+            *e = v;
+            return 1;
+        }
+    }
+    return 0;
+}
+
 /* Next real interaction along (o, d).  Returns the event type, its distance
  * *t and the surface normal *n (leaf: sampled normal, wood: facing normal). */
 CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, float3 *n,
@@ -98,33 +137,25 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
 #else
     if (walker_init(&w, o, d, 0.0f, tg, P)) {
         const float ds = P->ds;
-        int k = max(1, (int)ceil(w.t / ds));
-        while ((float)k * ds < w.t_end) {
-            const float tk = (float)k * ds;
-            const float3 x = o + d * tk;
-            float skip;
-            const float2 e = point_value(x, P, S->index, S->pool, o, d, &skip);
-            *steps += 1u;
-            if (skip >= 0.0f) {
-                k = max(k + 1, (int)floor(skip / ds) + 1);
-                continue;
+        stepper_t p;
+        stepper_init(&p, &w, ds);
+        float tk;
+        float3 x;
+        float2 e;
+        while (stepper_next(&p, S, o, d, &tk, &x, &e, steps)) {
+            const float4 b = rng_next(rng);
+            const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
+            if (b.x < fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) {
+                *n = nl;
+                *t = tk;
+                return EV_LEAF;
             }
-            if (e.x + e.y > 0.0f) {
-                const float4 b = rng_next(rng);
-                const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-                if (b.x < fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) {
-                    *n = nl;
-                    *t = tk;
-                    return EV_LEAF;
-                }
-                if (b.y < -expm1(-e.y * ds)) {
-                    const float4 b2 = rng_next(rng);
-                    *n = cosine_dir(-d, b2.z, b2.w);
-                    *t = tk;
-                    return EV_WOOD;
-                }
+            if (b.y < -expm1(-e.y * ds)) {
+                const float4 b2 = rng_next(rng);
+                *n = cosine_dir(-d, b2.z, b2.w);
+                *t = tk;
+                return EV_WOOD;
             }
-            ++k;
         }
     }
 #endif
@@ -193,29 +224,21 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
     if (!walker_init(&w, o, d, 0.0f, r, P))
         return T;
     const float ds = P->ds;
-    int k = max(1, (int)ceil(w.t / ds));
-    while ((float)k * ds < w.t_end) {
-        const float tk = (float)k * ds;
-        const float3 x = o + d * tk;
-        float skip;
-        const float2 e = point_value(x, P, S->index, S->pool, o, d, &skip);
-        *steps += 1u;
-        if (skip >= 0.0f) {
-            k = max(k + 1, (int)floor(skip / ds) + 1);
-            continue;
+    stepper_t p;
+    stepper_init(&p, &w, ds);
+    float tk;
+    float3 x;
+    float2 e;
+    while (stepper_next(&p, S, o, d, &tk, &x, &e, steps)) {
+        const float4 b = rng_next(rng);
+        const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
+        T *= (1.0f - fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) * exp(-e.y * ds);
+        if (T < RR_THRESHOLD) {
+            if (b.y * RR_SURVIVE < T)
+                T = RR_SURVIVE;
+            else
+                return 0.0f;
         }
-        if (e.x + e.y > 0.0f) {
-            const float4 b = rng_next(rng);
-            const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-            T *= (1.0f - fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) * exp(-e.y * ds);
-            if (T < RR_THRESHOLD) {
-                if (b.y * RR_SURVIVE < T)
-                    T = RR_SURVIVE;
-                else
-                    return 0.0f;
-            }
-        }
-        ++k;
     }
 #endif
     return T;
