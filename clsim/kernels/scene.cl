@@ -129,7 +129,7 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                 return 0;
             }
             const int3 c = v >> BRICK_SHIFT;
-            const int slot = index[c.x + P->bshape[0] * (c.y + P->bshape[1] * c.z)];
+            const int slot = brick_slot(v, P, index);
             if (slot < 0) {
                 /* jump over the empty brick: enter the neighbour along the exit axis */
                 *steps += 1u;
@@ -160,8 +160,7 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
             }
         }
         *steps += 1u;
-        const int lx = w->vx & (BRICK - 1), ly = w->vy & (BRICK - 1), lz = w->vz & (BRICK - 1);
-        const float2 e = pool[(size_t)w->slot * B3 + lx + BRICK * (ly + BRICK * lz)];
+        const float2 e = voxel_value((int3)(w->vx, w->vy, w->vz), w->slot, pool);
         const float t_a = w->t;
         int leave;
         float t_b;
