@@ -39,7 +39,7 @@ from tlsvox.materials import Material
 from .errors import InputError
 from .sensor import C_M_PER_NS
 from .simulator import STAT_NAMES, Detect, assemble_result, prepare_run
-from .transport_ref import _dot, cosine_dir as _cosine_dir, in_fov
+from .transport_ref import _dot, cosine_dir as _cosine_dir, receiver_view
 
 __all__ = ["MeshReferenceSimulator"]
 
@@ -232,13 +232,7 @@ class _Context:
             alive = a
 
     def nee(self, a, x, L, w, m, mat, R, T, k, batch):
-        to = self.sensor - x[a]
-        r = np.linalg.norm(to, axis=1)
-        drx = to / r[:, None]
-        cosr = -_dot(drx, np.broadcast_to(self.axis, drx.shape))
-        c = _dot(m, drx)
-        f = np.where(c > 0, R * c / np.pi, -T * c / np.pi)
-        ok = (f > 0) & in_fov(-to, self.axis, self.tan2_fov)
+        r, drx, cosr, c, f, ok = receiver_view(self.sensor, self.axis, self.tan2_fov, x[a], m, R, T)
         if not ok.any():
             return
         i = a[ok]

@@ -58,6 +58,23 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+def receiver_view(sensor, axis, tan2_fov, x, m, R, T):
+    """Next-event geometry of scattering points ``x`` (n, 3) with incident-side normals ``m``.
+
+    Returns ``(r, drx, cosr, c, f, ok)``: distance to the receiver, unit direction to it,
+    that direction's cosine on the beam axis, ``m . drx``, the bi-Lambertian BSDF value
+    towards the receiver, and the mask of points that scatter towards a receiver that
+    sees them (``f > 0`` and inside the field of view)."""
+    to = sensor - x
+    r = np.linalg.norm(to, axis=1)
+    drx = to / r[:, None]
+    cosr = -_dot(drx, np.broadcast_to(axis, drx.shape))
+    c = _dot(m, drx)
+    f = np.where(c > 0, R * c / np.pi, -T * c / np.pi)
+    ok = (f > 0) & in_fov(-to, axis, tan2_fov)
+    return r, drx, cosr, c, f, ok
+
+
 def in_fov(v, axis, tan2_fov):
     """Rows of v (sensor -> point) inside the field of view around unit ``axis``.
 
@@ -421,13 +438,7 @@ class _Transport:
             alive = a
 
     def nee_event(self, a, x, L, w, ev, m, R, T, k):
-        to = self.sensor - x[a]
-        r = np.linalg.norm(to, axis=1)
-        drx = to / r[:, None]
-        cosr = -_dot(drx, np.broadcast_to(self.axis, drx.shape))
-        c = _dot(m, drx)
-        f = np.where(c > 0, R * c / np.pi, -T * c / np.pi)
-        ok = (f > 0) & in_fov(-to, self.axis, self.tan2_fov)
+        r, drx, cosr, _, f, ok = receiver_view(self.sensor, self.axis, self.tan2_fov, x[a], m, R, T)
         if not ok.any():
             return
         i = a[ok]
