@@ -37,3 +37,15 @@ def shared_data() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def sim():
+    """A clsim Simulator on the default OpenCL device; skips when there is none."""
+    from clsim.errors import DeviceError
+    from clsim.simulator import Simulator
+
+    try:
+        return Simulator()
+    except DeviceError as err:
+        pytest.skip(str(err))

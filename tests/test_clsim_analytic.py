@@ -22,22 +22,12 @@ import pytest
 from scipy.integrate import quad
 
 from clsim import testscenes
-from clsim.errors import DeviceError
 from clsim.sensor import C_M_PER_NS, Sensor
-from clsim.simulator import Simulator
 from clsim.transport_ref import ReferenceSimulator
 
 U, H, BASE = 1.0, 2.0, 2.0
 RHO_L, RHO_G = 0.45, 0.30
 PHOTONS = {"kernel": 400_000, "oracle": 150_000}
-
-
-@pytest.fixture(scope="module")
-def sim():
-    try:
-        return Simulator()
-    except DeviceError as err:
-        pytest.skip(str(err))
 
 
 def layer(leaf_angle):

@@ -22,14 +22,6 @@ SENSOR = Sensor.preset("ahab-chiroptera-i", fov_mrad=3.0)
 FATES = ("escaped_up", "escaped_down", "absorbed", "truncated", "rr_killed")
 
 
-@pytest.fixture(scope="module")
-def sim():
-    try:
-        return Simulator()
-    except DeviceError as err:
-        pytest.skip(str(err))
-
-
 def layer(**kw):
     s = testscenes.homogeneous_layer(width=10.0, voxel_size=0.5, **kw)
     return testscenes.set_optics(s, 1064, leaf=(0.45, 0.40), ground=(0.3, 0.0), bark=(0.45, 0.0))

@@ -16,23 +16,13 @@ import pytest
 from scipy.integrate import quad
 
 from clsim import testscenes
-from clsim.errors import DeviceError
 from clsim.meshref import MeshReferenceSimulator
 from clsim.sensor import Sensor
-from clsim.simulator import Simulator
 from clsim.transport_ref import ReferenceSimulator
 from tlsvox.synthetic import make_leaf_slab
 
 U, H, BASE = 1.0, 2.0, 2.0
 RHO_L, RHO_G = 0.45, 0.30
-
-
-@pytest.fixture(scope="module")
-def sim():
-    try:
-        return Simulator()
-    except DeviceError as err:
-        pytest.skip(str(err))
 
 
 @pytest.mark.parametrize("backend", ["kernel", "oracle"])
