@@ -38,6 +38,16 @@ from clsim.transport_ref import ReferenceSimulator
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def save_chart(fig, img: Path, name: str, alt: str) -> str:
+    """Write ``fig`` to ``img/name`` and close it; returns the markdown image line."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(img / name, dpi=110)
+    plt.close(fig)
+    return f"![{alt}](../img/{name})"
+
+
 def rel_l2(a, b):
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
@@ -71,13 +81,12 @@ def section_devices(args, lines, img):
         if r["mode"] == "exact" and r["detect"] == "nee":
             lines.append(f"| {r['device']} | {r['photons_per_s'] / ops:.1f} x |")
     lines.append("")
-    chart_devices(rows, ops, img)
     lines += [f"Goal (issue 5): at least 100 M voxel steps/s on 2 cores and at least 20 x the oracle.", "",
-              "![throughput](../img/clsim_throughput.png)", ""]
+              chart_devices(rows, ops, img), ""]
     return rows, ops
 
 
-def chart_devices(rows, oracle_ps, img):
+def chart_devices(rows, oracle_ps, img) -> str:
     import matplotlib.pyplot as plt
 
     labels = [f"{r['device'].split('/')[-1].strip()[:24]}\n{r['mode']} + {r['detect']}" for r in rows]
@@ -97,9 +106,7 @@ def chart_devices(rows, oracle_ps, img):
         ax.set_yticklabels(labels, fontsize=8)
         ax.invert_yaxis()
     axes[1].set_yticklabels([])
-    fig.tight_layout()
-    fig.savefig(img / "clsim_throughput.png", dpi=110)
-    plt.close(fig)
+    return save_chart(fig, img, "clsim_throughput.png", "throughput")
 
 
 def section_paper_vs_exact(args, lines, sim, img):
@@ -151,10 +158,7 @@ def section_paper_vs_exact(args, lines, sim, img):
         ax.set_xlabel("time after emission (ns)")
         ax.set_ylabel("received power (1e-9 of emitted energy / ns)")
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(img / "clsim_paper_vs_exact.png", dpi=110)
-    plt.close(fig)
-    lines += ["", "![paper vs exact](../img/clsim_paper_vs_exact.png)", ""]
+    lines += ["", save_chart(fig, img, "clsim_paper_vs_exact.png", "paper vs exact"), ""]
 
 
 def section_nee_vs_analog(args, lines, sim, img):
@@ -217,10 +221,7 @@ def section_nee_vs_analog(args, lines, sim, img):
     ax.set_xlabel("wall time (s)")
     ax.set_ylabel("relative L2 waveform error (%)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(img / "clsim_error_vs_time.png", dpi=110)
-    plt.close(fig)
-    lines += ["![error vs time](../img/clsim_error_vs_time.png)", ""]
+    lines += [save_chart(fig, img, "clsim_error_vs_time.png", "error vs time"), ""]
 
 
 def section_precision(args, lines, sim, img):
@@ -255,8 +256,7 @@ def section_precision(args, lines, sim, img):
     worst = max(r["prec"] / r["noise"] for r in rows)
     lines += ["", f"float32 moves the waveform by at most {100 * worst:.2f} % of the Monte Carlo noise at "
               "these photon counts: float64 on the device would buy nothing measurable and cost "
-              "speed (consumer GPUs run float64 at 1/32 to 1/64 of float32).", "",
-              "![float32 vs float64](../img/clsim_float32_float64.png)", ""]
+              "speed (consumer GPUs run float64 at 1/32 to 1/64 of float32).", ""]
     fig, ax = plt.subplots(figsize=(6, 4.5))
     ns = [r["n"] for r in rows]
     ax.loglog(ns, [100 * r["noise"] for r in rows], "o-", label="Monte Carlo noise")
@@ -270,9 +270,7 @@ def section_precision(args, lines, sim, img):
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
     ax.legend(h1 + h2, l1 + l2, fontsize=8, loc="center right")
-    fig.tight_layout()
-    fig.savefig(img / "clsim_float32_float64.png", dpi=110)
-    plt.close(fig)
+    lines += [save_chart(fig, img, "clsim_float32_float64.png", "float32 vs float64"), ""]
 
 
 def main(argv=None) -> int:
