@@ -62,20 +62,27 @@ def register(subparsers) -> None:
     p.add_argument("--plot", default=None, metavar="PNG", help="also write a waveform plot")
     p.add_argument("--trace-plot", default=None, metavar="PNG",
                    help="also draw the traced photon paths over the scene (needs --trace N)")
-    p.add_argument("--device", default=None, help="OpenCL device: 'platform:device' or a name part "
-                   "(default: PYOPENCL_CTX, else the first GPU, else the first device)")
+    p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
+                   "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
+                   "device; `clsim devices` lists them)")
     p.add_argument("--reference", action="store_true",
                    help="run the NumPy float64 oracle instead of OpenCL (slow; no device needed)")
     p.add_argument("--progress", action="store_true", help="show a progress bar")
     p.set_defaults(func=cmd_simulate)
 
-    d = subparsers.add_parser("devices", help="list OpenCL devices",
-                              description="List every OpenCL platform and device clsim can use.")
+    d = subparsers.add_parser("devices", help="list OpenCL devices and whether each works",
+                              description="List every OpenCL device found, best first, with its "
+                                          "state: each device builds the project's kernels once "
+                                          "(clsim transport, tlsvox tracer; cached), and a device "
+                                          "that cannot is shown as broken with the reason from its "
+                                          "build log. The device marked '*' is the one commands use.")
     d.set_defaults(func=cmd_devices)
 
     b = subparsers.add_parser("bench", help="photons/s and voxel steps/s on every device",
-                              description="Run the transport benchmark on every OpenCL device and "
-                                          "print a table (medians of --repeats runs).",
+                              description="Run the transport benchmark on every working OpenCL "
+                                          "device side by side (devices take turns run by run; "
+                                          "broken devices are skipped) and print a table (medians "
+                                          "of --repeats runs).",
                               formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     b.add_argument("--photons", type=int, default=200_000)
     b.add_argument("--repeats", type=int, default=3)
@@ -204,21 +211,34 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
 
 
 def cmd_devices(args) -> int:
-    """Handler of ``clsim devices``."""
-    from .simulator import list_devices
+    """Handler of ``clsim devices``: every device with its state; exit 1 when none works."""
+    from voxlidar.devices import FIX_NO_DEVICE, choose_device, device_report
+    from voxlidar.errors import DeviceError as AnyDeviceError
 
-    found = list_devices()
-    if not found:
-        print("no OpenCL device found (pip install pocl-binary-distribution for a CPU device; "
-              "`clsim simulate --reference` runs the NumPy oracle)")
+    report = device_report(("clsim", "tlsvox"))
+    if not report:
+        print(f"no OpenCL device found; fix: {FIX_NO_DEVICE}", file=sys.stderr)
         return 1
-    import pyopencl as cl
-
-    for key, d in found:
-        kind = cl.device_type.to_string(d.type)
-        fp64 = "fp64" if d.double_fp_config else "no fp64"
-        print(f"{key}  {d.platform.name.strip()} / {d.name.strip()}  [{kind}, "
-              f"{d.max_compute_units} compute units, {d.global_mem_size / 2**30:.1f} GiB, {fp64}]")
+    try:
+        chosen = choose_device(kernels=("clsim",), devices=[info for info, _ in report]).key
+    except AnyDeviceError:
+        chosen = None
+    for info, verdict in report:
+        bad = [r for r in verdict.values() if r]
+        if not bad:
+            state = "works"
+        elif verdict["clsim"] is None:
+            state = "works for clsim; tlsvox: " + verdict["tlsvox"]
+        else:
+            state = "BROKEN: " + "; ".join(dict.fromkeys(bad))
+        mark = "*" if info.key == chosen else " "
+        print(f"{mark} {info.key}  {info.label}  [{info.runtime}, {info.kind}, {info.compute_units} compute "
+              f"units, {info.global_mem_bytes / 2**30:.1f} GiB, {'fp64' if info.fp64 else 'no fp64'}, "
+              f"{'int64 atomics' if info.int64_atomics else 'no int64 atomics'}]  {state}")
+    if chosen is None:
+        print(f"no device can build the clsim kernels; fix: {FIX_NO_DEVICE}", file=sys.stderr)
+        return 1
+    print(f"* = the device commands use now (override: --device, VOXLIDAR_DEVICE or PYOPENCL_CTX)")
     return 0
 
 
@@ -231,33 +251,36 @@ def benchmark_scene():
 
 
 def device_benchmark(*, photons: int = 200_000, repeats: int = 3, devices=None) -> list[dict]:
-    """photons/s and voxel steps/s (medians) for each device and transport variant.
+    """photons/s and voxel steps/s (medians) for each working device and transport variant.
 
-    The variants of a device take turns run by run, so that a slow spell of a
-    shared machine falls on all of them alike."""
-    from .simulator import Simulator, list_devices
+    Devices and variants take turns run by run, so that a slow spell of a
+    shared machine falls on all of them alike; broken devices are skipped
+    (``clsim devices`` says why)."""
+    from .simulator import Simulator, working_devices
 
     scene, sensor = benchmark_scene()
     variants = (("exact", "nee", photons), ("exact", "analog", photons), ("paper", "nee", max(1, photons // 10)))
-    rows = []
-    for _, dev in (list_devices() if devices is None else devices):
-        sim = Simulator(device=dev)
+    sims = [Simulator(device=dev) for dev in (working_devices() if devices is None else devices)]
+    for sim in sims:
         for mode, detect, _ in variants:
             sim.run(scene, sensor, photons=2000, seed=0, mode=mode, detect=detect)  # build
-        el = {v: [] for v in variants}
-        steps = {v: [] for v in variants}
-        for r in range(repeats):
+    el = {(i, v): [] for i in range(len(sims)) for v in variants}
+    steps = {k: [] for k in el}
+    for r in range(repeats):
+        for i, sim in enumerate(sims):
             for v in variants:
                 mode, detect, n = v
                 res = sim.run(scene, sensor, photons=n, seed=r + 1, mode=mode, detect=detect, max_order=3)
-                el[v].append(res.elapsed_s)
-                steps[v].append(res.stat("voxel_steps")[0] / res.elapsed_s)
-        for v in variants:
-            mode, detect, n = v
-            rows.append(dict(device=sim.device_name, mode=mode, detect=detect, photons=n,
-                             photons_per_s=n / statistics.median(el[v]),
-                             steps_per_s=statistics.median(steps[v]),
-                             steps_per_s_range=(min(steps[v]), max(steps[v]))))
+                el[i, v].append(res.elapsed_s)
+                steps[i, v].append(res.stat("voxel_steps")[0] / res.elapsed_s)
+    rows = []
+    for (i, v), times in el.items():
+        mode, detect, n = v
+        sim = sims[i]
+        rows.append(dict(device=sim.device_name, runtime=sim.info.runtime, key=sim.info.key, kind=sim.info.kind,
+                         mode=mode, detect=detect, photons=n, photons_per_s=n / statistics.median(times),
+                         steps_per_s=statistics.median(steps[i, v]),
+                         steps_per_s_range=(min(steps[i, v]), max(steps[i, v]))))
     return rows
 
 
@@ -268,10 +291,12 @@ def cmd_bench(args) -> int:
     except ClsimError as err:
         return _fail(err)
     if not rows:
-        print("no OpenCL device found")
+        from voxlidar.devices import FIX_NO_DEVICE
+
+        print(f"no working OpenCL device (clsim devices says why); fix: {FIX_NO_DEVICE}", file=sys.stderr)
         return 1
-    print(f"{'device':40s} {'mode':6s} {'detect':7s} {'photons/s':>12s} {'voxel steps/s':>14s}")
+    print(f"{'device':44s} {'runtime':22s} {'mode':6s} {'detect':7s} {'photons/s':>12s} {'voxel steps/s':>14s}")
     for r in rows:
-        print(f"{r['device'][:40]:40s} {r['mode']:6s} {r['detect']:7s} {r['photons_per_s']:12,.0f} "
-              f"{r['steps_per_s'] / 1e6:12,.1f} M")
+        print(f"{r['key'] + ' ' + r['device']:44.44s} {r['runtime']:22.22s} {r['mode']:6s} {r['detect']:7s} "
+              f"{r['photons_per_s']:12,.0f} {r['steps_per_s'] / 1e6:12,.1f} M")
     return 0

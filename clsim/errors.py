@@ -1,12 +1,16 @@
 """Exceptions raised by :mod:`clsim`.
 
-Every error the package raises on purpose derives from :class:`ClsimError`.
+Every error the package raises on purpose derives from :class:`ClsimError`,
+itself a :class:`voxlidar.errors.VoxlidarError` (the root both stages share).
 """
 
 from __future__ import annotations
 
+from voxlidar.errors import DeviceError as _DeviceError
+from voxlidar.errors import VoxlidarError
 
-class ClsimError(Exception):
+
+class ClsimError(VoxlidarError):
     """Base class of every error raised by clsim."""
 
 
@@ -18,5 +22,5 @@ class InputError(ClsimError, ValueError):
     """
 
 
-class DeviceError(ClsimError, RuntimeError):
+class DeviceError(ClsimError, _DeviceError):
     """No usable OpenCL device, or a kernel failed to build or run."""

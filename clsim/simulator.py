@@ -4,7 +4,7 @@ Examples
 --------
 >>> from clsim import testscenes
 >>> from clsim.sensor import Sensor
->>> sim = Simulator()                                    # PYOPENCL_CTX or the first device
+>>> sim = Simulator()                      # VOXLIDAR_DEVICE, PYOPENCL_CTX or the best working device
 >>> res = sim.run(testscenes.ground_only(), Sensor.preset("ahab-chiroptera-i"),
 ...               photons=4096, seed=1, max_order=1)
 >>> e, se = res.energy(kind="ground")                     # (A / R^2) rho_g / pi
@@ -17,7 +17,6 @@ from __future__ import annotations
 import enum
 import json
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from importlib import resources
@@ -27,13 +26,16 @@ import numpy as np
 from tlsvox.scene import Scene, atomic_write
 
 from .bricks import BRICK, BrickGrid, build_bricks
+from voxlidar.devices import DeviceInfo, choose_device, describe, device_report, short_reason
+from voxlidar.errors import DeviceError as AnyDeviceError
+
 from .errors import DeviceError, InputError
 from .rng import split_seed
 from .sensor import C_M_PER_NS, Sensor
 from .waveform import digitize, fine_edges
 
 __all__ = ["Simulator", "SimulationResult", "Mode", "Detect", "RunSetup", "prepare_run",
-           "PARAMS_DTYPE", "STAT_NAMES", "pick_device", "list_devices"]
+           "PARAMS_DTYPE", "STAT_NAMES", "build_options", "list_devices", "working_devices"]
 
 NTAB = 4097
 NG = 1025
@@ -407,58 +409,52 @@ def assemble_result(setup: RunSetup, hist, stats, traces, elapsed: float, device
 
 
 # -- devices -----------------------------------------------------------------------
-def list_devices() -> list[tuple[str, object]]:
-    """``[("platform:device", pyopencl.Device), ...]`` for every OpenCL device found."""
+def list_devices() -> list[tuple[DeviceInfo, str | None]]:
+    """Every OpenCL device found, best first, with None where it runs the
+    transport kernel and the reason where it cannot (one build per device,
+    cached; see :mod:`voxlidar.devices`)."""
+    return [(info, verdict["clsim"]) for info, verdict in device_report(("clsim",))]
+
+
+def working_devices() -> list[DeviceInfo]:
+    """The devices that run the transport kernel, best first."""
+    return [info for info, reason in list_devices() if reason is None]
+
+
+def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = None) -> list[str]:
+    """``-D`` options of the transport kernel for a device, mode and detection.
+
+    ``-cl-fast-relaxed-math`` is safe: the kernels create no infinity or NaN
+    (kernels/common.cl).  64-bit atomics are used where the device has them
+    (``atomics64=None``), else two 32-bit atomics with an exact carry."""
+    mode = Mode.parse(mode, "mode")
+    detect = Detect.parse(detect, "detect")
+    use64 = info.int64_atomics if atomics64 is None else bool(atomics64) and info.int64_atomics
+    opts = [f"-DMODE={1 if mode is Mode.PAPER else 0}", f"-DDETECT={1 if detect is Detect.ANALOG else 0}",
+            f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}", f"-DNTAB={NTAB}", f"-DNG={NG}",
+            f"-DTRACE_EVENTS={TRACE_EVENTS}", "-cl-fast-relaxed-math"]
+    if use64:
+        opts.append("-DCLSIM_ATOM64")
+    if info.runtime.startswith("PoCL"):
+        opts.append("-DCLSIM_CLANG_BUILTINS")  # PoCL compiles with clang (kernels/common.cl)
+    return opts
+
+
+def _kernel_source() -> tuple[str, str]:
+    kdir = resources.files("clsim") / "kernels"
+    return (kdir / "transport.cl").read_text(), f"-I{kdir}"
+
+
+def probe_build(device) -> str | None:
+    """Build the transport kernel (exact, nee) on a ``pyopencl.Device``; the
+    device layer's probe.  Raises on a build failure."""
     import pyopencl as cl
 
-    try:
-        platforms = cl.get_platforms()
-    except cl.Error:
-        return []
-    out = []
-    for pi, p in enumerate(platforms):
-        try:
-            devs = p.get_devices()
-        except cl.Error:
-            continue
-        out.extend((f"{pi}:{di}", d) for di, d in enumerate(devs))
-    return out
-
-
-_NO_DEVICE = ("no OpenCL device found. Install a CPU driver with `pip install "
-              "pocl-binary-distribution`, or run the NumPy float64 oracle explicitly: "
-              "clsim.transport_ref.ReferenceSimulator().run(...) (slow)")
-
-
-def pick_device(device=None):
-    """An OpenCL device from a Device, "platform:device" index, name substring, or
-    ``PYOPENCL_CTX`` / the first GPU / the first device when None.  Never prompts."""
-    import pyopencl as cl
-
-    if isinstance(device, cl.Device):
-        return device
-    found = list_devices()
-    if not found:
-        raise DeviceError(_NO_DEVICE)
-    spec = device if device is not None else os.environ.get("PYOPENCL_CTX") or None
-    if spec is None:
-        gpus = [d for _, d in found if d.type & cl.device_type.GPU]
-        return gpus[0] if gpus else found[0][1]
-    spec = str(spec)
-    if ":" in spec or spec.isdigit():
-        parts = spec.split(":")
-        key = f"{parts[0] or 0}:{parts[1] if len(parts) > 1 and parts[1] else 0}"
-        for k, d in found:
-            if k == key:
-                return d
-    low = spec.lower()
-    for _, d in found:
-        if low in d.name.lower() or low in d.platform.name.lower():
-            return d
-    raise DeviceError(
-        f"OpenCL device {spec!r} not found; available: "
-        + ", ".join(f"{k} = {d.platform.name} / {d.name}" for k, d in found)
-    )
+    info = describe(device)
+    src, inc = _kernel_source()
+    ctx = cl.Context([device])
+    cl.Program(ctx, src).build(options=[inc] + build_options(info, Mode.EXACT, Detect.NEE))
+    return None
 
 
 class Simulator:
@@ -466,23 +462,35 @@ class Simulator:
 
     Parameters
     ----------
-    device : pyopencl.Device, str or None
-        ``"0:1"`` (platform:device), a name substring, or None for
-        ``PYOPENCL_CTX`` / the first GPU / the first device.  Never prompts.
+    device : voxlidar.devices.DeviceInfo, pyopencl.Device, str or None
+        ``"0:1"`` (platform:device), ``"cpu"``, ``"gpu"``, a name fragment,
+        or None for ``VOXLIDAR_DEVICE`` / ``PYOPENCL_CTX`` / the best working
+        device (:func:`voxlidar.devices.choose_device`).  Never prompts.
+    atomics64 : bool or None
+        Use 64-bit atomics where the device has them (None, True) or the
+        exact two-word fallback (False; for tests).
 
     Raises
     ------
     DeviceError
-        When no OpenCL device exists (the message names the NumPy fallback).
+        One line when no device can build the transport kernel, naming the
+        devices, the reasons and the fix (and the NumPy fallback).
     """
 
-    def __init__(self, device=None):
+    def __init__(self, device=None, *, atomics64: bool | None = None):
         try:
             import pyopencl as cl
         except ImportError as err:
-            raise DeviceError("pyopencl is not installed: " + _NO_DEVICE) from err
+            raise DeviceError("pyopencl is not installed; fix: pip install pyopencl, or run the NumPy "
+                              "oracle clsim.transport_ref.ReferenceSimulator() (slow)") from err
         self._cl = cl
-        self.device = pick_device(device)
+        try:
+            self.info = choose_device(device, kernels=("clsim",))
+        except AnyDeviceError as err:
+            raise DeviceError(f"{err} (the NumPy oracle clsim.transport_ref.ReferenceSimulator() "
+                              "needs no device)") from None
+        self.device = self.info.device
+        self.atomics64 = atomics64
         self.context = cl.Context([self.device])
         self.queue = cl.CommandQueue(self.context)
         self._programs = {}
@@ -490,24 +498,20 @@ class Simulator:
 
     @property
     def device_name(self) -> str:
-        return f"{self.device.platform.name.strip()} / {self.device.name.strip()}"
+        return self.info.label
 
     def program(self, mode: Mode, detect: Detect):
         """(program, kernel) built for a mode and detection (cached per Simulator)."""
         key = (Mode.parse(mode, "mode"), Detect.parse(detect, "detect"))
         if key not in self._programs:
-            kdir = resources.files("clsim") / "kernels"
-            src = (kdir / "transport.cl").read_text()
-            opts = [f"-I{kdir}", f"-DMODE={1 if key[0] is Mode.PAPER else 0}",
-                    f"-DDETECT={1 if key[1] is Detect.ANALOG else 0}", f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}",
-                    f"-DNTAB={NTAB}", f"-DNG={NG}", f"-DTRACE_EVENTS={TRACE_EVENTS}", "-cl-fast-relaxed-math"]
-            if "portable computing language" in self.device.platform.name.lower():
-                opts.append("-DCLSIM_CLANG_BUILTINS")  # PoCL compiles with clang (kernels/common.cl)
+            src, inc = _kernel_source()
+            opts = [inc] + build_options(self.info, key[0], key[1], atomics64=self.atomics64)
             t0 = time.perf_counter()
             try:
                 prg = self._cl.Program(self.context, src).build(options=opts)
             except self._cl.Error as err:
-                raise DeviceError(f"transport kernel failed to build on {self.device_name}: {err}") from err
+                raise DeviceError(f"the transport kernel does not build on {self.device_name}: "
+                                  f"{short_reason(err)}; fix: choose another device (clsim devices)") from err
             self.build_seconds += time.perf_counter() - t0
             self._programs[key] = (prg, self._cl.Kernel(prg, "simulate"))
         return self._programs[key]

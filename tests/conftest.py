@@ -39,13 +39,98 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
 
 
+# -- the OpenCL device matrix ---------------------------------------------------------
+# Kernel tests take the ``cl_device`` (or ``sim``/``tracer``) fixture and run once per
+# working device found: in CI at least Debian's PoCL and Intel's CPU runtime (two
+# compilers), on a GPU machine the GPU too.  VOXLIDAR_TEST_DEVICES narrows the matrix
+# to the devices matching a spec ("0:1", "intel", "gpu", ...); "best" keeps only the one
+# the library would choose.
+def _device_matrix():
+    """[(DeviceInfo, {kernel set: reason or None})], best first; [] without pyopencl."""
+    try:
+        from voxlidar.devices import device_report
+    except ImportError:
+        return []
+    try:
+        return device_report(("clsim", "tlsvox"))
+    except Exception as err:  # noqa: BLE001 - reported in the header, tests skip
+        return [(None, {"error": f"{type(err).__name__}: {err}"})]
+
+
+MATRIX = _device_matrix()
+
+
+def _selected(kernel):
+    ok = [info for info, verdict in MATRIX if info is not None and verdict.get(kernel) is None]
+    spec = os.environ.get("VOXLIDAR_TEST_DEVICES", "").strip()
+    if spec and ok:
+        from voxlidar.devices import _matches, choose_device
+
+        ok = [choose_device(kernels=(kernel,), devices=ok)] if spec == "best" else _matches(spec, ok)
+    return ok
+
+
+def _device_id(info):
+    name = info.name.replace(" ", "")[:24]
+    return f"{info.key}-{info.runtime.split('+')[0].replace(' ', '')}-{name}"
+
+
+def _params(kernel):
+    ok = _selected(kernel)
+    if not ok:
+        reasons = "; ".join(f"{i.key if i else '?'}: {v}" for i, v in MATRIX) or "none found"
+        return [pytest.param(None, marks=pytest.mark.skip(reason=f"no working OpenCL device ({reasons})"))]
+    return [pytest.param(info, id=_device_id(info)) for info in ok]
+
+
+def pytest_report_header(config):
+    lines = ["OpenCL device matrix (kernel tests run on every device marked 'works'):"]
+    if not MATRIX:
+        lines.append("  no OpenCL device found")
+    for info, verdict in MATRIX:
+        if info is None:
+            lines.append(f"  device discovery failed: {verdict['error']}")
+            continue
+        state = "; ".join(f"{k} {'works' if r is None else 'BROKEN: ' + r}" for k, r in verdict.items())
+        lines.append(f"  {info.key}  {info.runtime:24s} {info.kind:4s} {info.name[:40]:40s} {state}")
+    return lines
+
+
+@pytest.fixture(scope="session", params=_params("clsim"))
+def cl_device(request):
+    """Each working OpenCL device in turn (a :class:`voxlidar.devices.DeviceInfo`)."""
+    return request.param
+
+
 @pytest.fixture(scope="session")
-def sim():
-    """A clsim Simulator on the default OpenCL device; skips when there is none."""
-    from clsim.errors import DeviceError
+def sim(cl_device):
+    """A clsim Simulator on each working OpenCL device in turn."""
     from clsim.simulator import Simulator
 
-    try:
-        return Simulator()
-    except DeviceError as err:
-        pytest.skip(str(err))
+    return Simulator(device=cl_device)
+
+
+@pytest.fixture(scope="session", params=_params("tlsvox"))
+def tracer(request):
+    """A tlsvox Tracer on each device that runs the tracer (float64) in turn."""
+    from tlsvox.trace import Tracer
+
+    return Tracer(device=request.param)
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test parametrised over ``backend`` runs its NumPy-oracle case once, not once per
+    device: the oracle uses no device."""
+    seen, keep, dropped = set(), [], []
+    for item in items:
+        params = getattr(getattr(item, "callspec", None), "params", {})
+        if params.get("backend") == "oracle" and "cl_device" in params:
+            key = (item.originalname, tuple(sorted((k, str(v)) for k, v in params.items() if k != "cl_device")))
+            if key in seen:
+                dropped.append(item)
+                continue
+            seen.add(key)
+        keep.append(item)
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        items[:] = keep

@@ -53,13 +53,10 @@ __kernel void math(__global const float *u, __global float *out, __global uint *
 """
 
 
-def test_kernel_math_helpers():
+def test_kernel_math_helpers(sim):
     """The kernels' own sin/cos of 2 pi u, sin/cos on [0, pi/2], -log u and Philox rounds
-    against float64 NumPy and the Random123 known answers (kernels/common.cl, philox.cl)."""
-    try:
-        sim = Simulator()
-    except DeviceError as err:
-        pytest.skip(str(err))
+    against float64 NumPy and the Random123 known answers (kernels/common.cl, philox.cl),
+    on each device of the matrix."""
     import pyopencl as cl
 
     kdir = resources.files("clsim") / "kernels"
@@ -154,14 +151,11 @@ def test_digitize_two_returns():
     assert t[np.argmax(wf[1])] == pytest.approx(60.0, abs=0.3)
 
 
-def test_params_struct_matches_c():
-    """PARAMS_DTYPE has the field offsets and size of params_t in kernels/params.cl."""
+def test_params_struct_matches_c(sim):
+    """PARAMS_DTYPE has the field offsets and size of params_t in kernels/params.cl,
+    on each device of the matrix."""
     import pyopencl as cl
 
-    try:
-        sim = Simulator()
-    except DeviceError as err:
-        pytest.skip(str(err))
     names = list(PARAMS_DTYPE.names)
     body = "\n".join(f"o[{i}] = (int)__builtin_offsetof(params_t, {n});" for i, n in enumerate(names))
     src = f'#include "params.cl"\n__kernel void offs(__global int *o) {{ {body} o[{len(names)}] = (int)sizeof(params_t); }}'

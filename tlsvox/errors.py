@@ -1,13 +1,16 @@
 """Exceptions raised by :mod:`tlsvox`.
 
 Every error the package raises on purpose derives from :class:`TlsvoxError`,
-so a caller can catch them all with one ``except`` clause.
+so a caller can catch them all with one ``except`` clause; it is itself a
+:class:`voxlidar.errors.VoxlidarError`, the root both stages share.
 """
 
 from __future__ import annotations
 
+from voxlidar.errors import VoxlidarError
 
-class TlsvoxError(Exception):
+
+class TlsvoxError(VoxlidarError):
     """Base class of every error raised by tlsvox."""
 
 

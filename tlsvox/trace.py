@@ -59,12 +59,14 @@ from __future__ import annotations
 
 import enum
 import functools
-import os
 import time
 from dataclasses import dataclass, field
 from importlib import resources
 
 import numpy as np
+
+from voxlidar.devices import choose_device, describe, short_reason
+from voxlidar.errors import DeviceError as AnyDeviceError
 
 from .errors import InputError, TlsvoxError
 from .grid import VoxelGrid, format_bytes
@@ -77,7 +79,7 @@ NF = len(FIELDS)
 _INDEX = {name: i for i, name in enumerate(FIELDS)}
 
 
-class DeviceError(TlsvoxError, RuntimeError):
+class DeviceError(TlsvoxError, AnyDeviceError):
     """No usable OpenCL device, or the device failed."""
 
 
@@ -291,22 +293,22 @@ class VoxelStats:
         return self.n_beams / self.seconds if self.seconds > 0 else float("nan")
 
 
-def _pick_device(device=None):
+def probe_build(device) -> str | None:
+    """The device layer's probe: None when ``device`` (a ``pyopencl.Device``)
+    can run the tracer, else the reason.  Builds the kernel; raises on a
+    build failure."""
     import pyopencl as cl
 
-    if device is not None:
-        return device
-    if os.environ.get("PYOPENCL_CTX"):
-        ctx = cl.create_some_context(interactive=False)
-        return ctx.devices[0]
-    platforms = cl.get_platforms()
-    if not platforms:
-        raise DeviceError("no OpenCL platform found; install pocl-binary-distribution (pip)")
-    for p in platforms:
-        devs = p.get_devices()
-        if devs:
-            return devs[0]
-    raise DeviceError("no OpenCL device found; install pocl-binary-distribution (pip)")
+    if not device.double_fp_config:
+        return "no float64 support (cl_khr_fp64), which the tracer needs"
+    ctx = cl.Context([device])
+    src = (resources.files("tlsvox") / "kernels" / "trace.cl").read_text()
+    cl.Program(ctx, src).build(options=_build_options(describe(device), atomics=False))
+    return None
+
+
+def _build_options(info, *, atomics: bool) -> list[str]:
+    return [f"-DNF={NF}"] + (["-DUSE_ATOMICS"] if atomics else [])
 
 
 class Tracer:
@@ -314,8 +316,9 @@ class Tracer:
 
     Parameters
     ----------
-    device : pyopencl.Device, optional
-        Default: ``PYOPENCL_CTX`` or the first device found.
+    device : voxlidar.devices.DeviceInfo, pyopencl.Device or str, optional
+        Default: ``VOXLIDAR_DEVICE``, ``PYOPENCL_CTX``, or the best device
+        that builds the tracer (:func:`voxlidar.devices.choose_device`).
     atomics : bool, optional
         Force the atomic (GPU) or private-copy (CPU) accumulation; default by
         device type.
@@ -326,18 +329,26 @@ class Tracer:
     def __init__(self, device=None, *, atomics: bool | None = None, copies: int | None = None):
         import pyopencl as cl
 
-        self.device = _pick_device(device)
+        try:
+            self.info = choose_device(device, kernels=("tlsvox",))
+        except AnyDeviceError as err:
+            raise DeviceError(str(err)) from None
+        self.device = self.info.device
         self.context = cl.Context([self.device])
         self.queue = cl.CommandQueue(self.context)
-        if not self.device.double_fp_config:
-            raise DeviceError(f"OpenCL device {self.device.name!r} has no float64 support; pick another")
-        is_cpu = bool(self.device.type & cl.device_type.CPU)
-        self.atomics = (not is_cpu) if atomics is None else bool(atomics)
+        is_cpu = not self.info.is_gpu
+        # atomics need 64-bit compare-and-swap; without it, private copies
+        self.atomics = (not is_cpu and self.info.int64_atomics) if atomics is None else bool(atomics)
+        if self.atomics and not self.info.int64_atomics:
+            raise DeviceError(f"OpenCL device {self.info.label!r} has no 64-bit atomics "
+                              "(cl_khr_int64_base_atomics); fix: Tracer(atomics=False)")
         self.copies = 1 if self.atomics else int(copies or self.device.max_compute_units)
-        kdir = resources.files("tlsvox") / "kernels"
-        src = (kdir / "trace.cl").read_text()
-        opts = [f"-DNF={NF}"] + (["-DUSE_ATOMICS"] if self.atomics else [])
-        self.program = cl.Program(self.context, src).build(options=opts)
+        src = (resources.files("tlsvox") / "kernels" / "trace.cl").read_text()
+        try:
+            self.program = cl.Program(self.context, src).build(options=_build_options(self.info, atomics=self.atomics))
+        except cl.Error as err:
+            raise DeviceError(f"the tracer kernel does not build on {self.info.label}: {short_reason(err)}; "
+                              "fix: choose another device (clsim devices)") from err
         self.kernel = cl.Kernel(self.program, "trace_beams")
 
     @property
@@ -370,9 +381,12 @@ class Tracer:
             raise InputError(f"grid must be a VoxelGrid, got {type(grid).__name__}")
         if not isinstance(beams, Beams):
             raise InputError(f"beams must be a Beams, got {type(beams).__name__}")
-        grid.check_memory(self.bytes_per_voxel(), max_bytes=max_bytes, what="tracer accumulators")
         limit = self.device.max_mem_alloc_size
-        acc_bytes = grid.n_voxels * NF * 8 * self.copies
+        per_copy = grid.n_voxels * NF * 8
+        # as many private copies as one buffer of the device can hold (at least one)
+        copies = 1 if self.atomics else max(1, min(self.copies, limit // max(per_copy, 1)))
+        grid.check_memory(NF * 8 * (copies + 1), max_bytes=max_bytes, what="tracer accumulators")
+        acc_bytes = per_copy * copies
         if acc_bytes > limit:
             raise InputError(
                 f"tracer accumulators need {format_bytes(acc_bytes)} in one buffer but the OpenCL "
@@ -398,10 +412,10 @@ class Tracer:
             cl.enqueue_fill_buffer(q, acc_dev, np.float64(0.0), 0, max(acc_bytes, 8))
         else:
             # CPU device: the kernel works in host memory directly (no copies)
-            host_acc = np.zeros((self.copies, grid.n_voxels, NF), dtype=np.float64)
+            host_acc = np.zeros((copies, grid.n_voxels, NF), dtype=np.float64)
             acc_dev = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=host_acc)
-        steps_dev = cl.Buffer(ctx, mf.READ_WRITE, size=8 * self.copies)
-        cl.enqueue_fill_buffer(q, steps_dev, np.uint64(0), 0, 8 * self.copies)
+        steps_dev = cl.Buffer(ctx, mf.READ_WRITE, size=8 * copies)
+        cl.enqueue_fill_buffer(q, steps_dev, np.uint64(0), 0, 8 * copies)
         lo = grid.lower
         nx, ny, nz = grid.shape
         n = len(beams)
@@ -413,7 +427,7 @@ class Tracer:
         try:
             for b0 in range(0, n, chunk):
                 b1 = min(n, b0 + chunk)
-                gsize = (self.copies,) if not self.atomics else (b1 - b0,)
+                gsize = (copies,) if not self.atomics else (b1 - b0,)
                 lsize = (1,) if not self.atomics else None
                 self.kernel(q, gsize, lsize, np.int64(b0), np.int64(b1), *bufs,
                             np.float64(lo[0]), np.float64(lo[1]), np.float64(lo[2]),
@@ -425,7 +439,7 @@ class Tracer:
         finally:
             if bar is not None:
                 bar.close()
-        steps = np.empty(self.copies, dtype=np.uint64)
+        steps = np.empty(copies, dtype=np.uint64)
         cl.enqueue_copy(q, steps, steps_dev)
         if self.atomics:
             total = np.empty((grid.n_voxels, NF), dtype=np.float64)
@@ -435,7 +449,7 @@ class Tracer:
             mapped, _ = cl.enqueue_map_buffer(q, acc_dev, cl.map_flags.READ, 0, host_acc.shape,
                                               host_acc.dtype, is_blocking=True)
             total = np.array(mapped[0])
-            for c in range(1, self.copies):
+            for c in range(1, copies):
                 total += mapped[c]
             del mapped
         acc_dev.release()

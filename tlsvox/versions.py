@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 import platform
 import sys
 
 __all__ = ["show_versions", "versions"]
 
 _PACKAGES = ("numpy", "scipy", "open3d", "pyopencl", "laspy", "lazrs", "matplotlib", "tqdm")
+_RUNTIMES = ("pocl-binary-distribution", "intel-opencl-rt")
 
 
 def versions() -> dict:
@@ -19,15 +21,22 @@ def versions() -> dict:
             out[name] = getattr(importlib.import_module(name), "__version__", "installed")
         except Exception as err:  # noqa: BLE001 - report, never fail
             out[name] = f"not available ({type(err).__name__})"
+    for name in _RUNTIMES:  # OpenCL runtimes installed by pip (no importable module)
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            out[name] = "not installed"
     devices = []
     try:
-        import pyopencl as cl
+        from voxlidar.devices import device_report
 
-        for p in cl.get_platforms():
-            for d in p.get_devices():
-                devices.append(f"{p.name} | {d.name.strip()} | {cl.device_type.to_string(d.type)} | "
-                               f"{d.max_compute_units} CU | fp64 {'yes' if d.double_fp_config else 'no'}")
-    except Exception as err:  # noqa: BLE001
+        for info, verdict in device_report():
+            bad = "; ".join(dict.fromkeys(r for r in verdict.values() if r))
+            devices.append(f"{info.key} {info.label} | {info.runtime} | {info.kind} | {info.compute_units} CU | "
+                           f"fp64 {'yes' if info.fp64 else 'no'} | {'works' if not bad else 'BROKEN: ' + bad}")
+        if not devices:
+            devices.append("none found")
+    except Exception as err:  # noqa: BLE001 - report, never fail
         devices.append(f"none ({type(err).__name__}: {err})")
     out["opencl_devices"] = devices
     return out

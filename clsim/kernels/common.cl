@@ -12,9 +12,17 @@
 #define CLSIM_INLINE inline
 #endif
 
+/* Portability: the kernels never create an infinity or a NaN, so they are
+ * correct under -cl-fast-relaxed-math (which lets a compiler assume both
+ * away) on every conformant implementation.  "No boundary" and "no hit" are
+ * the finite distance CLSIM_FAR, and a direction component below
+ * CLSIM_TINY counts as zero, so reciprocals stay far below CLSIM_FAR. */
+#define CLSIM_FAR 1.0e30f
+#define CLSIM_TINY 1.0e-20f
+
 /* PoCL 3.0 also calls fmin, fmax, fabs and dot out of line.  These twins
  * compile to single instructions everywhere; they assume no NaN operands,
- * which the kernels never produce (infinities are fine). */
+ * which the kernels never produce. */
 CLSIM_INLINE float fast_min(float a, float b) { return a < b ? a : b; }
 CLSIM_INLINE float fast_max(float a, float b) { return a > b ? a : b; }
 CLSIM_INLINE float fast_abs(float a) { return as_float(as_uint(a) & 0x7FFFFFFFu); }
@@ -26,6 +34,33 @@ CLSIM_INLINE float fast_dot(float3 a, float3 b) { return a.x * b.x + a.y * b.y +
 #else
 #define fast_sqrt(x) sqrt(x)
 #endif
+/* 1/x, or CLSIM_FAR for |x| < CLSIM_TINY (an axis the ray does not move along) */
+CLSIM_INLINE float safe_inv(float x) { return fast_abs(x) >= CLSIM_TINY ? 1.0f / x : CLSIM_FAR; }
+CLSIM_INLINE int sign_of(float x) { return x >= CLSIM_TINY ? 1 : (x <= -CLSIM_TINY ? -1 : 0); }
+
+/* 64-bit unsigned atomic add.  With cl_khr_int64_base_atomics (the host
+ * defines CLSIM_ATOM64) one atom_add; otherwise two 32-bit atomic_adds with
+ * the carry of the low word counted once, so the sum stays exact. */
+#ifdef CLSIM_ATOM64
+#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+CLSIM_INLINE void add_u64(__global ulong *p, ulong v) { atom_add(p, v); }
+#else
+CLSIM_INLINE void add_u64(__global ulong *p, ulong v)
+{
+    volatile __global uint *w = (volatile __global uint *)p;
+#ifdef __ENDIAN_LITTLE__
+    volatile __global uint *lo = w, *hi = w + 1;
+#else
+    volatile __global uint *lo = w + 1, *hi = w;
+#endif
+    const uint vlo = (uint)v, vhi = (uint)(v >> 32);
+    const uint old = atomic_add(lo, vlo);
+    const uint carry = (uint)(old + vlo < old);
+    if (vhi + carry)
+        atomic_add(hi, vhi + carry);
+}
+#endif
+
 /* for vectors of length near 1 (no overflow guard) */
 CLSIM_INLINE float3 fast_normalize3(float3 a) { return a * (1.0f / fast_sqrt(fast_dot(a, a))); }
 CLSIM_INLINE int3 clamp_index(int3 v, int nx, int ny, int nz)

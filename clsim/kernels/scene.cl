@@ -12,7 +12,7 @@
  * inserts and extracts on vectors cost more than the arithmetic on PoCL. */
 typedef struct {
     float3 o, d;          /* origin, unit direction */
-    float ix, iy, iz;     /* 1/direction (inf where 0) */
+    float ix, iy, iz;     /* 1/direction (CLSIM_FAR where 0) */
     float tmx, tmy, tmz;  /* distance to the far plane of the current voxel per axis */
     float t, t_end;
     int vx, vy, vz;       /* current voxel */
@@ -27,13 +27,8 @@ typedef struct {
 CLSIM_INLINE float far_plane_t(int v, int step, float o, float inv, float cell)
 {
     if (step == 0)
-        return INFINITY;
+        return CLSIM_FAR;
     return ((float)(v + (step > 0)) * cell - o) * inv;
-}
-
-CLSIM_INLINE int sign_of(float x)
-{
-    return x > 0.0f ? 1 : (x < 0.0f ? -1 : 0);
 }
 
 /* Clip [t_start, t_limit] to the grid box; 0 when the ray misses it.
@@ -42,14 +37,12 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
                              __global const params_t *P)
 {
     const float h = P->h;
-    const float ix = d.x != 0.0f ? 1.0f / d.x : INFINITY;
-    const float iy = d.y != 0.0f ? 1.0f / d.y : INFINITY;
-    const float iz = d.z != 0.0f ? 1.0f / d.z : INFINITY;
+    const float ix = safe_inv(d.x), iy = safe_inv(d.y), iz = safe_inv(d.z);
     const float oo[3] = {o.x, o.y, o.z}, dd[3] = {d.x, d.y, d.z}, ii[3] = {ix, iy, iz};
     float t0 = t_start, t1 = t_limit;
     for (int a = 0; a < 3; ++a) {
         const float len = (float)P->shape[a] * h;
-        if (dd[a] == 0.0f) {
+        if (fast_abs(dd[a]) < CLSIM_TINY) {
             if (oo[a] < 0.0f || oo[a] > len)
                 return 0;
         } else {
@@ -206,11 +199,9 @@ CLSIM_INLINE float2 point_value(float3 x, __global const params_t *P, __global c
     if (slot < 0) {
         const int3 c = v >> BRICK_SHIFT;
         const float cell = (float)BRICK * P->h;
-        const float3 inv = 1.0f / d;
-        const int3 s = (int3)(d.x > 0.0f ? 1 : (d.x < 0.0f ? -1 : 0), d.y > 0.0f ? 1 : (d.y < 0.0f ? -1 : 0),
-                              d.z > 0.0f ? 1 : (d.z < 0.0f ? -1 : 0));
-        *skip_t = fast_min(far_plane_t(c.x, s.x, o.x, inv.x, cell),
-                       fast_min(far_plane_t(c.y, s.y, o.y, inv.y, cell), far_plane_t(c.z, s.z, o.z, inv.z, cell)));
+        *skip_t = fast_min(far_plane_t(c.x, sign_of(d.x), o.x, safe_inv(d.x), cell),
+                           fast_min(far_plane_t(c.y, sign_of(d.y), o.y, safe_inv(d.y), cell),
+                                    far_plane_t(c.z, sign_of(d.z), o.z, safe_inv(d.z), cell)));
         return (float2)(0.0f);
     }
     return voxel_value(v, slot, pool);

@@ -1,9 +1,7 @@
 /* Monte Carlo photon transport through a sparse voxel scene with a ground plane.
  * Physics and notation: docs/method.md.  NumPy float64 twin: clsim/transport_ref.py.
  * Compile-time constants (-D): MODE (0 exact, 1 paper), DETECT (0 nee, 1 analog),
- * BRICK, NTAB, NG, TRACE_EVENTS. */
-#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
-
+ * BRICK, NTAB, NG, TRACE_EVENTS; CLSIM_ATOM64 where the device has 64-bit atomics. */
 #include "common.cl"
 #include "params.cl"
 #include "philox.cl"
@@ -36,21 +34,23 @@ CLSIM_INLINE float g_of(__global const float *gtab, float mu)
     return gtab[i] * (1.0f - f) + gtab[i + 1] * f;
 }
 
+/* Fixed point, 2^-32 units; capped below 2^63 (a float beyond ulong range
+ * would be undefined to convert; no real weight comes near the cap). */
 CLSIM_INLINE ulong to_fixed(float v)
 {
-    return v > 0.0f ? (ulong)(v * FIXED_SCALE + 0.5f) : 0ul;
+    return v > 0.0f ? (ulong)fast_min(v * FIXED_SCALE + 0.5f, 9.0e18f) : 0ul;
 }
 
 CLSIM_INLINE void add_fixed(__global ulong *p, float v)
 {
     if (v > 0.0f)
-        atom_add(p, to_fixed(v));
+        add_u64(p, to_fixed(v));
 }
 
 CLSIM_INLINE float ground_t(float3 o, float3 d, __global const params_t *P)
 {
-    if (!P->has_ground || !(d.z < 0.0f))
-        return INFINITY;
+    if (!P->has_ground || !(d.z <= -CLSIM_TINY))
+        return CLSIM_FAR;
     return fast_max(0.0f, (P->ground_z - o.z) / d.z);
 }
 
@@ -159,12 +159,12 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
         }
     }
 #endif
-    if (tg < INFINITY) {
+    if (tg < CLSIM_FAR) {
         *t = tg;
         *n = (float3)(0.0f, 0.0f, 1.0f);
         return EV_GROUND;
     }
-    *t = INFINITY;
+    *t = CLSIM_FAR;
     return EV_ESCAPE;
 }
 
@@ -395,5 +395,5 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
      * bit-identical whatever the order */
     for (int i = 0; i < NSTAT; ++i)
         if (acc[i])
-            atom_add(st + i, acc[i]);
+            add_u64(st + i, acc[i]);
 }

@@ -1,0 +1,21 @@
+"""The exception root of voxlidar.
+
+Every error that :mod:`tlsvox`, :mod:`clsim` or :mod:`voxlidar` raises on
+purpose derives from :class:`VoxlidarError`, so one ``except`` clause catches
+them all.
+"""
+
+from __future__ import annotations
+
+__all__ = ["DeviceError", "VoxlidarError"]
+
+
+class VoxlidarError(Exception):
+    """Base class of every error raised on purpose by voxlidar's packages."""
+
+
+class DeviceError(VoxlidarError, RuntimeError):
+    """No usable OpenCL device, or a kernel failed to build or run.
+
+    The message names the device, the reason and the fix in one line.
+    """
