@@ -13,6 +13,9 @@
    scanner position 1.7 m above the ground, beams into a 30 m x 30 m x 20 m
    grid of 0.2 m voxels, half of them ending in a leaf echo), the same beams
    on every device; medians of ``--repeats`` runs, transfers included.
+3. Build and launch choices of the transport on each CPU device, side by side:
+   ``-cl-fast-relaxed-math`` or not, and one photon per work-group (the
+   default on CPUs) or the runtime's own work-group size.
 Broken devices are listed with their reason and skipped.  The load average
 is logged before and after.
 """
@@ -32,7 +35,7 @@ import numpy as np
 from clsim.cli_sim import device_benchmark
 from tlsvox.grid import VoxelGrid
 from tlsvox.trace import Beams, Tracer
-from voxlidar.devices import device_report
+from voxlidar.devices import device_report, state_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,7 +73,38 @@ def bench_tracer(devices, n_beams: int, repeats: int) -> list[dict]:
     return rows
 
 
-def markdown(report, clsim_rows, trace_rows, args, load0, load1, wall) -> list[str]:
+def bench_choices(devices, photons: int, repeats: int) -> list[dict]:
+    """exact + nee photons/s for fast math on/off x work-group size 1 / runtime's choice."""
+    from clsim.cli_sim import benchmark_scene
+    from clsim.simulator import Simulator
+
+    scene, sensor = benchmark_scene()
+    runs = []
+    for info in devices:
+        for fast in (True, False):
+            sim = Simulator(device=info, fast_math=fast)
+            for ls in ((1,), None):
+                runs.append((info, fast, ls, sim))
+    times = {i: [] for i in range(len(runs))}
+    for i, (_, _, ls, sim) in enumerate(runs):
+        sim.local_size = ls
+        sim.run(scene, sensor, photons=2000, seed=0)  # build
+    for r in range(repeats):
+        for i, (_, _, ls, sim) in enumerate(runs):
+            sim.local_size = ls
+            res = sim.run(scene, sensor, photons=photons, seed=r + 1, max_order=3)
+            times[i].append((res.elapsed_s, res.stat("voxel_steps")[0]))
+    rows = []
+    for i, (info, fast, ls, _) in enumerate(runs):
+        med = statistics.median(t for t, _ in times[i])
+        steps = statistics.median(s / t for t, s in times[i])
+        rows.append(dict(key=info.key, runtime=info.runtime, fast_math=fast,
+                         local_size="1" if ls else "runtime's choice", photons_per_s=photons / med,
+                         steps_per_s=steps))
+    return rows
+
+
+def markdown(report, clsim_rows, trace_rows, args, load0, load1, wall, choice_rows=()) -> list[str]:
     host = f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs"
     lines = [f"# OpenCL devices side by side: {args.machine}", "",
              f"Command: `python benchmarks/bench_devices.py --machine {args.machine}"
@@ -78,8 +112,7 @@ def markdown(report, clsim_rows, trace_rows, args, load0, load1, wall) -> list[s
              f"Host: {host}. Load average before {load0:.2f}, after {load1:.2f}.", "",
              "## Devices found", "", "| key | device | runtime | kind | state |", "|---|---|---|---|---|"]
     for info, verdict in report:
-        bad = "; ".join(dict.fromkeys(r for r in verdict.values() if r))
-        lines.append(f"| {info.key} | {info.name} | {info.runtime} | {info.kind} | {'works' if not bad else 'broken: ' + bad} |")
+        lines.append(f"| {info.key} | {info.name} | {info.runtime} | {info.kind} | {state_text(verdict)} |")
     lines += ["", "## clsim transport, per runtime", "",
               "Benchmark layer (10 x 10 x 2 m, 0.1 m voxels, LAD 1, ground), `max_order=3`; medians of "
               f"{args.repeats} runs, devices and variants taking turns.", ""]
@@ -98,6 +131,14 @@ def markdown(report, clsim_rows, trace_rows, args, load0, load1, wall) -> list[s
     for r in trace_rows:
         lines.append(f"| {r['key']} {r['device']} | {r['runtime']} | {r['mode']} | {r['beams_per_s']:,.0f} | "
                      f"{r['steps_per_s'] / 1e6:,.1f} M | {r['seconds']:.3f} ({r['range_s'][0]:.3f}-{r['range_s'][1]:.3f}) |")
+    if choice_rows:
+        lines += ["", "## Build and launch choices (CPU devices, exact + nee)", "",
+                  f"{args.photons:,} photons per run; medians of {args.repeats} runs, all variants taking turns.", "",
+                  "| device | runtime | -cl-fast-relaxed-math | work-group size | photons/s | voxel steps/s |",
+                  "|---|---|---|---|---:|---:|"]
+        for r in choice_rows:
+            lines.append(f"| {r['key']} | {r['runtime']} | {'yes' if r['fast_math'] else 'no'} | {r['local_size']} | "
+                         f"{r['photons_per_s']:,.0f} | {r['steps_per_s'] / 1e6:,.1f} M |")
     return lines + [""]
 
 
@@ -111,6 +152,7 @@ def main(argv=None) -> int:
     ap.add_argument("--beams", type=int, default=1_000_000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--no-choices", action="store_true", help="skip section 3")
     args = ap.parse_args(argv)
     if args.quick:
         args.photons, args.beams, args.repeats = 200_000, 200_000, 3
@@ -134,15 +176,19 @@ def main(argv=None) -> int:
     for r in trace_rows:
         print(f"tracer {r['key']} {r['runtime']:22s} {r['mode']:18s} {r['beams_per_s']:14,.0f} beams/s "
               f"{r['steps_per_s'] / 1e6:10,.1f} M steps/s")
+    choice_rows = bench_choices(cpus, args.photons, args.repeats) if cpus and not args.no_choices else []
+    for r in choice_rows:
+        print(f"choice {r['key']} {r['runtime']:22s} fast={r['fast_math']!s:5s} wg={r['local_size']:16s} "
+              f"{r['steps_per_s'] / 1e6:10,.1f} M steps/s")
     load1 = os.getloadavg()[0]
-    lines = markdown(report, clsim_rows, trace_rows, args, load0, load1, time.perf_counter() - t0)
+    lines = markdown(report, clsim_rows, trace_rows, args, load0, load1, time.perf_counter() - t0, choice_rows)
     out = Path(args.out) if args.out else ROOT / "docs" / "bench" / f"devices-{args.machine}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     tmp.write_text("\n".join(lines))
     os.replace(tmp, out)
     js = out.with_suffix(".json")
-    js.write_text(json.dumps(dict(clsim=clsim_rows, tracer=trace_rows), indent=1, default=str))
+    js.write_text(json.dumps(dict(clsim=clsim_rows, tracer=trace_rows, choices=choice_rows), indent=1, default=str))
     print(f"wrote {out} and {js.name}")
     return 0
 

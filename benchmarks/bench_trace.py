@@ -67,12 +67,12 @@ def main(argv=None):
     beams, info = beams_from_scan(scan, pose=np.eye(4), angular_grid=GRID, socs_rotation=rotation_from_rpy(*RPY))
     t_pulses = time.perf_counter() - t
     grid = VoxelGrid.from_points(scan.xyz, voxel_size=args.voxel_size)
-    import pyopencl as cl
+    from voxlidar.devices import device_report
 
     rows = []
-    for p in cl.get_platforms():
-        for dev in p.get_devices():
-            tracer = Tracer(dev)
+    for info, verdict in device_report(("tlsvox",)):
+        if verdict["tlsvox"] is None:  # broken devices are skipped (clsim devices says why)
+            tracer = Tracer(info)
             tracer.trace(grid, subset(beams, np.arange(1000)))  # warm-up (build, first touch)
             times, steps = [], 0
             for _ in range(args.repeat):

@@ -15,7 +15,7 @@ import argparse
 import importlib
 import sys
 
-from .errors import ClsimError
+from voxlidar.errors import VoxlidarError, exit_code
 
 # sub-command modules that add themselves with register(subparsers)
 _PLUGINS = ("clsim.cli_sim", "clsim.cli_waveforms", "clsim.cli_reference")
@@ -55,9 +55,9 @@ def main(argv=None) -> int:
         return 2
     try:
         return int(fn(args) or 0)
-    except ClsimError as err:
+    except VoxlidarError as err:
         print(f"clsim {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        return exit_code(err)
 
 
 if __name__ == "__main__":

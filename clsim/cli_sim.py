@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from voxlidar.errors import VoxlidarError, exit_code
+
 from .errors import ClsimError, InputError
 from .sensor import Sensor, list_presets
 from .simulator import Detect, Mode
@@ -91,7 +93,7 @@ def register(subparsers) -> None:
 
 def _fail(err: Exception) -> int:
     print(f"clsim: error: {err}", file=sys.stderr)
-    return 2
+    return exit_code(err)
 
 
 def cmd_simulate(args) -> int:
@@ -212,7 +214,7 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
 
 def cmd_devices(args) -> int:
     """Handler of ``clsim devices``: every device with its state; exit 1 when none works."""
-    from voxlidar.devices import FIX_NO_DEVICE, choose_device, device_report
+    from voxlidar.devices import FIX_NO_DEVICE, choose_device, device_report, state_text
     from voxlidar.errors import DeviceError as AnyDeviceError
 
     report = device_report(("clsim", "tlsvox"))
@@ -224,13 +226,7 @@ def cmd_devices(args) -> int:
     except AnyDeviceError:
         chosen = None
     for info, verdict in report:
-        bad = [r for r in verdict.values() if r]
-        if not bad:
-            state = "works"
-        elif verdict["clsim"] is None:
-            state = "works for clsim; tlsvox: " + verdict["tlsvox"]
-        else:
-            state = "BROKEN: " + "; ".join(dict.fromkeys(bad))
+        state = state_text(verdict)
         mark = "*" if info.key == chosen else " "
         print(f"{mark} {info.key}  {info.label}  [{info.runtime}, {info.kind}, {info.compute_units} compute "
               f"units, {info.global_mem_bytes / 2**30:.1f} GiB, {'fp64' if info.fp64 else 'no fp64'}, "

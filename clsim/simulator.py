@@ -26,7 +26,8 @@ import numpy as np
 from tlsvox.scene import Scene, atomic_write
 
 from .bricks import BRICK, BrickGrid, build_bricks
-from voxlidar.devices import DeviceInfo, choose_device, describe, device_report, short_reason
+from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe, device_report,
+                              short_reason)
 from voxlidar.errors import DeviceError as AnyDeviceError
 
 from .errors import DeviceError, InputError
@@ -421,7 +422,8 @@ def working_devices() -> list[DeviceInfo]:
     return [info for info, reason in list_devices() if reason is None]
 
 
-def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = None) -> list[str]:
+def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = None,
+                  fast_math: bool = True) -> list[str]:
     """``-D`` options of the transport kernel for a device, mode and detection.
 
     ``-cl-fast-relaxed-math`` is safe: the kernels create no infinity or NaN
@@ -432,7 +434,8 @@ def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = No
     use64 = info.int64_atomics if atomics64 is None else bool(atomics64) and info.int64_atomics
     opts = [f"-DMODE={1 if mode is Mode.PAPER else 0}", f"-DDETECT={1 if detect is Detect.ANALOG else 0}",
             f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}", f"-DNTAB={NTAB}", f"-DNG={NG}",
-            f"-DTRACE_EVENTS={TRACE_EVENTS}", "-cl-fast-relaxed-math"]
+            f"-DTRACE_EVENTS={TRACE_EVENTS}"]
+    opts += ["-cl-fast-relaxed-math"] if fast_math else ["-cl-mad-enable", "-cl-no-signed-zeros"]
     if use64:
         opts.append("-DCLSIM_ATOM64")
     if info.runtime.startswith("PoCL"):
@@ -453,7 +456,7 @@ def probe_build(device) -> str | None:
     info = describe(device)
     src, inc = _kernel_source()
     ctx = cl.Context([device])
-    cl.Program(ctx, src).build(options=[inc] + build_options(info, Mode.EXACT, Detect.NEE))
+    build_program(ctx, src, [inc] + build_options(info, Mode.EXACT, Detect.NEE))
     return None
 
 
@@ -469,6 +472,9 @@ class Simulator:
     atomics64 : bool or None
         Use 64-bit atomics where the device has them (None, True) or the
         exact two-word fallback (False; for tests).
+    fast_math : bool
+        Build with ``-cl-fast-relaxed-math`` (default; safe, the kernels make
+        no infinity or NaN) or with only ``-cl-mad-enable`` (benchmarks).
 
     Raises
     ------
@@ -477,7 +483,7 @@ class Simulator:
         devices, the reasons and the fix (and the NumPy fallback).
     """
 
-    def __init__(self, device=None, *, atomics64: bool | None = None):
+    def __init__(self, device=None, *, atomics64: bool | None = None, fast_math: bool = True):
         try:
             import pyopencl as cl
         except ImportError as err:
@@ -491,10 +497,16 @@ class Simulator:
                               "needs no device)") from None
         self.device = self.info.device
         self.atomics64 = atomics64
+        self.fast_math = bool(fast_math)
         self.context = cl.Context([self.device])
         self.queue = cl.CommandQueue(self.context)
         self._programs = {}
         self.build_seconds = 0.0
+        # Work-group size of the launches.  On CPU runtimes one photon per work-group is
+        # fastest (measured: PoCL +50 %, Intel's runtime x2 over the runtime's own
+        # choice; docs/benchmarks.md): photons diverge, so a group gains nothing from
+        # running in lock step.  GPUs: the runtime's choice.
+        self.local_size = None if self.info.is_gpu else (1,)
 
     @property
     def device_name(self) -> str:
@@ -505,10 +517,11 @@ class Simulator:
         key = (Mode.parse(mode, "mode"), Detect.parse(detect, "detect"))
         if key not in self._programs:
             src, inc = _kernel_source()
-            opts = [inc] + build_options(self.info, key[0], key[1], atomics64=self.atomics64)
+            opts = [inc] + build_options(self.info, key[0], key[1], atomics64=self.atomics64,
+                                         fast_math=self.fast_math)
             t0 = time.perf_counter()
             try:
-                prg = self._cl.Program(self.context, src).build(options=opts)
+                prg = build_program(self.context, src, opts)
             except self._cl.Error as err:
                 raise DeviceError(f"the transport kernel does not build on {self.device_name}: "
                                   f"{short_reason(err)}; fix: choose another device (clsim devices)") from err
@@ -605,7 +618,7 @@ class Simulator:
         try:
             for start in range(0, setup.photons, chunk):
                 n = min(chunk, setup.photons - start)
-                kern(q, (n,), None, bufs["params"], bufs["index"], bufs["pool"], bufs["ppf"],
+                kern(q, (n,), self.local_size, bufs["params"], bufs["index"], bufs["pool"], bufs["ppf"],
                      bufs["gtab"], hist_buf, stats_buf, trace_buf, key, np.uint64(start), np.uint32(n))
                 if bar is not None:
                     q.finish()

@@ -91,7 +91,9 @@ def pytest_report_header(config):
         if info is None:
             lines.append(f"  device discovery failed: {verdict['error']}")
             continue
-        state = "; ".join(f"{k} {'works' if r is None else 'BROKEN: ' + r}" for k, r in verdict.items())
+        from voxlidar.devices import state_text
+
+        state = state_text(verdict)
         lines.append(f"  {info.key}  {info.runtime:24s} {info.kind:4s} {info.name[:40]:40s} {state}")
     return lines
 

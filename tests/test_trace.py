@@ -107,17 +107,28 @@ def test_atomic_mode_matches_private_copies(tracer, rng):
     np.testing.assert_allclose(a.acc, b.acc, rtol=1e-10, atol=1e-12)
 
 
-def test_sums_are_deterministic(tracer, rng):
-    """Private copies (CPU) sum in a fixed order: bit-identical.  Float64 atomics (GPU)
-    add in the order the threads arrive: equal to rounding only."""
+@pytest.mark.parametrize("atomics", [False, True])
+def test_sums_are_deterministic(tracer, rng, atomics):
+    """Private copies (CPU) sum in a fixed order, and the atomic mode (GPU) adds 64-bit
+    fixed-point integers, whose sum does not depend on the order: bit-identical twice."""
+    if atomics and not tracer.info.int64_atomics:
+        pytest.skip(f"{tracer.info.label} has no 64-bit atomics")
+    tr = Tracer(tracer.info, atomics=atomics)
     grid = VoxelGrid((0, 0, 0), 0.25, (8, 8, 8))
     beams = _random_beams(rng, grid, 3000)
-    a = tracer.trace(grid, beams)
-    b = tracer.trace(grid, beams)
-    if tracer.atomics:
-        np.testing.assert_allclose(a.acc, b.acc, rtol=1e-12, atol=1e-12)
-    else:
-        assert np.array_equal(a.acc, b.acc)
+    a = tr.trace(grid, beams)
+    b = tr.trace(grid, beams)
+    assert np.array_equal(a.acc, b.acc)
+
+
+def test_fixed_point_scale_cannot_overflow():
+    from tlsvox.trace import fixed_point_scale
+
+    for n, h in [(1, 0.02), (10**6, 0.2), (10**9, 5.0), (10**12, 10.0)]:
+        s = fixed_point_scale(n, h)
+        worst = n * max((h * 3**0.5) ** 2, h * 3**0.5, 1.0) * s
+        assert worst <= 2.0**62 < 2 * worst  # the largest power of two that fits
+    assert fixed_point_scale(10**6, 0.2) == 2.0**42
 
 
 def test_private_copies_fit_the_device_allocation_limit(tracer, rng):

@@ -16,6 +16,8 @@ import importlib
 import sys
 from pathlib import Path
 
+from voxlidar.errors import VoxlidarError, exit_code
+
 from .errors import TlsvoxError
 from .versions import show_versions
 
@@ -187,9 +189,9 @@ def main(argv=None) -> int:
     fn = getattr(args, "func", None) or getattr(args, "handler", None)
     try:
         return int(fn(args) or 0)
-    except TlsvoxError as err:
+    except VoxlidarError as err:
         print(f"tlsvox {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        return exit_code(err)
 
 
 

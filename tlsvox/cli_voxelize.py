@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from voxlidar.errors import VoxlidarError, exit_code
 
 from .errors import TlsvoxError
 
@@ -88,6 +89,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scanner-rpy", type=lambda t: _floats(t, 3, "--scanner-rpy"),
                    help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
     p.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
+    p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
+                   "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
+                   "device; `clsim devices` lists them)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
 
 
@@ -129,6 +133,7 @@ def run(args) -> int:
     from .amapvox import write_vox
     from .pulses import rotation_from_rpy
     from .scan import AngularGrid, Scan
+    from .trace import Tracer
     from .voxelize import voxelize
 
     try:
@@ -153,13 +158,14 @@ def run(args) -> int:
                        wood=args.wood, fill=args.fill, n_min=args.n_min, min_explored=args.min_explored,
                        leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
                        bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
-                       socs_rotation=rot, max_range=args.max_range, progress=not args.quiet)
+                       socs_rotation=rot, max_range=args.max_range, progress=not args.quiet,
+                       tracer=Tracer(args.device) if args.device else None)
         res.scene.save(args.output)
         if args.vox:
             write_vox(res.scene, args.vox)
-    except TlsvoxError as err:
+    except VoxlidarError as err:
         print(f"tlsvox voxelize: error: {err}", file=sys.stderr)
-        return 2
+        return exit_code(err)
     if not args.quiet:
         s = res.scene
         summary = {"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,

@@ -28,12 +28,11 @@ def versions() -> dict:
             out[name] = "not installed"
     devices = []
     try:
-        from voxlidar.devices import device_report
+        from voxlidar.devices import device_report, state_text
 
         for info, verdict in device_report():
-            bad = "; ".join(dict.fromkeys(r for r in verdict.values() if r))
             devices.append(f"{info.key} {info.label} | {info.runtime} | {info.kind} | {info.compute_units} CU | "
-                           f"fp64 {'yes' if info.fp64 else 'no'} | {'works' if not bad else 'BROKEN: ' + bad}")
+                           f"fp64 {'yes' if info.fp64 else 'no'} | {state_text(verdict)}")
         if not devices:
             devices.append("none found")
     except Exception as err:  # noqa: BLE001 - report, never fail

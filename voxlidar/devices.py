@@ -51,7 +51,7 @@ from pathlib import Path
 from .errors import DeviceError
 
 __all__ = ["DeviceInfo", "KERNEL_SETS", "FIX_NO_DEVICE", "choose_device", "describe", "device_report",
-           "find_devices", "prepare_icd_loader", "probe", "rank_devices"]
+           "build_program", "find_devices", "prepare_icd_loader", "probe", "rank_devices", "short_reason", "state_text"]
 
 #: The kernels of each stage, probed by building them: name -> "module:function".
 #: The function takes a ``pyopencl.Device`` and returns None when the device
@@ -334,13 +334,24 @@ def _disk_put(key: str, verdict: str) -> None:
 
 
 def short_reason(err: BaseException) -> str:
-    """The first error line of a build log (or of an exception), at most 200 characters."""
+    """The first error line of a build log (or of an exception), at most 200 characters.
+
+    >>> short_reason(RuntimeError("clBuildProgram failed: BUILD_PROGRAM_FAILURE - clBuildProgram "
+    ...     "failed: BUILD_PROGRAM_FAILURE\\n\\nBuild on <dev>:\\n\\nerror: unknown target CPU 'generic'\\n"))
+    "error: unknown target CPU 'generic'"
+    >>> short_reason(RuntimeError("clBuildProgram failed: INVALID_BUILD_OPTIONS - clBuildProgram failed: "
+    ...     "INVALID_BUILD_OPTIONS"))
+    'clBuildProgram failed: INVALID_BUILD_OPTIONS'
+    """
     text = str(err)
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     for ln in lines:
         if re.search(r"\berror\b", ln, re.IGNORECASE) and "clBuildProgram failed" not in ln:
             return ln[:200]
-    return (lines[0] if lines else type(err).__name__)[:200]
+    if not lines:
+        return type(err).__name__
+    first = " - ".join(dict.fromkeys(lines[0].split(" - ")))  # pyopencl repeats itself
+    return first[:200]
 
 
 def _run_probe(info: DeviceInfo, kernel: str) -> str | None:
@@ -349,7 +360,7 @@ def _run_probe(info: DeviceInfo, kernel: str) -> str | None:
     try:
         return build(info.device)
     except Exception as err:  # noqa: BLE001 - whatever a runtime raises marks the device broken
-        return f"the {kernel} kernels do not build: {short_reason(err)}"
+        return f"kernels do not build: {short_reason(err)}"
 
 
 def probe(info: DeviceInfo, kernels=("clsim",)) -> dict[str, str | None]:
@@ -373,6 +384,40 @@ def probe(info: DeviceInfo, kernels=("clsim",)) -> dict[str, str | None]:
 
 def _problems(info: DeviceInfo, kernels) -> str:
     return "; ".join(r for r in probe(info, kernels).values() if r)
+
+
+def build_program(context, source: str, options):
+    """``pyopencl.Program(context, source).build(options)`` without the warning
+    PyOpenCL raises for any non-empty compiler log (PoCL and Intel's runtime
+    print notes on success); a failed build still raises, with its log."""
+    import warnings
+
+    import pyopencl as cl
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        return cl.Program(context, source).build(options=list(options))
+
+
+def state_text(verdict: dict) -> str:
+    """One phrase for a device's probe verdicts: ``works``, ``BROKEN: reason``, or
+    which kernel sets work when only some do.
+
+    >>> state_text({"clsim": None, "tlsvox": None})
+    'works'
+    >>> state_text({"clsim": "kernels do not build: x", "tlsvox": "kernels do not build: x"})
+    'BROKEN: kernels do not build: x'
+    >>> state_text({"clsim": None, "tlsvox": "no float64 support"})
+    'works for clsim; not for tlsvox: no float64 support'
+    """
+    bad = {k: r for k, r in verdict.items() if r}
+    if not bad:
+        return "works"
+    good = [k for k in verdict if k not in bad]
+    reasons = list(dict.fromkeys(bad.values()))
+    if good:
+        return f"works for {', '.join(good)}; " + "; ".join(f"not for {k}: {r}" for k, r in bad.items())
+    return "BROKEN: " + (reasons[0] if len(reasons) == 1 else "; ".join(f"{k}: {r}" for k, r in bad.items()))
 
 
 def device_report(kernels=tuple(KERNEL_SETS), devices=None) -> list[tuple[DeviceInfo, dict]]:

@@ -7,7 +7,7 @@ them all.
 
 from __future__ import annotations
 
-__all__ = ["DeviceError", "VoxlidarError"]
+__all__ = ["DeviceError", "VoxlidarError", "exit_code"]
 
 
 class VoxlidarError(Exception):
@@ -19,3 +19,9 @@ class DeviceError(VoxlidarError, RuntimeError):
 
     The message names the device, the reason and the fix in one line.
     """
+
+
+def exit_code(err: BaseException) -> int:
+    """The command-line exit status of an error: 1 for a runtime failure (no
+    working device, a kernel that failed), 2 for a usage or input error."""
+    return 1 if isinstance(err, DeviceError) else 2

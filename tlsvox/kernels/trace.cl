@@ -23,9 +23,15 @@
  *
  * Compile-time options:
  *   -DNF=16
- *   -DUSE_ATOMICS   one shared accumulator, atomic adds (GPU); otherwise each
- *                   work-item owns a private copy of the grid (CPU: no atomics,
- *                   deterministic sums) and strides over the beams.
+ *   -DUSE_ATOMICS   one shared accumulator of 64-bit fixed-point integers
+ *                   (value x fx_scale, chosen by the host so that no sum can
+ *                   overflow), native atomic adds (GPU): integer sums are exact,
+ *                   so the result does not depend on the order the threads
+ *                   arrive in, and an atomic add is one instruction where a
+ *                   float64 compare-and-swap loop serialises under contention;
+ *                   otherwise each work-item owns a private float64 copy of the
+ *                   grid (CPU: no atomics, deterministic sums) and strides over
+ *                   the beams.
  */
 
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
@@ -41,16 +47,7 @@
 #define KIND_WOOD 2
 
 #ifdef USE_ATOMICS
-inline void acc_add(__global double *p, double v)
-{
-    union { ulong u; double d; } old, nxt;
-    __global volatile ulong *q = (__global volatile ulong *)p;
-    do {
-        old.u = *q;
-        nxt.d = old.d + v;
-    } while (atom_cmpxchg(q, old.u, nxt.u) != old.u);
-}
-#define ADD(p, v) acc_add((p), (v))
+#define ADD(p, v) atom_add((__global long *)(p), (long)rint((v) * fx_scale))
 #else
 #define ADD(p, v) (*(p) += (v))
 #endif
@@ -63,7 +60,7 @@ inline void trace_one(
     __global const double *tail, __global const double *max_range,
     __global const double *gval,
     const double lx, const double ly, const double lz, const double h,
-    const int nx, const int ny, const int nz,
+    const int nx, const int ny, const int nz, const double fx_scale,
     __global double *acc, __global ulong *steps)
 {
     const double ox = origin[3 * b], oy = origin[3 * b + 1], oz = origin[3 * b + 2];
@@ -188,14 +185,14 @@ __kernel void trace_beams(
     __global const double *tail, __global const double *max_range,
     __global const double *gval,
     const double lx, const double ly, const double lz, const double h,
-    const int nx, const int ny, const int nz,
+    const int nx, const int ny, const int nz, const double fx_scale,
     __global double *acc, __global ulong *steps)
 {
 #ifdef USE_ATOMICS
     const long b = b_begin + get_global_id(0);
     if (b >= b_end) return;
     trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
-              max_range, gval, lx, ly, lz, h, nx, ny, nz, acc, steps);
+              max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, acc, steps);
 #else
     const long c = get_global_id(0);
     const long nc = get_global_size(0);
@@ -203,6 +200,6 @@ __kernel void trace_beams(
     __global double *mine = acc + c * nvox * NF;
     for (long b = b_begin + c; b < b_end; b += nc)
         trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
-                  max_range, gval, lx, ly, lz, h, nx, ny, nz, mine, steps + c);
+                  max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, mine, steps + c);
 #endif
 }
