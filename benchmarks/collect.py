@@ -12,14 +12,14 @@ import os
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-ORDER = ["scanner", "register_classify", "voxelize", "clsim", "decompose", "pipeline", "device"]
+ORDER = ["scanner", "register_classify", "voxelize", "clsim", "devices", "decompose", "pipeline"]
 
 HEADER = """# Benchmarks
 
 Speed and accuracy figures, each with the command that produced it.  Ratios are
 measured side by side in one run; times are medians of several runs.  Unless a
 section says otherwise the machine is the project's standard one: 2 CPU cores,
-24 GB, no GPU; OpenCL on PoCL's CPU device.  Re-run everything with
+24 GB, no GPU; OpenCL on the best working CPU runtime (docs/devices.md).  Re-run everything with
 `make bench`, then `.venv/bin/python benchmarks/collect.py`.
 
 """
@@ -28,7 +28,10 @@ section says otherwise the machine is the project's standard one: 2 CPU cores,
 def main() -> int:
     parts = sorted((ROOT / "docs" / "bench").glob("*.md"))
     by_name = {p.stem: p for p in parts}
-    names = [n for n in ORDER if n in by_name] + sorted(n for n in by_name if n not in ORDER)
+    names = []
+    for n in ORDER:  # "devices" also takes its per-machine pages, devices-<machine>.md
+        names += [m for m in sorted(by_name) if m == n or m.startswith(n + "-")]
+    names += sorted(n for n in by_name if n not in names)
     text = HEADER + "\n".join(by_name[n].read_text().rstrip() + "\n" for n in names)
     out = ROOT / "docs" / "benchmarks.md"
     tmp = out.with_suffix(".tmp")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -295,6 +296,16 @@ def main(argv=None) -> int:
     parser.add_argument("--stop-after", choices=["scans", "voxels", "waveforms"], default="waveforms")
     args = parser.parse_args(argv)
 
+    from voxlidar.devices import choose_device
+    from voxlidar.errors import VoxlidarError
+
+    try:  # fail at once, in one line, when no OpenCL device can run the kernels
+        for kernels in (("tlsvox",), ("clsim",)):
+            dev = choose_device(kernels=kernels)
+            print(f"[device] {kernels[0]} kernels on {dev.key} {dev.label} ({dev.runtime})")
+    except VoxlidarError as err:
+        print(f"demo: error: {err}", file=sys.stderr)
+        return 1
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rep = Report(out)

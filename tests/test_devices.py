@@ -204,3 +204,9 @@ def test_no_working_device_at_all(layer_file, tmp_path):
     assert len(err) == 1 and "fix:" in err[0] and "ReferenceSimulator" in err[0], out.stderr
     out = _run(["clsim.cli", "bench", "--photons", "1000", "--repeats", "1"], env, tmp_path)
     assert out.returncode == 1 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    demo = Path(__file__).resolve().parents[1] / "examples" / "demo.py"  # `make demo`, before any work
+    out = subprocess.run([sys.executable, str(demo), "--out", str(tmp_path / "demo")], capture_output=True,
+                         text=True, timeout=300, env=dict(os.environ, VOXLIDAR_DEVICE_CACHE="0", **env))
+    assert out.returncode == 1 and not (tmp_path / "demo").exists(), out.stderr
+    err = out.stderr.strip().splitlines()
+    assert len(err) == 1 and "fix:" in err[0], out.stderr
