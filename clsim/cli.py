@@ -58,6 +58,9 @@ def main(argv=None) -> int:
     except VoxlidarError as err:
         print(f"clsim {args.command}: error: {err}", file=sys.stderr)
         return exit_code(err)
+    except KeyboardInterrupt:
+        print(f"clsim {args.command}: interrupted (outputs are written whole or not at all)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from voxlidar.errors import VoxlidarError, exit_code
+from voxlidar.safeio import check_outputs
 
 from .errors import ClsimError, InputError
 from .sensor import Sensor, list_presets
@@ -102,6 +103,8 @@ def cmd_simulate(args) -> int:
     from tlsvox.scene import Scene
 
     try:
+        check_outputs([("scene", args.scene)],
+                      [("-o", args.output), ("--plot", args.plot), ("--trace-plot", args.trace_plot)])
         scene = Scene.load(args.scene)
         over = {}
         if args.off_nadir is not None:
@@ -130,7 +133,7 @@ def cmd_simulate(args) -> int:
             if not args.trace:
                 raise InputError("--trace-plot needs --trace N (the number of photons to draw)")
             plot_traces(res, scene, args.trace_plot)
-    except (ClsimError, TlsInputError) as err:
+    except (VoxlidarError, TlsInputError) as err:
         return _fail(err)
     e, se = res.energy()
     print(f"{args.photons:,} photons in {res.elapsed_s:.2f} s on {res.settings['device']}: "

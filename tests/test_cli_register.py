@@ -73,7 +73,7 @@ def test_classify_command(toy_files, tmp_path, capsys):
 
 def test_classify_command_rejects_scan_without_reflectance(tmp_path, capsys):
     Scan(xyz=np.random.default_rng(0).normal(size=(100, 3)), name="plain").write(tmp_path / "plain.las")
-    assert run(["classify", str(tmp_path / "plain.las"), "-o", str(tmp_path / "out")]) == 1
+    assert run(["classify", str(tmp_path / "plain.las"), "-o", str(tmp_path / "out")]) == 2  # input error
     assert "neither reflectance" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from voxlidar.errors import VoxlidarError, exit_code
+from voxlidar.safeio import check_outputs
 
 from .errors import TlsvoxError
 from .versions import show_versions
@@ -30,6 +31,8 @@ def _cmd_tree(args) -> int:
 
     params = TreeParams(height=args.height, total_leaf_area=args.leaf_area, leaf_angle=args.leaf_angle,
                         leaf_azimuth=args.leaf_azimuth, crown_radius=args.crown_radius)
+    out = Path(args.output)
+    check_outputs([], [("-o", out), ("-o (truth JSON)", out.with_suffix(".json"))])
     tree = make_tree(params, seed=args.seed)
     ply, meta = tree.save(args.output)
     summary = tree.truth_summary()
@@ -41,9 +44,16 @@ def _cmd_tree(args) -> int:
 
 
 def _cmd_scan(args) -> int:
+    from .scan import sidecar_paths
     from .scanner import ScannerPreset, ScanPose, paper_scan_poses, simulate_scan
     from .synthetic import load_tree
 
+    tree_json = Path(args.tree)
+    tree_json = tree_json if tree_json.suffix.lower() == ".json" else tree_json.with_suffix(".json")
+    out = Path(args.output)
+    stems = ([out.with_name(f"{out.stem}{i + 1}{out.suffix}") for i in range(2)] if args.paper_pair else [out])
+    check_outputs([("tree", args.tree), ("tree", tree_json), ("tree", tree_json.with_suffix(".ply"))],
+                  [("-o", p) for t in stems for p in (t, *sidecar_paths(t))])
     tree = load_tree(args.tree)
     overrides = {}
     if args.step is not None:
@@ -73,6 +83,7 @@ def _cmd_view(args) -> int:
     from .render import colormap, reflectance_colors, render
 
     path = Path(args.file)
+    check_outputs([("file", path)], [("--screenshot", args.screenshot)])
     if path.suffix.lower() in (".las", ".laz"):
         from .scan import Scan
 
@@ -192,6 +203,9 @@ def main(argv=None) -> int:
     except VoxlidarError as err:
         print(f"tlsvox {args.command}: error: {err}", file=sys.stderr)
         return exit_code(err)
+    except KeyboardInterrupt:
+        print(f"tlsvox {args.command}: interrupted (outputs are written whole or not at all)", file=sys.stderr)
+        return 130
 
 
 

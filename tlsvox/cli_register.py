@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from voxlidar.errors import VoxlidarError, exit_code
+from voxlidar.safeio import check_outputs
 
 from .errors import TlsvoxError
 
@@ -83,7 +85,7 @@ def register(subparsers) -> None:
 
 def _fail(err: Exception) -> int:
     print(f"error: {err}", file=sys.stderr)
-    return 1
+    return exit_code(err)
 
 
 def cmd_register(args) -> int:
@@ -92,13 +94,17 @@ def cmd_register(args) -> int:
     from .register import register_scans, write_registered
 
     try:
+        out = Path(args.output)
+        check_outputs(_scan_inputs(args.scans),
+                      [("-o", out), ("--transforms", Path(args.transforms) if args.transforms
+                                     else out.with_suffix(".transforms.json"))])
         scans = [read_any(p, scan_id=k) for k, p in enumerate(args.scans)]
         if len(scans) < 2:
             raise TlsvoxError(f"register needs at least 2 scans, got {len(scans)}")
         results = register_scans(scans, method=args.method, min_fitness=args.min_fitness,
                                  icp_after_targets=args.icp_after_targets, seed=args.seed)
         las, js = write_registered(args.output, scans, results=results, transforms_path=args.transforms)
-    except TlsvoxError as err:
+    except VoxlidarError as err:
         return _fail(err)
     for r in results:
         if r is None:
@@ -121,11 +127,17 @@ def cmd_classify(args) -> int:
 
     out = Path(args.output)
     try:
+        names = [Path(p).with_suffix("").name for p in args.scans]
+        check_outputs(_scan_inputs(args.scans),
+                      [(f"-o {out}/", out / f"{n}.classified.laz") for n in names]
+                      + [(f"-o {out}/", out / f"{n}.classified.frame.json") for n in names]
+                      + [(f"-o {out}/", out / "classification.json")]
+                      + [(f"-o {out}/", out / "reflectance_histograms.png" if args.plot else None)])
         scans = [read_any(p, scan_id=k, require_reflectance=True) for k, p in enumerate(args.scans)]
         results = [classify_scan(s, method=args.method, rule=args.rule, refine=args.refine,
                                  incidence_correction=args.incidence_correction, ground=not args.no_ground)
                    for s in scans]
-    except TlsvoxError as err:
+    except VoxlidarError as err:
         return _fail(err)
     doc = {"scans": []}
     out.mkdir(parents=True, exist_ok=True)
@@ -146,6 +158,13 @@ def cmd_classify(args) -> int:
         plot_reflectance_histograms(results, out / "reflectance_histograms.png")
     print(f"wrote {len(scans)} classified scan(s) to {out}")
     return 0
+
+
+def _scan_inputs(paths) -> list:
+    """(label, path) of every scan file and the sidecars read beside it."""
+    from .scan import sidecar_paths
+
+    return [("scan", p) for path in paths for p in (path, *sidecar_paths(path))]
 
 
 def _write_classified(path: Path, scan, labels) -> None:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.errors import VoxlidarError, exit_code
+from voxlidar.safeio import check_outputs
 
 from .errors import TlsvoxError
 
@@ -132,11 +133,14 @@ def run(args) -> int:
     """Handler: voxelise ``args.scans`` and write ``args.output``; returns the exit code."""
     from .amapvox import write_vox
     from .pulses import rotation_from_rpy
-    from .scan import AngularGrid, Scan
+    from .scan import AngularGrid, Scan, sidecar_paths
     from .trace import Tracer
     from .voxelize import voxelize
 
     try:
+        check_outputs([("scan", p) for path in args.scans for p in (path, *sidecar_paths(path))]
+                      + [("--transforms", args.transforms)],
+                      [("-o", args.output), ("--vox", args.vox)])
         scans = [Scan.read(path, scan_id=i) for i, path in enumerate(args.scans)]
         if args.transforms:
             apply_transforms(scans, args.transforms)

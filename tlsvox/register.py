@@ -98,7 +98,7 @@ MIN_POINTS = 50
 MAX_TILT_DEG = 2.0
 
 
-class RegistrationError(TlsvoxError):
+class RegistrationError(TlsvoxError, RuntimeError):
     """Registration failed or its result cannot be trusted.
 
     Attributes

@@ -23,5 +23,6 @@ class DeviceError(VoxlidarError, RuntimeError):
 
 def exit_code(err: BaseException) -> int:
     """The command-line exit status of an error: 1 for a runtime failure (no
-    working device, a kernel that failed), 2 for a usage or input error."""
-    return 1 if isinstance(err, DeviceError) else 2
+    working device, a kernel or a registration that failed: a ``RuntimeError``),
+    2 for a usage or input error (everything else)."""
+    return 1 if isinstance(err, RuntimeError) else 2

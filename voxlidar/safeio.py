@@ -1,0 +1,96 @@
+"""Never lose an input: check a command's outputs before it writes anything.
+
+Every command that writes files calls :func:`check_outputs` first, with its
+inputs (and the sidecar files it reads beside them) and its outputs (and the
+sidecars it will write).  An output that resolves, through symbolic links,
+hard links and ``..``, to an input or to another output of the same command
+is refused in one line that names both and the fix; so is an output in a
+folder that cannot be written.  Nothing has been written at that point.
+
+Examples
+--------
+>>> import tempfile, pathlib
+>>> d = pathlib.Path(tempfile.mkdtemp())
+>>> (d / "scene.npz").write_bytes(b"x")
+1
+>>> check_outputs([("scene", d / "scene.npz")], [("-o", d / "wf.npz")])
+>>> try:
+...     check_outputs([("scene", d / "scene.npz")], [("-o", d / "sub" / ".." / "scene.npz")])
+... except OutputConflictError as err:
+...     print("is the same file as the input scene" in str(err), "nothing was written" in str(err))
+True True
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .errors import VoxlidarError
+
+__all__ = ["OutputConflictError", "check_outputs"]
+
+
+class OutputConflictError(VoxlidarError, ValueError):
+    """An output would overwrite an input or another output, or cannot be written."""
+
+
+def _key(path: Path) -> tuple:
+    """Identity of a path: (device, inode) when it exists, else its resolved text."""
+    real = Path(os.path.realpath(path))
+    try:
+        st = real.stat()
+        return ("inode", st.st_dev, st.st_ino)
+    except OSError:
+        return ("path", str(real))
+
+
+def check_outputs(inputs, outputs) -> None:
+    """Refuse outputs that would replace an input, or each other, or cannot be written.
+
+    Parameters
+    ----------
+    inputs : iterable of (label, path)
+        What the command reads, sidecars included (a missing one is ignored).
+    outputs : iterable of (label, path)
+        What it will write, sidecars included; ``None`` paths are skipped.
+
+    Raises
+    ------
+    OutputConflictError
+        One line naming the output, what it collides with, and the fix.
+    """
+    seen_in = {}
+    for label, path in inputs:
+        if path is not None:
+            seen_in.setdefault(_key(Path(path)), (label, path))
+    seen_out = {}
+    for label, path in outputs:
+        if path is None:
+            continue
+        path = Path(path)
+        key = _key(path)
+        if key in seen_in:
+            in_label, in_path = seen_in[key]
+            raise OutputConflictError(
+                f"{label} {path} is the same file as the input {in_label} {in_path}; "
+                "nothing was written: choose another output name")
+        if key in seen_out:
+            other_label, other = seen_out[key]
+            raise OutputConflictError(
+                f"{label} {path} is the same file as {other_label} {other}; "
+                "nothing was written: give each output its own name")
+        seen_out[key] = (label, path)
+        folder = Path(os.path.realpath(path)).parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            raise OutputConflictError(
+                f"{label} {path}: {folder} is a file, not a folder; nothing was written: "
+                "choose an output in a folder")
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise OutputConflictError(
+                f"{label} {path}: the folder {folder} cannot be written (permission denied); "
+                "nothing was written: choose a writable folder")
+        if path.is_dir():
+            raise OutputConflictError(f"{label} {path} is a folder; nothing was written: give a file name")
