@@ -15,7 +15,6 @@ True
 from __future__ import annotations
 
 import enum
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import json_text
 from tlsvox.scene import Scene, atomic_write
 
 from .bricks import BRICK, BrickGrid, build_bricks
@@ -356,8 +356,8 @@ class SimulationResult:
         arrays = dict(time_ns=self.time_ns, waveform=self.waveform, by_order=self.by_order,
                       fine_edges_ns=self.fine_edges_ns, fine=self.fine,
                       batch_photons=self.batch_photons,
-                      settings=np.str_(json.dumps(self.settings)),
-                      flags=np.str_(json.dumps(self.flags)),
+                      settings=np.str_(json_text(self.settings)),
+                      flags=np.str_(json_text(self.flags)),
                       **{f"stat_{k}": v for k, v in self.stats.items()})
         if self.traces is not None:
             arrays["traces"] = self.traces

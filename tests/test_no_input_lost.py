@@ -124,3 +124,21 @@ def test_ctrl_c_is_one_line_and_exit_130(files, monkeypatch, capsys):
     assert clsim_main(["simulate", str(files / "scene.npz"), "-o", str(files / "x.npz")]) == 130
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "interrupted" in err[0]
+
+
+def test_json_outputs_are_standard_json(tmp_path):
+    """NaN and infinities become null: strict JSON readers accept what we write."""
+    import json
+
+    from clsim.testscenes import homogeneous_layer
+    from voxlidar.safeio import json_text
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+
+    assert strict(json_text({"a": float("nan"), "b": [1.0, float("-inf")], "c": np.float32(2.5)})) == \
+        {"a": None, "b": [1.0, None], "c": 2.5}
+    scene = homogeneous_layer(width=4.0, voxel_size=0.5)
+    scene.meta["fitness"] = float("nan")
+    path = scene.save(tmp_path / "s.npz")
+    assert strict(str(np.load(path)["meta"]))["fitness"] is None

@@ -8,13 +8,12 @@ returns an exit status (0 = success, 1 = a clear failure printed to stderr).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 from voxlidar.errors import VoxlidarError, exit_code
-from voxlidar.safeio import check_outputs
+from voxlidar.safeio import check_outputs, json_text
 
 from .errors import TlsvoxError
 
@@ -151,7 +150,7 @@ def cmd_classify(args) -> int:
         _write_classified(out / f"{s.name}.classified.laz", s, c.labels)
         doc["scans"].append(entry)
     atomic_write(out / "classification.json",
-                 lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=1)))
+                 lambda tmp: Path(tmp).write_text(json_text(doc, indent=1)))
     if args.plot:
         from .plots_classify import plot_reflectance_histograms
 

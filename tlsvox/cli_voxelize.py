@@ -7,13 +7,12 @@ subcommand alone (in-process tests, ``python -m tlsvox.cli_voxelize``).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 from voxlidar.errors import VoxlidarError, exit_code
-from voxlidar.safeio import check_outputs
+from voxlidar.safeio import check_outputs, json_text
 
 from .errors import TlsvoxError
 
@@ -176,7 +175,7 @@ def run(args) -> int:
                    "voxels_stored": s.n_voxels, "leaf_area_m2": round(s.total_leaf_area(), 3),
                    "estimator": s.meta["estimator"], "flags": s.meta["flags"], "beams": s.meta["beams"],
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
-        print(json.dumps(summary, indent=1))
+        print(json_text(summary, indent=1))
     return 0
 
 

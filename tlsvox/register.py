@@ -65,6 +65,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import json_text
 
 from .errors import InputError, TlsvoxError, parse_choice
 from .io import check_scan
@@ -1143,7 +1144,7 @@ def write_registered(path: "str | os.PathLike", scans: list[Scan], *,
     transforms_path.parent.mkdir(parents=True, exist_ok=True)
     try:
         las.write(str(tmp_las))
-        tmp_json.write_text(json.dumps(doc, indent=1))
+        tmp_json.write_text(json_text(doc, indent=1))
         os.replace(tmp_las, path)
         os.replace(tmp_json, transforms_path)
     finally:

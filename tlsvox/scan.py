@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import json_text
 
 from .errors import InputError, ScanFileError
 from .scene import atomic_write
@@ -280,7 +281,7 @@ class Scan:
             pose_doc["pose_true"] = self.pose_true.tolist()
 
         def write_json(tmp):
-            Path(tmp).write_text(json.dumps(pose_doc, indent=1))
+            Path(tmp).write_text(json_text(pose_doc, indent=1))
 
         atomic_write(pose_path, write_json)
         return path

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import json_text
 
 from .errors import InputError
 from .leafangle import LeafAngle
@@ -226,7 +227,7 @@ class Scene:
             crown_center=self.crown_center,
             ground_z=np.float64(np.nan if self.ground_z is None else self.ground_z),
             materials=np.str_(json.dumps(self.materials)),
-            meta=np.str_(json.dumps(self.meta)),
+            meta=np.str_(json_text(self.meta)),
         )
         if self.lad_std is not None:
             arrays["lad_std"] = self.lad_std

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import json_text
 
 from .errors import InputError
 from .leafangle import LeafAngle, sample_leaf_normals
@@ -303,7 +304,7 @@ class SyntheticTree:
         mesh = self.to_o3d()
         atomic_write(path, lambda tmp: o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False))
         meta = path.with_suffix(".json")
-        atomic_write(meta, lambda tmp: Path(tmp).write_text(json.dumps(self.truth_summary(), indent=1)))
+        atomic_write(meta, lambda tmp: Path(tmp).write_text(json_text(self.truth_summary(), indent=1)))
         return path, meta
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from .errors import VoxlidarError
 
-__all__ = ["OutputConflictError", "check_outputs"]
+__all__ = ["OutputConflictError", "check_outputs", "json_text"]
 
 
 class OutputConflictError(VoxlidarError, ValueError):
@@ -94,3 +94,31 @@ def check_outputs(inputs, outputs) -> None:
                 "nothing was written: choose a writable folder")
         if path.is_dir():
             raise OutputConflictError(f"{label} {path} is a folder; nothing was written: give a file name")
+
+
+def _plain(obj):
+    """``obj`` with NumPy values made Python ones and non-finite floats made None."""
+    import math
+
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):  # NumPy arrays and scalars
+        return _plain(obj.tolist())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def json_text(obj, *, indent=None) -> str:
+    """Standard JSON (RFC 8259) for ``obj``: NaN and infinities become ``null``
+    (Python's ``json`` would write ``NaN``/``Infinity``, which other readers
+    reject), NumPy values plain numbers.
+
+    >>> json_text({"fitness": float("nan"), "range": float("inf"), "n": 3})
+    '{"fitness": null, "range": null, "n": 3}'
+    """
+    import json
+
+    return json.dumps(_plain(obj), indent=indent, allow_nan=False)
