@@ -41,7 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _versions(args) -> int:
     from tlsvox.versions import show_versions
 
-    show_versions()
+    show_versions(kernels=("clsim", "tlsvox"))
     return 0
 
 

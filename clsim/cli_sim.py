@@ -224,20 +224,22 @@ def cmd_devices(args) -> int:
     if not report:
         print(f"no OpenCL device found; fix: {FIX_NO_DEVICE}", file=sys.stderr)
         return 1
-    try:
-        chosen = choose_device(kernels=("clsim",), devices=[info for info, _ in report]).key
-    except AnyDeviceError:
-        chosen = None
+    chosen, errors = {}, []
+    for stage in ("clsim", "tlsvox"):
+        try:
+            chosen[stage] = choose_device(kernels=(stage,), devices=[info for info, _ in report]).key
+        except AnyDeviceError as err:
+            errors.append(str(err))
     for info, verdict in report:
-        state = state_text(verdict)
-        mark = "*" if info.key == chosen else " "
+        mark = "*" if info.key in chosen.values() else " "
         print(f"{mark} {info.key}  {info.label}  [{info.runtime}, {info.kind}, {info.compute_units} compute "
               f"units, {info.global_mem_bytes / 2**30:.1f} GiB, {'fp64' if info.fp64 else 'no fp64'}, "
-              f"{'int64 atomics' if info.int64_atomics else 'no int64 atomics'}]  {state}")
-    if chosen is None:
-        print(f"no device can build the clsim kernels; fix: {FIX_NO_DEVICE}", file=sys.stderr)
+              f"{'int64 atomics' if info.int64_atomics else 'no int64 atomics'}]  {state_text(verdict)}")
+    for stage, key in chosen.items():
+        print(f"* {stage} uses {key} (override: --device, VOXLIDAR_DEVICE or PYOPENCL_CTX)")
+    if errors:
+        print("clsim devices: error: " + "; ".join(dict.fromkeys(errors)), file=sys.stderr)
         return 1
-    print(f"* = the device commands use now (override: --device, VOXLIDAR_DEVICE or PYOPENCL_CTX)")
     return 0
 
 

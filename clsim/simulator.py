@@ -22,14 +22,13 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import json_text
 from tlsvox.scene import Scene, atomic_write
-
-from .bricks import BRICK, BrickGrid, build_bricks
 from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe, device_report,
                               short_reason)
 from voxlidar.errors import DeviceError as AnyDeviceError
+from voxlidar.safeio import json_text
 
+from .bricks import BRICK, BrickGrid, build_bricks
 from .errors import DeviceError, InputError
 from .rng import split_seed
 from .sensor import C_M_PER_NS, Sensor
@@ -498,8 +497,12 @@ class Simulator:
         self.device = self.info.device
         self.atomics64 = atomics64
         self.fast_math = bool(fast_math)
-        self.context = cl.Context([self.device])
-        self.queue = cl.CommandQueue(self.context)
+        try:
+            self.context = cl.Context([self.device])
+            self.queue = cl.CommandQueue(self.context)
+        except cl.Error as err:
+            raise DeviceError(f"OpenCL device {self.info.label} cannot be opened: {short_reason(err)}; "
+                              "fix: choose another device (clsim devices)") from err
         self._programs = {}
         self.build_seconds = 0.0
         # Work-group size of the launches.  On CPU runtimes one photon per work-group is

@@ -15,7 +15,7 @@ from clsim.cli_sim import register
 from clsim.errors import DeviceError, InputError
 from clsim.rng import philox4x32_10, uniforms
 from clsim.sensor import Sensor, list_presets
-from clsim.simulator import PARAMS_DTYPE, Simulator
+from clsim.simulator import PARAMS_DTYPE, Simulator, build_options
 from clsim.waveform import digitize, fine_edges, pulse_kernel
 
 
@@ -60,7 +60,9 @@ def test_kernel_math_helpers(sim):
     import pyopencl as cl
 
     kdir = resources.files("clsim") / "kernels"
-    prg = cl.Program(sim.context, KERNEL_MATH).build(options=[f"-I{kdir}", "-DNTAB=2", "-cl-fast-relaxed-math"])
+    # the transport's own options on this device (fast math; clang's sqrt builtin on PoCL)
+    opts = [o for o in build_options(sim.info, "exact", "nee") if not o.startswith("-DNTAB")]
+    prg = cl.Program(sim.context, KERNEL_MATH).build(options=[f"-I{kdir}", "-DNTAB=2", *opts])
     # the uniforms the RNG gives, ((k + 1/2) 2^-23), thinned, with both ends
     k = np.concatenate([np.arange(0, 2**23, 97), [2**23 - 1]]).astype(np.float64)
     u64 = (k + 0.5) * 2.0**-23

@@ -7,6 +7,7 @@ so a caller can catch them all with one ``except`` clause; it is itself a
 
 from __future__ import annotations
 
+from voxlidar.errors import DeviceError as _DeviceError
 from voxlidar.errors import VoxlidarError
 
 
@@ -24,6 +25,10 @@ class InputError(TlsvoxError, ValueError):
 
 class ScanFileError(TlsvoxError, OSError):
     """A scan file could not be read or written."""
+
+
+class DeviceError(TlsvoxError, _DeviceError):
+    """No usable OpenCL device, or the device failed."""
 
 
 def parse_choice(enum_cls, value, label: str, what: str):

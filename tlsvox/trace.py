@@ -68,7 +68,7 @@ import numpy as np
 from voxlidar.devices import build_program, choose_device, describe, short_reason
 from voxlidar.errors import DeviceError as AnyDeviceError
 
-from .errors import InputError, TlsvoxError
+from .errors import DeviceError, InputError, TlsvoxError
 from .grid import VoxelGrid, format_bytes
 
 __all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "trace", "trace_reference"]
@@ -77,10 +77,6 @@ FIELDS = ("count", "n_w", "leaf_w", "wood_w", "other_w", "path_w", "path_wg", "l
           "leaf_zwg", "wood_zw", "chord_w", "chord2_w", "dir_x", "dir_y", "dir_z", "leaf_w_g")
 NF = len(FIELDS)
 _INDEX = {name: i for i, name in enumerate(FIELDS)}
-
-
-class DeviceError(TlsvoxError, AnyDeviceError):
-    """No usable OpenCL device, or the device failed."""
 
 
 class EchoKind(enum.IntEnum):
@@ -299,29 +295,44 @@ def probe_build(device) -> str | None:
     build failure."""
     import pyopencl as cl
 
-    if not device.double_fp_config:
+    if not describe(device).fp64:
         return "no float64 support (cl_khr_fp64), which the tracer needs"
     ctx = cl.Context([device])
     src = (resources.files("tlsvox") / "kernels" / "trace.cl").read_text()
-    build_program(ctx, src, _build_options(describe(device), atomics=False))
+    build_program(ctx, src, _build_options(atomics=False))
     return None
 
 
-def fixed_point_scale(n_beams: int, voxel_size: float, beams=None) -> float:
-    """Scale of the 64-bit fixed-point sums of the atomic (GPU) tracer: the
-    largest power of two for which no field can overflow 2^62 even if every
-    beam added its largest term (a squared chord, a chord, a weight over G) to
-    one voxel.  With a million beams in 0.2 m voxels it is 2^42 (resolution
-    2e-13 of a metre or a weight)."""
-    diag = float(voxel_size) * 3**0.5
-    gmin = 1.0
-    if beams is not None and len(beams):
-        gmin = max(float(np.min(beams.g)), 1e-6)
-    term = max(diag * diag, diag, 1.0 / gmin, 1.0)
-    return float(2.0 ** np.floor(np.log2(2.0**62 / (max(int(n_beams), 1) * term))))
+def fixed_point_scale(beams: "Beams", voxel_size: float) -> float:
+    """Scale of the 64-bit fixed-point sums of the atomic (GPU) tracer.
+
+    A beam crosses a voxel once and adds to each field at most its weight W
+    (tail + echo weights) times the largest of: 1, the voxel diagonal d, d^2
+    (``chord2_w``), g d (``path_wg``, ``leaf_zwg``) and 1/g (``leaf_w_g``);
+    ``count`` adds 1.  The scale is the largest power of two that keeps the sum
+    of these bounds over all beams below 2^62, so no field can overflow.  A
+    million unit-weight beams in 0.2 m voxels give 2^42 (resolution 2e-13).
+    """
+    if not len(beams):
+        return 2.0**40
+    d = float(voxel_size) * 3**0.5
+    w = beams.tail.copy()
+    if beams.n_echoes:
+        starts = beams.echo_start[:-1]
+        has = beams.echo_start[1:] > starts
+        w[has] += np.add.reduceat(beams.echo_weight, starts[has])
+    g = beams.g
+    term = np.maximum(1.0, w * np.maximum.reduce([np.ones_like(g), np.full_like(g, d), np.full_like(g, d * d),
+                                                  g * d, 1.0 / g]))
+    return float(2.0 ** np.floor(np.log2(2.0**62 / float(term.sum()))))
 
 
-def _build_options(info, *, atomics: bool) -> list[str]:
+def private_copies(requested: int, per_copy_bytes: int, max_alloc_bytes: int) -> int:
+    """How many private accumulator copies one device buffer can hold (at least 1)."""
+    return max(1, min(int(requested), int(max_alloc_bytes) // max(int(per_copy_bytes), 1)))
+
+
+def _build_options(*, atomics: bool) -> list[str]:
     return [f"-DNF={NF}"] + (["-DUSE_ATOMICS"] if atomics else [])
 
 
@@ -348,8 +359,12 @@ class Tracer:
         except AnyDeviceError as err:
             raise DeviceError(str(err)) from None
         self.device = self.info.device
-        self.context = cl.Context([self.device])
-        self.queue = cl.CommandQueue(self.context)
+        try:
+            self.context = cl.Context([self.device])
+            self.queue = cl.CommandQueue(self.context)
+        except cl.Error as err:
+            raise DeviceError(f"OpenCL device {self.info.label} cannot be opened: {short_reason(err)}; "
+                              "fix: choose another device (clsim devices)") from err
         is_cpu = not self.info.is_gpu
         # atomics need 64-bit compare-and-swap; without it, private copies
         self.atomics = (not is_cpu and self.info.int64_atomics) if atomics is None else bool(atomics)
@@ -359,7 +374,7 @@ class Tracer:
         self.copies = 1 if self.atomics else int(copies or self.device.max_compute_units)
         src = (resources.files("tlsvox") / "kernels" / "trace.cl").read_text()
         try:
-            self.program = build_program(self.context, src, _build_options(self.info, atomics=self.atomics))
+            self.program = build_program(self.context, src, _build_options(atomics=self.atomics))
         except cl.Error as err:
             raise DeviceError(f"the tracer kernel does not build on {self.info.label}: {short_reason(err)}; "
                               "fix: choose another device (clsim devices)") from err
@@ -397,8 +412,7 @@ class Tracer:
             raise InputError(f"beams must be a Beams, got {type(beams).__name__}")
         limit = self.device.max_mem_alloc_size
         per_copy = grid.n_voxels * NF * 8
-        # as many private copies as one buffer of the device can hold (at least one)
-        copies = 1 if self.atomics else max(1, min(self.copies, limit // max(per_copy, 1)))
+        copies = 1 if self.atomics else private_copies(self.copies, per_copy, limit)
         grid.check_memory(NF * 8 * (copies + 1), max_bytes=max_bytes, what="tracer accumulators")
         acc_bytes = per_copy * copies
         if acc_bytes > limit:
@@ -407,6 +421,21 @@ class Tracer:
                 f"device {self.device.name.strip()!r} allows at most {format_bytes(limit)}; "
                 "use a larger voxel_size or a smaller region"
             )
+        fx_scale = fixed_point_scale(beams, grid.voxel_size) if self.atomics else 1.0
+        if self.atomics and fx_scale < 2.0**20:
+            raise InputError(f"the atomic tracer's fixed-point sums would keep only 2^{np.log2(fx_scale):.0f} "
+                             "steps per unit for these beams (weights or 1/G very large); "
+                             "fix: Tracer(atomics=False), which sums in float64")
+        try:
+            return self._trace(grid, beams, copies=copies, acc_bytes=per_copy * copies, fx_scale=fx_scale,
+                               chunk=chunk, progress=progress)
+        except cl.Error as err:
+            raise DeviceError(f"the tracer failed on {self.info.label}: {short_reason(err)}; fix: a larger "
+                              "voxel_size or a smaller region, or another device (clsim devices)") from err
+
+    def _trace(self, grid, beams, *, copies, acc_bytes, fx_scale, chunk, progress) -> VoxelStats:
+        import pyopencl as cl
+
         mf = cl.mem_flags
         ctx, q = self.context, self.queue
         t_start = time.perf_counter()
@@ -421,7 +450,6 @@ class Tracer:
                 buf(beams.echo_weight), buf(beams.echo_kind), buf(beams.tail), buf(beams.max_range),
                 buf(beams.g)]
         host_acc = None
-        fx_scale = fixed_point_scale(len(beams), grid.voxel_size, beams)
         if self.atomics:
             acc_dev = cl.Buffer(ctx, mf.READ_WRITE, size=max(acc_bytes, 8))
             cl.enqueue_fill_buffer(q, acc_dev, np.float64(0.0), 0, max(acc_bytes, 8))

@@ -13,8 +13,10 @@ _PACKAGES = ("numpy", "scipy", "open3d", "pyopencl", "laspy", "lazrs", "matplotl
 _RUNTIMES = ("pocl-binary-distribution", "intel-opencl-rt")
 
 
-def versions() -> dict:
-    """Python, platform and package versions, and OpenCL platforms/devices."""
+def versions(kernels=("tlsvox",)) -> dict:
+    """Python, platform and package versions, and the OpenCL devices with their
+    state for the given kernel sets (``tlsvox versions``: the tracer's;
+    ``clsim versions``: both stages')."""
     out = {"python": sys.version.split()[0], "platform": platform.platform(), "machine": platform.machine()}
     for name in _PACKAGES:
         try:
@@ -30,7 +32,7 @@ def versions() -> dict:
     try:
         from voxlidar.devices import device_report, state_text
 
-        for info, verdict in device_report():
+        for info, verdict in device_report(tuple(kernels)):
             devices.append(f"{info.key} {info.label} | {info.runtime} | {info.kind} | {info.compute_units} CU | "
                            f"fp64 {'yes' if info.fp64 else 'no'} | {state_text(verdict)}")
         if not devices:
@@ -41,9 +43,9 @@ def versions() -> dict:
     return out
 
 
-def show_versions(file=None) -> None:
+def show_versions(file=None, kernels=("tlsvox",)) -> None:
     """Print :func:`versions` (for bug reports)."""
-    info = versions()
+    info = versions(kernels)
     devices = info.pop("opencl_devices")
     for key, value in info.items():
         print(f"{key:>12}: {value}", file=file)

@@ -74,7 +74,12 @@ def _cache_dir() -> Path:
     env = os.environ.get("VOXLIDAR_CACHE_DIR")
     if env:
         return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    base = os.environ.get("XDG_CACHE_HOME")
+    if not base:
+        try:
+            base = str(Path.home() / ".cache")
+        except RuntimeError:  # no home directory
+            base = tempfile.gettempdir()
     return Path(base) / "voxlidar"
 
 
@@ -129,24 +134,36 @@ def prepare_icd_loader() -> str | None:
                 continue
     entries += [(f"env-{i}-{Path(lib).stem}.icd", lib) for i, lib in enumerate(extra)]
     digest = hashlib.sha1(repr(entries).encode()).hexdigest()[:12]
-    folder = _cache_dir() / f"opencl-vendors-{digest}"
-    if not folder.is_dir():
-        try:
-            tmp = Path(tempfile.mkdtemp(prefix=folder.name + ".", dir=_ensure(folder.parent)))
-        except OSError:
-            folder = Path(tempfile.mkdtemp(prefix="voxlidar-opencl-vendors-"))
-            tmp = folder
-        for name, lib in entries:
-            (tmp / name).write_text(lib + "\n")
-        if tmp != folder:
-            try:
-                os.rename(tmp, folder)
-            except OSError:  # another process made it first
-                for f in tmp.iterdir():
-                    f.unlink()
-                tmp.rmdir()
+    try:
+        folder = _write_vendors(_cache_dir() / f"opencl-vendors-{digest}", entries)
+    except OSError:  # no writable cache: the runtimes of the system alone, as without us
+        return None
     os.environ["OCL_ICD_VENDORS"] = str(folder)
     return str(folder)
+
+
+def _write_vendors(folder: Path, entries) -> Path:
+    """The vendors folder with ``entries`` [(file name, library)], written once
+    (in a temporary folder renamed into place; a race with another process
+    keeps whichever folder arrived first)."""
+    if folder.is_dir():
+        return folder
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=folder.name + ".", dir=_ensure(folder.parent)))
+    except OSError:
+        folder = tmp = Path(tempfile.mkdtemp(prefix="voxlidar-opencl-vendors-"))
+    for name, lib in entries:
+        (tmp / name).write_text(lib + "\n")
+    if tmp != folder:
+        try:
+            os.rename(tmp, folder)
+        except OSError:
+            if not folder.is_dir():
+                return tmp  # could not rename: use the complete temporary folder
+            for f in tmp.iterdir():
+                f.unlink()
+            tmp.rmdir()
+    return folder
 
 
 def _ensure(path: Path) -> Path:
@@ -194,7 +211,7 @@ class DeviceInfo:
 
     @property
     def is_gpu(self) -> bool:
-        return self.kind in ("GPU", "ACCELERATOR")
+        return self.kind == "GPU"
 
 
 def _attr(dev, name, default):
@@ -251,11 +268,13 @@ def _version_tuple(text: str) -> tuple:
 def rank_devices(found: list[DeviceInfo]) -> list[DeviceInfo]:
     """Best first: GPUs (most compute units x clock), then CPU runtimes in the
     order measured fastest on the benchmark layer: PoCL (newest first), then
-    Intel's runtime, then any other."""
+    Intel's runtime, then any other; accelerators and emulators last."""
 
     def key(d: DeviceInfo):
         if d.is_gpu:
             return (0, -d.compute_units * max(d.clock_mhz, 1), ())
+        if d.kind != "CPU":  # accelerators and emulators (an FPGA emulator) last
+            return (9, 0, ())
         rt = d.runtime.lower()
         pref = 0 if rt.startswith("pocl") else (1 if rt.startswith("intel") else 2)
         return (1 + pref, 0, tuple(-x for x in _version_tuple(d.runtime.split(" ", 1)[-1])))
@@ -309,9 +328,10 @@ def _disk_get(key: str):
     if not _disk_cache_on():
         return None
     try:
-        return json.loads(_disk_cache_path().read_text()).get(key)
-    except (OSError, ValueError):
+        verdict = json.loads(_disk_cache_path().read_text()).get(key)
+    except (OSError, ValueError, AttributeError, RuntimeError):
         return None
+    return verdict if isinstance(verdict, str) else None
 
 
 def _disk_put(key: str, verdict: str) -> None:
@@ -323,13 +343,15 @@ def _disk_put(key: str, verdict: str) -> None:
             data = json.loads(path.read_text())
         except (OSError, ValueError):
             data = {}
+        if not isinstance(data, dict):
+            data = {}
         data[key] = verdict
         _ensure(path.parent)
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", dir=path.parent)
         with os.fdopen(fd, "w") as fh:
             json.dump(data, fh, indent=0)
         os.replace(tmp, path)
-    except OSError:
+    except (OSError, RuntimeError):
         pass  # a cache that cannot be written only costs a rebuild next time
 
 
@@ -354,13 +376,22 @@ def short_reason(err: BaseException) -> str:
     return first[:200]
 
 
-def _run_probe(info: DeviceInfo, kernel: str) -> str | None:
+_LASTING = ("BUILD_PROGRAM_FAILURE", "INVALID_BUILD_OPTIONS", "COMPILER_NOT_AVAILABLE")
+
+
+def _run_probe(info: DeviceInfo, kernel: str) -> tuple[str | None, bool]:
+    """(reason or None, whether the verdict lasts): a build failure or a missing
+    capability lasts until the driver or the kernels change; any other failure
+    (out of resources, device busy) is kept for this process only."""
     module, func = KERNEL_SETS[kernel].split(":")
     build = getattr(importlib.import_module(module), func)
     try:
-        return build(info.device)
+        return build(info.device), True
     except Exception as err:  # noqa: BLE001 - whatever a runtime raises marks the device broken
-        return f"kernels do not build: {short_reason(err)}"
+        text = str(err)
+        if any(code in text for code in _LASTING):
+            return f"kernels do not build: {short_reason(err)}", True
+        return f"unusable now: {short_reason(err)}", False
 
 
 def probe(info: DeviceInfo, kernels=("clsim",)) -> dict[str, str | None]:
@@ -374,9 +405,10 @@ def probe(info: DeviceInfo, kernels=("clsim",)) -> dict[str, str | None]:
         if key not in _MEMO:
             verdict = _disk_get(key)
             if verdict is None:
-                reason = _run_probe(info, kernel)
+                reason, lasting = _run_probe(info, kernel)
                 verdict = _OK if reason is None else reason
-                _disk_put(key, verdict)
+                if lasting:
+                    _disk_put(key, verdict)
             _MEMO[key] = None if verdict == _OK else verdict
         out[kernel] = _MEMO[key]
     return out
@@ -436,7 +468,9 @@ def _matches(spec: str, found: list[DeviceInfo]) -> list[DeviceInfo]:
         p, _, d = s.partition(":")
         key = f"{p or 0}:{d or 0}"
         return [x for x in found if x.key == key]
-    return [d for d in found if low in d.name.lower() or low in d.platform.lower() or low in d.runtime.lower()]
+    # the runtime or platform first: PoCL's device on an Intel host is named "cpu-...-Intel(R) Xeon"
+    by_runtime = [d for d in found if low in d.platform.lower() or low in d.runtime.lower()]
+    return by_runtime or [d for d in found if low in d.name.lower()]
 
 
 def _listing(found) -> str:

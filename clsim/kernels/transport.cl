@@ -304,7 +304,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
                 const float den = fast_dot(d, axis);
                 const float3 sx = x - sensor;
                 const float along = fast_dot(sx, axis);
-                if (den < 0.0f && in_fov(sx, axis, P->tan2_fov)) {
+                if (den < -1.0e-6f && in_fov(sx, axis, P->tan2_fov)) { /* towards the sensor; no overflow in s */
                     const float s = -along / den;
                     const float3 q = x + d * s - sensor;
                     if (fast_dot(q, q) <= P->virt_r2) {
