@@ -216,3 +216,30 @@ def test_no_working_device_at_all(layer_file, tmp_path):
     assert out.returncode == 1 and not (tmp_path / "demo").exists(), out.stderr
     err = out.stderr.strip().splitlines()
     assert len(err) == 1 and "fix:" in err[0], out.stderr
+
+
+def test_icd_folder_resolves_the_wheel_placeholder(tmp_path, monkeypatch):
+    """intel-opencl-rt's ICD file names a library on its build machine; the vendors folder
+    names the one in this environment, beside the system's ICD files."""
+    prefix = tmp_path / "venv"
+    (prefix / "etc" / "OpenCL" / "vendors").mkdir(parents=True)
+    (prefix / "lib").mkdir()
+    (prefix / "lib" / "libintelocl.so").write_bytes(b"")
+    placeholder = "/opt/anaconda1anaconda2anaconda3/lib/libintelocl.so\n"
+    (prefix / "etc" / "OpenCL" / "vendors" / "intel-cpu.icd").write_text(placeholder)
+    (prefix / "etc" / "OpenCL" / "vendors" / "intel-fpga_emu.icd").write_text("/opt/x/lib/libintelocl_emu.so\n")
+    system = tmp_path / "etc-vendors"
+    system.mkdir()
+    (system / "pocl.icd").write_text("libpocl.so.2\n")
+    monkeypatch.setattr(vd.sys, "prefix", str(prefix))
+    monkeypatch.setattr(vd, "_SYSTEM_VENDORS", system)
+    monkeypatch.setattr(vd, "_ICD_DONE", False)
+    monkeypatch.setenv("VOXLIDAR_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("OCL_ICD_VENDORS", "restored-after-the-test")
+    monkeypatch.delenv("OCL_ICD_VENDORS")
+    folder = Path(vd.prepare_icd_loader())
+    assert os.environ["OCL_ICD_VENDORS"] == str(folder)
+    libs = sorted(f.read_text().strip() for f in folder.glob("*.icd"))
+    assert libs == sorted(["libpocl.so.2", str(prefix / "lib" / "libintelocl.so")])  # no FPGA emulator
+    monkeypatch.setattr(vd, "_ICD_DONE", False)
+    assert vd.prepare_icd_loader() is None  # OCL_ICD_VENDORS set: the user's (here: ours) is kept
