@@ -70,7 +70,8 @@ def register(subparsers) -> None:
                    "device; `clsim devices` lists them)")
     p.add_argument("--reference", action="store_true",
                    help="run the NumPy float64 oracle instead of OpenCL (slow; no device needed)")
-    p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.add_argument("--progress", action="store_true", help=argparse.SUPPRESS)  # the default now; kept for old scripts
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_simulate)
 
     d = subparsers.add_parser("devices", help="list OpenCL devices and whether each works",
@@ -124,7 +125,7 @@ def cmd_simulate(args) -> int:
                   max_order=args.max_order, leaf_off=args.leaf_off, batches=args.batches,
                   trace=args.trace, hotspot=args.hotspot)
         if not args.reference:
-            kw["progress"] = args.progress
+            kw["progress"] = not args.quiet
         res = sim.run(scene, sensor, **kw)
         res.save(args.output)
         if args.plot:

@@ -142,3 +142,12 @@ def test_json_outputs_are_standard_json(tmp_path):
     scene.meta["fitness"] = float("nan")
     path = scene.save(tmp_path / "s.npz")
     assert strict(str(np.load(path)["meta"]))["fitness"] is None
+
+
+def test_view_without_a_display_says_so_at_once(files, monkeypatch, capsys):
+    """It used to open an Open3D window that never appeared and hang."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert tlsvox_main(["view", str(files / "s1.laz")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no display" in err[0] and "--screenshot" in err[0]

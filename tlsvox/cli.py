@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from pathlib import Path
 
@@ -84,6 +85,11 @@ def _cmd_view(args) -> int:
 
     path = Path(args.file)
     check_outputs([("file", path)], [("--screenshot", args.screenshot)])
+    if not args.screenshot and sys.platform.startswith("linux") and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise TlsvoxError(f"no display to open a window on (DISPLAY is not set); fix: "
+                          f"tlsvox view {path} --screenshot {path.with_suffix('').name}.png renders a picture "
+                          "headless")
     if path.suffix.lower() in (".las", ".laz"):
         from .scan import Scan
 
