@@ -42,7 +42,11 @@ def register(subparsers) -> None:
                     "scene (NPZ, docs/formats.md); writes time_ns, waveform, by_order (orders x "
                     "samples), the fine histograms and the run's settings to an NPZ file.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("scene", help="scene file (.npz) written by tlsvox or clsim.testscenes")
+    p.add_argument("scene", help="scene file: .npz written by tlsvox or clsim.testscenes, or an AMAPVox "
+                                 ".vox (its PadBVTotal as LAD; no wood, no ground)")
+    p.add_argument("--target", default=None, metavar="X,Y[,Z]",
+                   help="where the beam axis meets the ground, metres in the scene's frame "
+                        "(default: the centre of the grid at ground level)")
     p.add_argument("--sensor", default="ahab-chiroptera-i",
                    help=f"preset name ({', '.join(list_presets())}) or a .toml file")
     p.add_argument("--photons", type=int, default=1_000_000, help="photons launched")
@@ -98,6 +102,19 @@ def _fail(err: Exception) -> int:
     return exit_code(err)
 
 
+def _parse_target(text):
+    """``"X,Y"`` or ``"X,Y,Z"`` (metres) -> tuple, or None."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in (2, 3) or not all(np.isfinite(values)):
+        raise InputError(f"--target {text!r} must be X,Y or X,Y,Z in metres, for example --target 1.5,-2")
+    return values
+
+
 def cmd_simulate(args) -> int:
     """Handler of ``clsim simulate``."""
     from tlsvox.errors import InputError as TlsInputError
@@ -106,7 +123,13 @@ def cmd_simulate(args) -> int:
     try:
         check_outputs([("scene", args.scene)],
                       [("-o", args.output), ("--plot", args.plot), ("--trace-plot", args.trace_plot)])
-        scene = Scene.load(args.scene)
+        if Path(args.scene).suffix.lower() == ".vox":
+            from tlsvox.amapvox import read_vox
+
+            scene = read_vox(args.scene)
+        else:
+            scene = Scene.load(args.scene)
+        target = _parse_target(args.target)
         over = {}
         if args.off_nadir is not None:
             over["off_nadir_deg"] = args.off_nadir
@@ -123,7 +146,7 @@ def cmd_simulate(args) -> int:
             sim = Simulator(device=args.device)
         kw = dict(photons=args.photons, seed=args.seed, mode=args.mode, detect=args.detect,
                   max_order=args.max_order, leaf_off=args.leaf_off, batches=args.batches,
-                  trace=args.trace, hotspot=args.hotspot)
+                  trace=args.trace, hotspot=args.hotspot, target=target)
         if not args.reference:
             kw["progress"] = not args.quiet
         res = sim.run(scene, sensor, **kw)

@@ -151,3 +151,22 @@ def test_view_without_a_display_says_so_at_once(files, monkeypatch, capsys):
     assert tlsvox_main(["view", str(files / "s1.laz")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no display" in err[0] and "--screenshot" in err[0]
+
+
+def test_simulate_takes_a_target_and_a_vox_scene(files, tmp_path, capsys):
+    """The guide's --target, and an AMAPVox .vox as the scene."""
+    import json
+
+    from tlsvox.amapvox import write_vox
+    from tlsvox.scene import Scene
+
+    out = tmp_path / "wf.npz"
+    argv = ["simulate", str(files / "scene.npz"), "--photons", "2000", "-o", str(out), "-q", "--target", "0.5,-0.25"]
+    assert clsim_main(argv) == 0
+    settings = json.loads(str(np.load(out)["settings"]))
+    assert settings["target"][:2] == [0.5, -0.25]
+    vox = write_vox(Scene.load(files / "scene.npz"), tmp_path / "scene.vox")
+    assert clsim_main(["simulate", str(vox), "--photons", "2000", "-o", str(tmp_path / "v.npz"), "-q"]) == 0
+    assert np.load(tmp_path / "v.npz")["waveform"].sum() > 0
+    assert clsim_main(["simulate", str(files / "scene.npz"), "-o", str(tmp_path / "x.npz"), "--target", "1"]) == 2
+    assert "--target '1' must be X,Y" in capsys.readouterr().err
