@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from tlsvox.scene import Scene, atomic_write
 from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe, device_report,
-                              short_reason)
+                              open_queue, short_reason)
 from voxlidar.errors import DeviceError as AnyDeviceError
 from voxlidar.safeio import json_text
 
@@ -498,11 +498,9 @@ class Simulator:
         self.atomics64 = atomics64
         self.fast_math = bool(fast_math)
         try:
-            self.context = cl.Context([self.device])
-            self.queue = cl.CommandQueue(self.context)
-        except cl.Error as err:
-            raise DeviceError(f"OpenCL device {self.info.label} cannot be opened: {short_reason(err)}; "
-                              "fix: choose another device (clsim devices)") from err
+            self.context, self.queue = open_queue(self.info)
+        except AnyDeviceError as err:
+            raise DeviceError(str(err)) from None
         self._programs = {}
         self.build_seconds = 0.0
         # Work-group size of the launches.  On CPU runtimes one photon per work-group is

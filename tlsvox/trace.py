@@ -65,7 +65,7 @@ from importlib import resources
 
 import numpy as np
 
-from voxlidar.devices import build_program, choose_device, describe, short_reason
+from voxlidar.devices import build_program, choose_device, describe, open_queue, short_reason
 from voxlidar.errors import DeviceError as AnyDeviceError
 
 from .errors import DeviceError, InputError, TlsvoxError
@@ -360,11 +360,9 @@ class Tracer:
             raise DeviceError(str(err)) from None
         self.device = self.info.device
         try:
-            self.context = cl.Context([self.device])
-            self.queue = cl.CommandQueue(self.context)
-        except cl.Error as err:
-            raise DeviceError(f"OpenCL device {self.info.label} cannot be opened: {short_reason(err)}; "
-                              "fix: choose another device (clsim devices)") from err
+            self.context, self.queue = open_queue(self.info)
+        except AnyDeviceError as err:
+            raise DeviceError(str(err)) from None
         is_cpu = not self.info.is_gpu
         # atomics need 64-bit compare-and-swap; without it, private copies
         self.atomics = (not is_cpu and self.info.int64_atomics) if atomics is None else bool(atomics)

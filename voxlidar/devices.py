@@ -51,7 +51,7 @@ from pathlib import Path
 from .errors import DeviceError
 
 __all__ = ["DeviceInfo", "KERNEL_SETS", "FIX_NO_DEVICE", "choose_device", "describe", "device_report",
-           "build_program", "find_devices", "prepare_icd_loader", "probe", "rank_devices", "short_reason", "state_text"]
+           "build_program", "find_devices", "open_queue", "prepare_icd_loader", "probe", "rank_devices", "short_reason", "state_text"]
 
 #: The kernels of each stage, probed by building them: name -> "module:function".
 #: The function takes a ``pyopencl.Device`` and returns None when the device
@@ -429,6 +429,18 @@ def build_program(context, source: str, options):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", cl.CompilerWarning)
         return cl.Program(context, source).build(options=list(options))
+
+
+def open_queue(info: DeviceInfo):
+    """(context, command queue) on a device, or a one-line :class:`DeviceError`."""
+    import pyopencl as cl
+
+    try:
+        context = cl.Context([info.device])
+        return context, cl.CommandQueue(context)
+    except cl.Error as err:
+        raise DeviceError(f"OpenCL device {info.label} cannot be opened: {short_reason(err)}; "
+                          "fix: choose another device (clsim devices)") from err
 
 
 def state_text(verdict: dict) -> str:
