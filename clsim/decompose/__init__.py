@@ -1,0 +1,79 @@
+"""Gaussian decomposition of full waveforms.
+
+A received waveform is modelled as a constant baseline plus a sum of Gaussian
+echoes (Hofton et al. 2000; Wagner et al. 2006)
+
+.. math::  y(t) = b + \\sum_k A_k \\exp\\left(-\\frac{(t-\\mu_k)^2}{2\\sigma_k^2}\\right)
+
+The steps, each an option of :func:`decompose`:
+
+1. Baseline ``b`` and noise standard deviation are estimated robustly (lowest
+   fifth of the samples; median absolute first difference). Exact zeros more
+   than 4 noise sigma below the baseline are no-data fill (the gap between
+   two digitised segments of a NEON record) and are left out of the fit.
+2. Optional deconvolution with a measured system impulse response
+   (Richardson-Lucy; Zhou et al. 2017 used it on the same NEON waveforms).
+3. Candidate echoes: local maxima of the (optionally Gaussian-smoothed)
+   waveform plus "terraces" (runs of equal samples on a rising or falling
+   flank, the trace of a weak echo riding on a strong one in 8-bit data)
+   plus echoes cut by the ends of the record, kept when they rise
+   ``min_amplitude`` above the baseline. Initial width: the full width at half
+   maximum between the linearly interpolated half-maximum crossings of the two
+   flanks (Hofton et al. 2000); a flank that a neighbouring echo stops before
+   half height gives the Gaussian through its valley sample instead.
+4. Levenberg-Marquardt least squares (MINPACK ``lmder`` through
+   :func:`scipy.optimize.leastsq`) with the analytic Jacobian; location,
+   width, amplitude of every echo and the baseline are free. Start values:
+   the detected locations and widths, with amplitudes and baseline from the
+   linear least-squares fit at those locations and widths. Clipped
+   (saturated) samples are censored: they count only where the model falls
+   below them (Tobin 1958), so the unclipped flanks set height and width.
+5. Component count: echoes that are not significant (amplitude under the
+   detection threshold or under two standard errors) or not resolvable
+   (sigma under 0.3 sample) are dropped and the fit repeated; then an echo is
+   added at the largest smoothed residual when, fitted alone to the residual,
+   it is resolved from every echo already there by Sparrow's criterion (the
+   pair's sum shows two features: four inflection points), and kept after the
+   refit of all echoes only if the Bayesian information criterion decreases
+   (Schwarz 1978). The search stops at the first rejected residual peak.
+6. Standard errors from the covariance ``s^2 (J^T J)^{-1}`` with
+   ``s^2 = RSS / (n - p)``.
+
+References
+----------
+Hofton, M. A., Minster, J. B. & Blair, J. B. (2000). Decomposition of laser
+    altimeter waveforms. IEEE TGRS 38(4), 1989-1996. doi:10.1109/36.851780
+Wagner, W., Ullrich, A., Ducic, V., Melzer, T. & Studnicka, N. (2006).
+    Gaussian decomposition and calibration of a novel small-footprint
+    full-waveform digitising airborne laser scanner. ISPRS J. 60(2), 100-112.
+    doi:10.1016/j.isprsjprs.2005.12.001
+Zhou, T., Popescu, S. C., Krause, K., Sheridan, R. D. & Putman, E. (2017).
+    Gold - a novel deconvolution algorithm with optimization for waveform
+    LiDAR processing. ISPRS J. 129, 131-150. doi:10.1016/j.isprsjprs.2017.04.021
+Schwarz, G. (1978). Estimating the dimension of a model. Ann. Stat. 6(2),
+    461-464. doi:10.1214/aos/1176344136
+Lucy, L. B. (1974). An iterative technique for the rectification of observed
+    distributions. AJ 79, 745. doi:10.1086/111605
+Sparrow, C. M. (1916). On spectroscopic resolving power. ApJ 44, 76.
+    doi:10.1086/142271
+Tobin, J. (1958). Estimation of relationships for limited dependent
+    variables. Econometrica 26(1), 24-36. doi:10.2307/1907382
+"""
+
+from __future__ import annotations
+
+from ._deconvolve import deconvolve
+from ._detection import detect_peaks
+from ._model import FWHM_PER_SIGMA, Components, echo_positions, gaussian_sum
+from ._noise import noise_level
+from ._single import decompose
+
+__all__ = [
+    "Components",
+    "decompose",
+    "deconvolve",
+    "detect_peaks",
+    "echo_positions",
+    "gaussian_sum",
+    "noise_level",
+]
