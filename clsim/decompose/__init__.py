@@ -64,16 +64,21 @@ from __future__ import annotations
 
 from ._deconvolve import deconvolve
 from ._detection import detect_peaks
+from ._matched import Detection, Pulse, detect_echoes, threshold
 from ._model import FWHM_PER_SIGMA, Components, echo_positions, gaussian_sum
 from ._noise import noise_level
 from ._single import decompose
 
 __all__ = [
     "Components",
+    "Detection",
+    "Pulse",
     "decompose",
     "deconvolve",
+    "detect_echoes",
     "detect_peaks",
     "echo_positions",
     "gaussian_sum",
     "noise_level",
+    "threshold",
 ]

@@ -7,7 +7,49 @@ from scipy.ndimage import gaussian_filter1d
 
 from ._detection import _half_width
 from ._fitting import _MIN_SIGMA_SAMPLES, _fit, _split, _standard_errors
+from ._matched import Pulse, filter_output
 from ._model import gaussian_sum
+
+
+class _AmplitudeRule:
+    """Significance by amplitude: an echo must rise ``thr`` above the baseline; residual
+    peaks are sought in the residual smoothed by ``smooth`` samples."""
+
+    def __init__(self, thr: float, smooth: float):
+        self.thr, self.smooth = float(thr), float(smooth)
+
+    def weak(self, a, s):
+        return a < self.thr
+
+    def residual(self, r, skipped):
+        rs = gaussian_filter1d(r, max(self.smooth, 1.0))
+        rs[skipped] = -np.inf
+        return rs, self.thr
+
+
+class _MatchedRule:
+    """Significance by matched-filter SNR: an echo of height ``a`` and width ``s``
+    (samples) stands ``a sqrt(s sqrt(pi)) / sigma`` noise sigmas high in the output of
+    its own matched filter and must reach ``u``; residual peaks are sought in the
+    output of the system pulse's matched filter, at the same false-alarm level, and
+    in the residual smoothed by ``smooth`` samples at 4 sigma (``strong``: narrow
+    structure that a broad pulse estimate would smooth away); the search follows
+    whichever of the two stands higher above its threshold."""
+
+    def __init__(self, u: float, sigma: float, pulse: Pulse, smooth: float):
+        self.u, self.sigma, self.pulse = float(u), float(sigma), pulse
+        self.strong = _AmplitudeRule(4.0 * sigma, smooth)
+
+    def weak(self, a, s):
+        with np.errstate(invalid="ignore"):
+            return a * np.sqrt(np.abs(s) * np.sqrt(np.pi)) < self.u * self.sigma
+
+    def residual(self, r, skipped):
+        rs = filter_output(r, self.pulse)
+        rs[skipped] = -np.inf
+        level = self.u * self.sigma / self.pulse.norm
+        ra, la = self.strong.residual(r, skipped)
+        return (ra, la) if ra.max() / la > rs.max() / level else (rs, level)
 
 
 def _bic(rss: float, n: int, n_params: int) -> float:
@@ -38,11 +80,13 @@ def _resolved(m: np.ndarray, s: np.ndarray, a: np.ndarray, j: int) -> bool:
     return True
 
 
-def _order_and_fit(amp, loc, sig, base, *, y, valid, thr, smooth, k_max, censored,
+def _order_and_fit(amp, loc, sig, base, *, y, valid, rule, k_max, censored,
                    add_components, max_nfev, fit_baseline):
     """Fit, prune insignificant echoes, add resolved echoes at residual peaks (BIC).
 
     ``valid`` (mask or None) selects the samples fitted; ``y`` has its gaps filled.
+    ``rule`` (``_AmplitudeRule`` or ``_MatchedRule``) says which echoes are too weak
+    and filters the residual for the search of further echoes.
     Returns (params, free, cov, rss) or None when no echo survives.
     """
     t = np.arange(y.size, dtype=float)
@@ -64,7 +108,7 @@ def _order_and_fit(amp, loc, sig, base, *, y, valid, thr, smooth, k_max, censore
             # significant: fitted height at least the detection threshold and two
             # standard errors; resolvable: sigma >= 0.3 sample; peak inside the record
             # or at most one sigma beyond its ends (an echo cut by the record)
-            bad = ((a < thr) | (s < _MIN_SIGMA_SAMPLES) | (s > t.size) | (m < -s)
+            bad = (rule.weak(a, s) | (s < _MIN_SIGMA_SAMPLES) | (s > t.size) | (m < -s)
                    | (m > t.size - 1 + s) | ~np.isfinite(a)
                    | (np.isfinite(se_a) & (a < 2.0 * se_a)))
             if not bad.any():
@@ -99,10 +143,9 @@ def _order_and_fit(amp, loc, sig, base, *, y, valid, thr, smooth, k_max, censore
             r[censored] = 0.0
         if valid is not None:
             r[~valid] = 0.0
-        rs = gaussian_filter1d(r, max(smooth, 1.0))
-        rs[skipped] = -np.inf
+        rs, level = rule.residual(r, skipped)
         j = int(np.argmax(rs))
-        if rs[j] < thr:
+        if rs[j] < level:
             break
         # one Gaussian fitted to the residual, the other echoes held
         hw = [w for w in (_half_width(rs, j, j, rs[j], 0.0, -1),

@@ -9,17 +9,20 @@ from ..errors import InputError
 from ._checks import _as_waveform, _positive
 from ._deconvolve import deconvolve
 from ._detection import _detect
+from ._matched import (FALSE_ALARM, Detection, _local_maxima, _subsample, clipped_baseline,
+                       filter_output, resolve_pulse, threshold)
 from ._fitting import _linear_start, _split, _standard_errors
 from ._model import Components
 from ._noise import _gaps, _saturated, noise_level
-from ._selection import _order_and_fit
+from ._selection import _AmplitudeRule, _MatchedRule, _order_and_fit
 
 
 def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=None,
               smooth_ns: float = 1.0, terraces: bool = True, max_components: int = 12,
               add_components: bool = True, fit_baseline: bool = True, baseline=None,
               impulse=None, deconvolution_iterations: int = 30, saturation="auto",
-              max_nfev: int = 400) -> Components:
+              max_nfev: int = 400, detection=None, pulse=None, pulse_sigma_ns=None,
+              false_alarm: float = FALSE_ALARM) -> Components:
     """Gaussian decomposition of one waveform (see the module docstring).
 
     Parameters
@@ -31,8 +34,9 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     t0_ns : float
         Time of the first sample, ns (locations are reported on this clock).
     min_amplitude : float, optional
-        Detection threshold above the baseline, sample units. Default 4 noise
-        standard deviations.
+        Amplitude detection threshold above the baseline, sample units, for
+        ``detection="amplitude"`` (default 4 noise standard deviations). Giving
+        it selects that detection.
     smooth_ns : float
         Gaussian smoothing (standard deviation, ns) used for detection and for
         the residual search only; the fit always uses the raw samples.
@@ -64,6 +68,24 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         clipped); None: no censoring.
     max_nfev : int
         Function evaluations per Levenberg-Marquardt run.
+    detection : {"matched", "amplitude"}, optional
+        ``"matched"`` (default): candidates where the matched filter with the
+        system pulse exceeds the threshold for ``false_alarm`` (Rice 1944),
+        plus the local maxima and terraces of the amplitude rule inside those
+        excursions; an echo is kept when its own matched-filter SNR,
+        ``a sqrt(s sqrt(pi)) / noise_sigma`` (``s`` in samples), reaches the
+        same threshold. ``"amplitude"``: the earlier rule, candidates and
+        echoes ``min_amplitude`` above the baseline. Default ``"amplitude"``
+        when ``min_amplitude`` or ``impulse`` is given, else ``"matched"``.
+    pulse : (m,) array_like, optional
+        Measured system pulse for the matched filter (same sample spacing).
+    pulse_sigma_ns : float, optional
+        Else a Gaussian pulse of this standard deviation, ns. Default: the
+        width of the strongest echo (2 samples when none rises 4 sigma).
+    false_alarm : float
+        Expected false echoes per noise-only waveform at detection (white
+        Gaussian noise); the residual search for further echoes uses the same
+        threshold.
 
     Returns
     -------
@@ -74,7 +96,9 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     ------
     InputError
         Samples not 1-D, not finite, fewer than 4; non-positive ``dt_ns``;
-        ``saturation`` neither "auto", None nor a positive number.
+        ``saturation`` neither "auto", None nor a positive number; unknown
+        ``detection``; ``detection="matched"`` with ``min_amplitude`` or
+        ``impulse``.
 
     Examples
     --------
@@ -87,6 +111,14 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     """
     y = _as_waveform(samples)
     dt = _positive(dt_ns, "dt_ns")
+    if detection is None:
+        detection = ("amplitude" if min_amplitude is not None or impulse is not None
+                     else "matched")
+    detection = Detection.parse(detection)
+    if detection is Detection.MATCHED and (min_amplitude is not None or impulse is not None):
+        raise InputError("detection='matched' sets its threshold from false_alarm and fits "
+                         "the recorded samples; drop min_amplitude and impulse, or pass "
+                         "detection='amplitude'")
     if int(max_components) < 1:
         raise InputError(f"max_components must be >= 1; got {max_components!r}")
     # no-data fill (exact zeros far below the baseline, e.g. the gap between two digitised
@@ -113,7 +145,13 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
                           saturation)
     if impulse is not None:
         censored = None
-    cand = _detect(ys, base0, thr, terraces, True)
+    if detection is Detection.MATCHED:
+        cand, rule = _matched_candidates(y, ys, base0, sigma, terraces, valid, pulse=pulse,
+                                         pulse_sigma_ns=pulse_sigma_ns, dt=dt,
+                                         false_alarm=_positive(false_alarm, "false_alarm"),
+                                         smooth=smooth)
+    else:
+        cand, rule = _detect(ys, base0, thr, terraces, True), _AmplitudeRule(thr, smooth)
     if not cand:
         return Components.empty(baseline=base0, noise_sigma=sigma,
                                 rss=float(np.sum((y - base0) ** 2)))
@@ -126,7 +164,7 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     sig = np.array([c[2] for c in cand])
     sig = np.clip(np.where(np.isfinite(sig), sig, max(1.0, 2.0 / dt)), 0.5, n / 2.0)
     amp, base_start = _linear_start(y, amp, loc, sig, base0, fit_baseline, valid, censored)
-    opts = dict(y=y, valid=valid, thr=thr, smooth=smooth, k_max=k_max, censored=censored,
+    opts = dict(y=y, valid=valid, rule=rule, k_max=k_max, censored=censored,
                 add_components=add_components, max_nfev=max_nfev)
     n_fit = n if valid is None else int(valid.sum())
     state = _order_and_fit(amp, loc, sig, base_start, fit_baseline=fit_baseline, **opts)
@@ -152,3 +190,30 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         sigma_se_ns=se[2:-1:3][order] * dt, baseline=b, baseline_se=float(se[-1]),
         noise_sigma=sigma, rss=rss)
 
+
+
+def _matched_candidates(y, ys, base0, sigma, terraces, valid, *, pulse, pulse_sigma_ns, dt,
+                        false_alarm, smooth):
+    """Candidates of the matched detection and the matching significance rule.
+
+    The amplitude rule's local maxima and terraces (4 sigma above the clipped
+    baseline) that lie where the matched filter exceeds its threshold, then
+    every further maximum of the filter output more than one pulse sigma from
+    them (start width: the pulse's).
+    """
+    pl = resolve_pulse(y, base0, sigma, pulse=pulse, pulse_sigma_ns=pulse_sigma_ns, dt=dt)
+    b = clipped_baseline(y, sigma, base0)
+    f = filter_output(y - b, pl)
+    n_valid = y.size if valid is None else int(valid.sum())
+    u = threshold(n_valid, pl, false_alarm=false_alarm)
+    level = u * sigma / pl.norm
+    strong = [c for c in _detect(ys, b, 4.0 * sigma, terraces, True)
+              if f[min(max(int(round(c[0])), 0), y.size - 1)] >= level]
+    idx = _local_maxima(f, level)
+    if valid is not None:
+        idx = idx[valid[idx]]
+    near = np.array([c[0] for c in strong])
+    for i, x in zip(idx, _subsample(f, idx)):
+        if near.size == 0 or np.min(np.abs(near - x)) > max(1.0, pl.sigma):
+            strong.append((float(x), float(f[i]), pl.sigma))
+    return strong, _MatchedRule(u, sigma, pl, smooth)
