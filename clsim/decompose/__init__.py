@@ -62,18 +62,22 @@ Tobin, J. (1958). Estimation of relationships for limited dependent
 
 from __future__ import annotations
 
+from ._batch import decompose_batch
 from ._deconvolve import deconvolve
 from ._detection import detect_peaks
 from ._matched import Detection, Pulse, detect_echoes, threshold
 from ._model import FWHM_PER_SIGMA, Components, echo_positions, gaussian_sum
 from ._noise import noise_level
+from ._results import EchoTable
 from ._single import decompose
 
 __all__ = [
     "Components",
     "Detection",
+    "EchoTable",
     "Pulse",
     "decompose",
+    "decompose_batch",
     "deconvolve",
     "detect_echoes",
     "detect_peaks",
