@@ -13,14 +13,23 @@ The steps, each an option of :func:`decompose`:
    two digitised segments of a NEON record) and are left out of the fit.
 2. Optional deconvolution with a measured system impulse response
    (Richardson-Lucy; Zhou et al. 2017 used it on the same NEON waveforms).
-3. Candidate echoes: local maxima of the (optionally Gaussian-smoothed)
-   waveform plus "terraces" (runs of equal samples on a rising or falling
-   flank, the trace of a weak echo riding on a strong one in 8-bit data)
-   plus echoes cut by the ends of the record, kept when they rise
-   ``min_amplitude`` above the baseline. Initial width: the full width at half
-   maximum between the linearly interpolated half-maximum crossings of the two
-   flanks (Hofton et al. 2000); a flank that a neighbouring echo stops before
-   half height gives the Gaussian through its valley sample instead.
+3. Detection (``detection=``). ``"matched"`` (default): the waveform is
+   correlated with the system pulse (measured, ``pulse=``; or a Gaussian,
+   ``pulse_sigma_ns=``, by default as wide as the strongest echo) and the
+   threshold is set from the noise sigma so that a noise-only waveform gives
+   ``false_alarm`` (0.01) false echoes on average (Rice's up-crossing rate;
+   :mod:`._matched`). Candidates: the amplitude rule's local maxima and
+   terraces inside the filter's excursions above the threshold, plus every
+   further maximum of the filter output. ``"amplitude"`` (the earlier rule,
+   and the default with ``min_amplitude`` or ``impulse``): local maxima of the
+   (optionally Gaussian-smoothed) waveform plus "terraces" (runs of equal
+   samples on a rising or falling flank, the trace of a weak echo riding on a
+   strong one in 8-bit data) plus echoes cut by the ends of the record, kept
+   when they rise ``min_amplitude`` above the baseline. Initial width: the
+   full width at half maximum between the linearly interpolated half-maximum
+   crossings of the two flanks (Hofton et al. 2000); a flank that a
+   neighbouring echo stops before half height gives the Gaussian through its
+   valley sample instead.
 4. Levenberg-Marquardt least squares (MINPACK ``lmder`` through
    :func:`scipy.optimize.leastsq`) with the analytic Jacobian; location,
    width, amplitude of every echo and the baseline are free. Start values:
@@ -28,16 +37,31 @@ The steps, each an option of :func:`decompose`:
    linear least-squares fit at those locations and widths. Clipped
    (saturated) samples are censored: they count only where the model falls
    below them (Tobin 1958), so the unclipped flanks set height and width.
-5. Component count: echoes that are not significant (amplitude under the
-   detection threshold or under two standard errors) or not resolvable
+5. Component count: echoes that are not significant (under the detection
+   threshold: with matched detection, an echo's own matched-filter SNR
+   ``A sqrt(sigma sqrt(pi)) / noise`` under the threshold; else its amplitude
+   under ``min_amplitude``; or under two standard errors) or not resolvable
    (sigma under 0.3 sample) are dropped and the fit repeated; then an echo is
-   added at the largest smoothed residual when, fitted alone to the residual,
-   it is resolved from every echo already there by Sparrow's criterion (the
-   pair's sum shows two features: four inflection points), and kept after the
-   refit of all echoes only if the Bayesian information criterion decreases
-   (Schwarz 1978). The search stops at the first rejected residual peak.
+   added at the largest (matched-filtered or smoothed) residual above the
+   threshold when, fitted alone to the residual, it is resolved from every
+   echo already there by Sparrow's criterion (the pair's sum shows two
+   features: four inflection points), and kept after the refit of all echoes
+   only if the Bayesian information criterion decreases (Schwarz 1978). The
+   search stops at the first rejected residual peak.
 6. Standard errors from the covariance ``s^2 (J^T J)^{-1}`` with
    ``s^2 = RSS / (n - p)``.
+
+:func:`decompose_batch` runs the same steps (matched detection) on many
+waveforms at once, each step one NumPy call over all of them (:mod:`._batch`,
+:mod:`._batch_fit`), and returns an :class:`EchoTable`.
+
+Modules: ``_model`` (the Gaussian sum, :class:`Components`), ``_results``
+(:class:`EchoTable`, records, CSV), ``_checks``, ``_noise`` (baseline, noise,
+gaps, clipping), ``_detection`` (local maxima and terraces), ``_matched``
+(matched filter, false-alarm threshold), ``_deconvolve``, ``_fitting`` (one
+waveform's Levenberg-Marquardt), ``_selection`` (pruning, BIC additions),
+``_single`` (:func:`decompose`), ``_batch_fit`` and ``_batch``
+(:func:`decompose_batch`).
 
 References
 ----------
@@ -54,6 +78,10 @@ Schwarz, G. (1978). Estimating the dimension of a model. Ann. Stat. 6(2),
     461-464. doi:10.1214/aos/1176344136
 Lucy, L. B. (1974). An iterative technique for the rectification of observed
     distributions. AJ 79, 745. doi:10.1086/111605
+Rice, S. O. (1944). Mathematical analysis of random noise. Bell Syst. Tech. J.
+    23(3), 282-332. doi:10.1002/j.1538-7305.1944.tb00874.x
+Turin, G. L. (1960). An introduction to matched filters. IRE Trans. Inf.
+    Theory 6(3), 311-329. doi:10.1109/TIT.1960.1057571
 Sparrow, C. M. (1916). On spectroscopic resolving power. ApJ 44, 76.
     doi:10.1086/142271
 Tobin, J. (1958). Estimation of relationships for limited dependent

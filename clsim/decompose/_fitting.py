@@ -119,7 +119,8 @@ def _standard_errors(p, free, cov, rss, n) -> np.ndarray:
     dof = n - int(free.sum())
     if cov is None or dof <= 0:
         return se
-    var = np.diag(cov) * rss / dof
+    with np.errstate(over="ignore"):  # a singular covariance: an infinite error
+        var = np.diag(cov) * rss / dof
     se[free] = np.sqrt(np.clip(var, 0.0, None))
     return se
 

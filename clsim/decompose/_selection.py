@@ -15,6 +15,9 @@ class _AmplitudeRule:
     """Significance by amplitude: an echo must rise ``thr`` above the baseline; residual
     peaks are sought in the residual smoothed by ``smooth`` samples."""
 
+    #: the lone fit of a residual feature decides whether it is resolved
+    width = None
+
     def __init__(self, thr: float, smooth: float):
         self.thr, self.smooth = float(thr), float(smooth)
 
@@ -49,7 +52,12 @@ class _MatchedRule:
         rs[skipped] = -np.inf
         level = self.u * self.sigma / self.pulse.norm
         ra, la = self.strong.residual(r, skipped)
+        self.last_mf = rs
         return (ra, la) if ra.max() / la > rs.max() / level else (rs, level)
+
+    def width(self, matched: bool) -> float:
+        """Variance (samples^2) the last residual filter adds to a feature's width."""
+        return self.pulse.sigma ** 2 if matched else max(self.strong.smooth, 1.0) ** 2
 
 
 def _bic(rss: float, n: int, n_params: int) -> float:
@@ -152,8 +160,16 @@ def _order_and_fit(amp, loc, sig, base, *, y, valid, rule, k_max, censored,
                           _half_width(rs, j, j, rs[j], 0.0, +1)) if w is not None]
         s0 = max(float(np.mean(hw)) / np.sqrt(2.0 * np.log(2.0)), 0.5) if hw else float(
             np.median(s))
-        lone = _fit(r if valid is None else r[valid], t_fit, [max(r[j], rs[j])], [float(j)],
-                    [s0], 0.0, False, max_nfev, cens_fit)[0]
+        if rule.width is None:
+            lone = _fit(r if valid is None else r[valid], t_fit, [max(r[j], rs[j])],
+                        [float(j)], [s0], 0.0, False, max_nfev, cens_fit)[0]
+        else:
+            # the residual feature's start values stand in for the lone fit: its width
+            # with the filter's removed (a Gaussian through a Gaussian filter adds in
+            # quadrature)
+            se = np.sqrt(max(s0 * s0 - rule.width(rs is rule.last_mf),
+                             0.25))
+            lone = np.array([max(r[j], rs[j]), float(j), se])
         if not _resolved(np.append(m, lone[1]), np.append(s, lone[2]),
                          np.append(a, lone[0]), a.size):
             # pass over this residual feature: mask it to its half-maximum width
