@@ -433,20 +433,30 @@ def _linear_start(st, y, use, cens):
     n = y.shape[1]
     t = np.arange(n, dtype=float)
     w = use[rows] if cens is None else use[rows] & ~cens[rows]
-    z = (t - st.m[rows][:, :, None]) / st.s[rows][:, :, None]
-    e = np.where(st.on[rows][:, :, None], np.exp(-0.5 * z * z), 0.0)
-    k = e.shape[1]
-    design = np.concatenate([e, np.ones((rows.size, 1, n))], axis=1) * w[:, None, :]
+    k = int(st.k().max())
+    # active echoes first (the rest of the columns are never on here)
+    order = np.argsort(~st.on[rows], axis=1, kind="stable")[:, :k]
+    on = np.take_along_axis(st.on[rows], order, axis=1)
+    m = np.take_along_axis(st.m[rows], order, axis=1)
+    sg = np.take_along_axis(st.s[rows], order, axis=1)
+    z = (t - m[:, :, None]) / sg[:, :, None]
+    arg = np.multiply(z, z, dtype=np.float32)
+    arg *= np.float32(-0.5)
+    e = np.where(on[:, :, None], np.exp(arg, out=arg), np.float32(0.0))
+    design = np.concatenate([e.astype(float), np.ones((rows.size, 1, n))], axis=1) * w[:, None, :]
     h = np.matmul(design, design.transpose(0, 2, 1))
-    h[:, np.arange(k), np.arange(k)] += np.where(st.on[rows], 0.0, 1.0)
+    h[:, np.arange(k), np.arange(k)] += np.where(on, 0.0, 1.0)
     rhs = np.matmul(design, (y[rows] * w)[:, :, None])
     try:
         coef = np.linalg.solve(h + 1e-9 * np.eye(k + 1), rhs)[:, :, 0]
     except np.linalg.LinAlgError:
         return
-    ok = np.all((coef[:, :k] > 0) | ~st.on[rows], axis=1) & np.all(np.isfinite(coef), axis=1)
+    ok = np.all((coef[:, :k] > 0) | ~on, axis=1) & np.all(np.isfinite(coef), axis=1)
     r = rows[ok]
-    st.a[r] = np.where(st.on[r], coef[ok, :k], st.a[r])
+    a = st.a[r]
+    np.put_along_axis(a, order[ok], np.where(on[ok], coef[ok, :k],
+                                             np.take_along_axis(a, order[ok], axis=1)), axis=1)
+    st.a[r] = a
     st.b[r] = coef[ok, k]
 
 
