@@ -10,9 +10,11 @@ echoes together (:mod:`._batch_fit`), pruning of weak echoes, and rounds of
 adding a resolved echo at the highest residual feature while the BIC falls.
 
 Differences from :func:`decompose`, for speed: one pulse for the whole batch
-(default: from the narrower half of the strongest echoes), no terraces, a
-rejected residual candidate ends the search unless it was unresolved (then at
-most ``2`` more are tried), and no retry with the baseline held.
+(default: the 20th percentile of the widths of the strongest echoes), no
+terraces but shoulders (minima of the smoothed curvature), a residual feature
+tested for resolution from its start values (no lone fit), a rejected one ends
+the search unless it was unresolved (at most 3 unresolved ones are passed over
+in a row), and no retry with the baseline held.
 
 References
 ----------
@@ -258,7 +260,7 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         Measured system pulse for the matched filter (same spacing).
     pulse_sigma_ns : float, optional
         Else a Gaussian pulse of this standard deviation, ns. Default: the
-        median width of the narrower half of the batch's strongest echoes
+        20th percentile of the widths of the batch's strongest echoes
         (those 20 noise sigma or more above the baseline); 2 samples when none.
     false_alarm : float
         Expected false echoes per noise-only waveform at detection.
