@@ -38,8 +38,9 @@ def register(subparsers) -> None:
 
     dec = subparsers.add_parser(
         "decompose", help="Gaussian decomposition of every waveform in a file",
-        description="Decompose each waveform of FILE into Gaussian echoes (Levenberg-Marquardt, "
-                    "BIC component count) and write one CSV row per echo: waveform index, "
+        description="Decompose each waveform of FILE into Gaussian echoes (matched-filter "
+                    "detection with a set false-alarm rate, Levenberg-Marquardt, BIC component "
+                    "count) and write one CSV row per echo: waveform index, "
                     "amplitude, location_ns, sigma_ns, their standard errors, baseline and, "
                     "when the file has geometry, x, y, z of the echo.")
     dec.add_argument("file", type=Path)
@@ -49,7 +50,19 @@ def register(subparsers) -> None:
     dec.add_argument("--dt-ns", type=float, default=None,
                      help="sample spacing for CSV input (default 1 ns)")
     dec.add_argument("--min-amplitude", type=float, default=None,
-                     help="detection threshold above baseline (default 4 noise sigma)")
+                     help="amplitude detection threshold above baseline (selects "
+                          "--detection amplitude; its default is 4 noise sigma)")
+    dec.add_argument("--detection", choices=("matched", "amplitude"), default=None,
+                     help="matched: matched filter with the system pulse, threshold from "
+                          "--false-alarm (default); amplitude: the 4-sigma amplitude rule")
+    dec.add_argument("--false-alarm", type=float, default=0.01,
+                     help="expected false echoes per noise-only waveform (matched; 0.01)")
+    dec.add_argument("--pulse-sigma-ns", type=float, default=None,
+                     help="Gaussian system pulse width for the matched filter, ns (default: "
+                          "from the strongest echoes)")
+    dec.add_argument("--batch", action="store_true",
+                     help="decompose all waveforms at once, vectorised (much faster on "
+                          "large files; matched detection, no --impulse/--min-amplitude)")
     dec.add_argument("--impulse", type=Path,
                      help="CSV whose first column is the system impulse response; "
                           "deconvolve before fitting")
@@ -213,13 +226,21 @@ def cmd_decompose(args) -> int:
         from tqdm import tqdm
 
         iterator = tqdm(iterator, desc="decompose", unit="waveform")
+    if args.batch:
+        if impulse is not None or args.min_amplitude is not None or args.detection == "amplitude":
+            raise InputError("--batch uses matched-filter detection on the recorded samples; "
+                             "drop --impulse, --min-amplitude and --detection amplitude")
+        results = _decompose_batched(wf, n, args)
+        iterator = ()
     for i in iterator:
         y = wf.waves[i]
         if y.size < 4:
             results.append(None)
             continue
         results.append(decompose(y, dt_ns=wf.dt_ns[i], min_amplitude=args.min_amplitude,
-                                 impulse=impulse))
+                                 impulse=impulse, detection=args.detection,
+                                 false_alarm=args.false_alarm,
+                                 pulse_sigma_ns=args.pulse_sigma_ns))
     header = ["waveform", "echo", "amplitude", "location_ns", "sigma_ns", "amplitude_se",
               "location_se_ns", "sigma_se_ns", "baseline", "x", "y", "z"]
 
@@ -245,6 +266,23 @@ def cmd_decompose(args) -> int:
         _plot(args.plot, wf, results, int(args.plot_count))
         print(f"plot -> {args.plot}")
     return 0
+
+
+def _decompose_batched(wf, n: int, args) -> list:
+    """Components per waveform (None under 4 samples) from ``decompose_batch``, one call
+    per sample spacing."""
+    from .decompose import decompose_batch
+
+    results = [None] * n
+    usable = [i for i in range(n) if wf.waves[i].size >= 4]
+    for dt in sorted({float(wf.dt_ns[i]) for i in usable}):
+        idx = [i for i in usable if float(wf.dt_ns[i]) == dt]
+        table = decompose_batch([wf.waves[i] for i in idx], dt_ns=dt,
+                                false_alarm=args.false_alarm,
+                                pulse_sigma_ns=args.pulse_sigma_ns)
+        for k, i in enumerate(idx):
+            results[i] = table[k]
+    return results
 
 
 def _plot(path: Path, wf, results, count: int) -> None:

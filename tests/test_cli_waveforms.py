@@ -60,6 +60,28 @@ def test_decompose_neon_csv_with_geolocation(shared_data, tmp_path):
     assert abs(float(first["z"]) - 334.69) < 1.5
 
 
+@pytest.mark.realdata
+def test_decompose_batch_matches_single(shared_data, tmp_path):
+    """--batch on 40 NEON waveforms: the same first-return height as the per-waveform
+    run for every pulse (within 1.5 m, as above), and bad combinations refused."""
+    d = shared_data / "neon-harvard-waveforms"
+    outs = {}
+    for flag in ([], ["--batch"]):
+        out = tmp_path / f"neon{len(flag)}.csv"
+        assert run(["decompose", str(d / "return.csv"), "-o", str(out), "--limit", "40",
+                    "--geolocation", str(d / "geolocation.csv")] + flag) == 0
+        rows = list(csv.DictReader(io.StringIO(out.read_text())))
+        outs[len(flag)] = {w: float([r for r in rows if r["waveform"] == w][0]["z"])
+                           for w in {r["waveform"] for r in rows}}
+    assert outs[0].keys() == outs[1].keys() and len(outs[0]) == 40
+    assert abs(outs[1]["0"] - 334.69) < 1.5
+    diff = np.array([outs[0][w] - outs[1][w] for w in outs[0]])
+    assert np.mean(np.abs(diff) < 1.5) >= 0.9, diff
+    with pytest.raises(InputError, match="batch"):
+        run(["decompose", str(d / "return.csv"), "-o", str(tmp_path / "x.csv"), "--batch",
+             "--min-amplitude", "10"])
+
+
 def test_decompose_rejects_unknown_type(tmp_path):
     f = tmp_path / "x.txt"
     f.write_text("1,2,3")
