@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import check_outputs
 
 from .errors import InputError
 
@@ -214,6 +215,9 @@ def cmd_decompose(args) -> int:
 
     if args.output.suffix.lower() != ".csv":
         raise InputError(f"--output must be a .csv file; got {str(args.output)!r}")
+    check_outputs([("file", args.file), ("file (waveform packets)", Path(args.file).with_suffix(".wdp")),
+                   ("--geolocation", args.geolocation), ("--impulse", args.impulse)],
+                  [("-o", args.output), ("--plot", args.plot)])
     wf = load_waveforms(args.file, dt_ns=args.dt_ns, geolocation=args.geolocation)
     impulse = None
     if args.impulse is not None:
@@ -360,6 +364,8 @@ def cmd_georegister(args) -> int:
 
     from .georegister import georegister, transform_points
 
+    check_outputs([("source", args.source), ("target", args.target)],
+                  [("-o", args.output), ("--output-cloud", args.output_cloud)])
     src = _read_cloud(args.source)
     tgt = _read_cloud(args.target)
     res = georegister(src, tgt, init=_parse_init(args.init), yaw_range_deg=args.yaw_range,

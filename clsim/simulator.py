@@ -503,10 +503,10 @@ class Simulator:
             raise DeviceError(str(err)) from None
         self._programs = {}
         self.build_seconds = 0.0
-        # Work-group size of the launches.  On CPU runtimes one photon per work-group is
-        # fastest (measured: PoCL +50 %, Intel's runtime x2 over the runtime's own
-        # choice; docs/benchmarks.md): photons diverge, so a group gains nothing from
-        # running in lock step.  GPUs: the runtime's choice.
+        # Work-group size of the launches.  On CPU runtimes one photon per work-group
+        # (measured against the runtime's own choice: Intel's runtime x2.6, PoCL 3.1
+        # +9 %, PoCL 3.0 -2 %; docs/benchmarks.md): photons diverge, so a group gains
+        # nothing from running in lock step.  GPUs: the runtime's choice.
         self.local_size = None if self.info.is_gpu else (1,)
 
     @property

@@ -54,6 +54,14 @@ def _check(main, argv, inputs, capsys, expect_missing=()):
     return err[0]
 
 
+def test_clsim_decompose_never_replaces_its_input(tmp_path, capsys):
+    rows = tmp_path / "return.csv"
+    rows.write_text("10,12,40,90,40,12,10\n11,10,30,70,30,10,11\n")
+    _check(clsim_main, ["decompose", rows, "-o", rows], [rows], capsys)
+    _check(clsim_main, ["decompose", rows, "-o", tmp_path / "e.csv", "--plot", rows], [rows], capsys,
+           expect_missing=[tmp_path / "e.csv"])
+
+
 CLSIM_CASES = {
     "-o equals the scene": lambda d: ["-o", d / "scene.npz"],
     "--plot equals the scene": lambda d: ["-o", d / "wf_out.npz", "--plot", d / "scene.npz"],
