@@ -241,10 +241,13 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
 
 def cmd_devices(args) -> int:
     """Handler of ``clsim devices``: every device with its state; exit 1 when none works."""
-    from voxlidar.devices import FIX_NO_DEVICE, choose_device, device_report, state_text
+    from voxlidar.devices import FIX_NO_DEVICE, choose_device, device_report, state_text, unloadable_runtimes
     from voxlidar.errors import DeviceError as AnyDeviceError
 
     report = device_report(("clsim", "tlsvox"))
+    for lib, why in unloadable_runtimes():
+        print(f"! {lib} is installed but does not load ({why}); fix: reinstall it with its dependencies "
+              "(`make setup`, or pip install \"intel-opencl-rt\" \"intel-cmplr-lib-rt\")", file=sys.stderr)
     if not report:
         print(f"no OpenCL device found; fix: {FIX_NO_DEVICE}", file=sys.stderr)
         return 1

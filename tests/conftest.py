@@ -85,6 +85,12 @@ def _params(kernel):
 
 def pytest_report_header(config):
     lines = ["OpenCL device matrix (kernel tests run on every device marked 'works'):"]
+    try:
+        from voxlidar.devices import unloadable_runtimes
+
+        lines += [f"  NOT LOADED: {lib}: {why}" for lib, why in unloadable_runtimes()]
+    except ImportError:
+        pass
     if not MATRIX:
         lines.append("  no OpenCL device found")
     for info, verdict in MATRIX:

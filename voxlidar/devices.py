@@ -51,7 +51,7 @@ from pathlib import Path
 from .errors import DeviceError
 
 __all__ = ["DeviceInfo", "KERNEL_SETS", "FIX_NO_DEVICE", "choose_device", "describe", "device_report",
-           "build_program", "find_devices", "open_queue", "prepare_icd_loader", "probe", "rank_devices", "short_reason", "state_text"]
+           "build_program", "find_devices", "open_queue", "unloadable_runtimes", "prepare_icd_loader", "probe", "rank_devices", "short_reason", "state_text"]
 
 #: The kernels of each stage, probed by building them: name -> "module:function".
 #: The function takes a ``pyopencl.Device`` and returns None when the device
@@ -107,6 +107,21 @@ def _environment_icds() -> list[str]:
 
 
 _ICD_DONE = False
+
+
+def unloadable_runtimes() -> list[tuple[str, str]]:
+    """[(library, loader error)] for runtimes installed in this environment that the
+    dynamic loader cannot open (a missing dependency): the ICD loader skips those
+    silently, so ``clsim devices`` says why they are absent."""
+    import ctypes
+
+    out = []
+    for lib in _environment_icds():
+        try:
+            ctypes.CDLL(lib)
+        except OSError as err:
+            out.append((lib, str(err).splitlines()[0][:200]))
+    return out
 
 
 def prepare_icd_loader() -> str | None:
