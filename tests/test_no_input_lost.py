@@ -178,3 +178,20 @@ def test_simulate_takes_a_target_and_a_vox_scene(files, tmp_path, capsys):
     assert np.load(tmp_path / "v.npz")["waveform"].sum() > 0
     assert clsim_main(["simulate", str(files / "scene.npz"), "-o", str(tmp_path / "x.npz"), "--target", "1"]) == 2
     assert "--target '1' must be X,Y" in capsys.readouterr().err
+
+
+def test_voxelize_strict_fails_on_a_quality_warning(files, tmp_path, monkeypatch, capsys):
+    """Warnings go to stderr; with --strict the command fails and writes nothing."""
+    import importlib
+
+    vx = importlib.import_module("tlsvox.voxelize")  # the module (tlsvox.voxelize is also a function)
+
+    out = tmp_path / "scene.npz"
+    argv = ["voxelize", str(files / "s1.laz"), str(files / "s2.laz"), "-o", str(out), "--voxel-size", "0.5", "-q"]
+    assert tlsvox_main(argv) == 0 and out.exists()
+    monkeypatch.setattr(vx, "quality_warnings", lambda *a: ["12 voxels have LAD above 20 m2/m3 (max 382)"])
+    out2 = tmp_path / "strict.npz"
+    assert tlsvox_main(argv[:4] + [str(out2)] + argv[5:] + ["--strict"]) == 2
+    err = capsys.readouterr().err
+    assert "warning: 12 voxels have LAD above 20" in err and "nothing was written" in err
+    assert not out2.exists()

@@ -75,3 +75,19 @@ def test_real_scan_voxelised_at_20cm(real_scan):
     ground_area = np.pi * 8.0**2
     assert 0.5 < area / ground_area < 15
     assert res.lad.occluded.mean() < 0.9
+    assert not any("scan lines" in w for w in s.meta["warnings"])  # the right grid fits its lines
+
+
+def test_a_wrong_angular_grid_is_flagged(real_scan):
+    """An azimuth step 10x too small rebuilds the empty pulses on lines that do not exist:
+    the line fit drops and the quality gate says so (it used to pass silently)."""
+    from tlsvox.voxelize import quality_warnings
+
+    groups = group_pulses(real_scan)
+    wrong = AngularGrid(30.0, 0.048, 2082, 0.0, 0.0622, 5800)
+    rec = reconstruct_empty_pulses(groups.direction, wrong, socs_rotation=rotation_from_rpy(*RPY))
+    good = reconstruct_empty_pulses(groups.direction, GRID, socs_rotation=rotation_from_rpy(*RPY))
+    assert rec.line_fit < 0.9 < good.line_fit
+    warned = quality_warnings(np.ones(3), np.zeros(3, bool), [{"scan": "tls", "line_fit": rec.line_fit}])
+    assert len(warned) == 1 and "scan lines" in warned[0] and "--angular-grid" in warned[0]
+    assert quality_warnings(np.ones(3), np.zeros(3, bool), [{"scan": "tls", "line_fit": good.line_fit}]) == []

@@ -92,6 +92,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
                    "device; `clsim devices` lists them)")
+    p.add_argument("--strict", action="store_true",
+                   help="fail (exit 2, nothing written) when a quality gate warns: LAD above 20 m2/m3, "
+                        "more than half the voxels occluded, or a poor angular-grid fit")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
 
 
@@ -163,6 +166,11 @@ def run(args) -> int:
                        bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
                        socs_rotation=rot, max_range=args.max_range, progress=not args.quiet,
                        tracer=Tracer(args.device) if args.device else None)
+        for w in res.scene.meta["warnings"]:
+            print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
+        if args.strict and res.scene.meta["warnings"]:
+            raise TlsvoxError(f"{len(res.scene.meta['warnings'])} quality warning(s) with --strict; "
+                              "nothing was written (drop --strict to keep the result)")
         res.scene.save(args.output)
         if args.vox:
             write_vox(res.scene, args.vox)

@@ -249,10 +249,11 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         cc = np.asarray(crown_center, dtype=np.float64).reshape(2)
     timings["estimate"] = time.perf_counter() - t3
     timings["total"] = time.perf_counter() - t0
+    warnings = quality_warnings(values[sel], occluded[sel], infos)
     meta = {
         "estimator": est.value, "options": lad.options, "flags": lad.counts(), "wood_method": wood_m.value,
         "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,
-        "beams": stats.n_beams, "voxel_steps": stats.n_steps,
+        "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
         "ground": None if plane is None else {"coefficients": list(plane.coefficients),
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
     }
@@ -261,6 +262,46 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                   lad_std=lad.lad_std[sel], leaf_angle=la, leaf_azimuth=leaf_azimuth, crown_center=cc,
                   ground_z=None if plane is None else plane.z_center, meta=meta)
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
+
+
+#: Quality gates (``tlsvox voxelize`` warns; with ``--strict`` it fails).
+LAD_PLAUSIBLE_MAX = 20.0  #: m2/m3: dense crowns reach a few, leaf clusters rarely 10
+OCCLUDED_SHARE_MAX = 0.5  #: of the stored voxels
+LINE_FIT_MIN = 0.9  #: of first echoes on their reconstructed scan line
+
+
+def quality_warnings(lad, occluded, infos) -> list[str]:
+    """Signs that a voxelisation went wrong, one sentence each, with the likely cause.
+
+    Parameters
+    ----------
+    lad : (M,) float, m2/m3, and occluded : (M,) bool
+        The stored voxels.
+    infos : list of dict
+        Per-scan pulse bookkeeping (``line_fit`` where empty pulses were rebuilt).
+
+    Examples
+    --------
+    >>> quality_warnings(np.array([1.0, 25.0]), np.array([False, False]), [])[0][:34]
+    '1 voxels have LAD above 20 m2/m3 ('
+    """
+    out = []
+    lad = np.asarray(lad, dtype=np.float64)
+    occluded = np.asarray(occluded, dtype=bool)
+    high = lad > LAD_PLAUSIBLE_MAX
+    if high.any():
+        out.append(f"{int(high.sum())} voxels have LAD above {LAD_PLAUSIBLE_MAX:g} m2/m3 (max {lad.max():.0f}), "
+                   "more than any canopy holds: check the angular grid, the voxel size and the scan's units")
+    if occluded.size and occluded.mean() > OCCLUDED_SHARE_MAX:
+        out.append(f"{100 * occluded.mean():.0f} % of the stored voxels are occluded (no estimate): add scan "
+                   "positions, or use a larger voxel size")
+    for info in infos:
+        fit = info.get("line_fit")
+        if fit is not None and fit < LINE_FIT_MIN:
+            out.append(f"scan {info.get('scan', '?')!r}: only {100 * fit:.0f} % of its first echoes lie on the "
+                       f"reconstructed scan lines (expected above {100 * LINE_FIT_MIN:.0f} %): the angular grid "
+                       "(--angular-grid) is probably wrong, so the rebuilt empty pulses are too")
+    return out
 
 
 def score_lad(lad, truth, *, mask=None, voxel_volume: float = 1.0) -> dict:
