@@ -195,3 +195,23 @@ def test_voxelize_strict_fails_on_a_quality_warning(files, tmp_path, monkeypatch
     err = capsys.readouterr().err
     assert "warning: 12 voxels have LAD above 20" in err and "nothing was written" in err
     assert not out2.exists()
+
+
+def test_implausible_inputs_are_refused(files, tmp_path, capsys):
+    """Values that used to change results silently: a negative --max-range, a LAD of 1e6,
+    a negative PAD in a .vox file."""
+    from tlsvox.errors import InputError
+    from tlsvox.scene import Scene
+
+    out = tmp_path / "s.npz"
+    assert tlsvox_main(["voxelize", str(files / "s1.laz"), "-o", str(out), "--max-range", "-5", "-q"]) == 2
+    assert "max_range=-5.0 must be a positive distance" in capsys.readouterr().err and not out.exists()
+    with pytest.raises(InputError, match="no canopy is that dense"):
+        Scene(origin=(0, 0, 0), voxel_size=1, shape=(1, 1, 1), ijk=[[0, 0, 0]], lad=[1e6])
+    vox = tmp_path / "neg.vox"
+    vox.write_text("VOXEL SPACE\n#min_corner: 0 0 0\n#max_corner: 2 1 1\n#split: 2 1 1\n#res: 1\n"
+                   "i j k PadBVTotal\n0 0 0 0.5\n1 0 0 -2.0\n")
+    from tlsvox.amapvox import read_vox
+
+    with pytest.raises(InputError, match="negative PadBVTotal"):
+        read_vox(vox)

@@ -169,6 +169,12 @@ def read_vox(path: "str | os.PathLike", *, pad_column: str = "PadBVTotal") -> Sc
     col = {n: data[:, i] for i, n in enumerate(names)}
     ijk = data[:, :3].astype(np.int64)
     pad = col[pad_column]
+    bad = np.isfinite(pad) & (pad < 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{str(path)!r}: {int(bad.sum())} voxels have a negative {pad_column} (first: voxel "
+                         f"{ijk[i].tolist()}, {pad[i]:g}); an area density cannot be negative: fix the file "
+                         "(AMAPVox writes NaN where it has no estimate)")
     occluded = col["occluded"].astype(bool) if "occluded" in col else ~np.isfinite(pad)
     lad = np.where(np.isfinite(pad), pad, 0.0)
     wood = col.get("wood", np.zeros(len(lad)))

@@ -113,7 +113,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     n_min, min_explored, leaf_size, small_voxel_factor, fill
         See :func:`tlsvox.estimators.estimate_lad`.
     max_range, angular_grid, socs_rotation
-        See :func:`tlsvox.pulses.beams_from_scan` (real scans without pulse tables).
+        See :func:`tlsvox.pulses.beams_from_scan` (real scans without pulse tables);
+        ``max_range`` must be positive (metres).
     scanner_frame : bool
         Allow a single scan without a pose: the world is its own frame.
     crown_center : (2,) float, optional
@@ -141,6 +142,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
             raise InputError(f"scans must hold tlsvox Scan objects, got {type(s).__name__}")
     if classes is not None and len(classes) != len(scans):
         raise InputError(f"classes has {len(classes)} entries for {len(scans)} scans: one array per scan")
+    if max_range is not None and not (np.isfinite(max_range) and max_range > 0):
+        raise InputError(f"max_range={max_range!r} must be a positive distance in metres (how far empty "
+                         "pulses are followed), or None for the scanner's range")
     est = Estimator.parse(estimator)
     fill = FillMode.parse(fill)
     wood_m = WoodMethod.parse(wood)
