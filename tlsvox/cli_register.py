@@ -16,6 +16,7 @@ from voxlidar.errors import VoxlidarError, exit_code
 from voxlidar.safeio import check_outputs, json_text
 
 from .errors import TlsvoxError
+from .scan import sidecar_paths
 
 __all__ = ["register", "cmd_register", "cmd_classify"]
 
@@ -128,8 +129,8 @@ def cmd_classify(args) -> int:
     try:
         names = [Path(p).with_suffix("").name for p in args.scans]
         check_outputs(_scan_inputs(args.scans),
-                      [(f"-o {out}/", out / f"{n}.classified.laz") for n in names]
-                      + [(f"-o {out}/", out / f"{n}.classified.frame.json") for n in names]
+                      [(f"-o {out}/", p) for n in names
+                       for p in (out / f"{n}.classified.laz", *sidecar_paths(out / f"{n}.classified.laz"))]
                       + [(f"-o {out}/", out / "classification.json")]
                       + [(f"-o {out}/", out / "reflectance_histograms.png" if args.plot else None)])
         scans = [read_any(p, scan_id=k, require_reflectance=True) for k, p in enumerate(args.scans)]
@@ -140,14 +141,14 @@ def cmd_classify(args) -> int:
         return _fail(err)
     doc = {"scans": []}
     out.mkdir(parents=True, exist_ok=True)
-    for s, c in zip(scans, results):
+    for s, c, name in zip(scans, results, names):
         entry = c.summary()
         if s.truth_material is not None:
             sc = score(c.labels, s.truth_material)
             entry["score"] = sc.to_dict()
             print(f"{s.name}: leaf P/R {sc.precision['leaf']:.3f}/{sc.recall['leaf']:.3f}, "
                   f"wood P/R {sc.precision['wood']:.3f}/{sc.recall['wood']:.3f}")
-        _write_classified(out / f"{s.name}.classified.laz", s, c.labels)
+        _write_classified(out / f"{name}.classified.laz", s, c.labels)
         doc["scans"].append(entry)
     atomic_write(out / "classification.json",
                  lambda tmp: Path(tmp).write_text(json_text(doc, indent=1)))
@@ -161,19 +162,16 @@ def cmd_classify(args) -> int:
 
 def _scan_inputs(paths) -> list:
     """(label, path) of every scan file and the sidecars read beside it."""
-    from .scan import sidecar_paths
-
     return [("scan", p) for path in paths for p in (path, *sidecar_paths(path))]
 
 
 def _write_classified(path: Path, scan, labels) -> None:
-    """Write a scan in its own frame with LAS classification codes."""
-    from .register import write_registered
+    """Write a scan with its labels as LAS classification codes, with its pulse table
+    and pose sidecars, so that ``tlsvox voxelize`` takes it as it is."""
+    import dataclasses
 
-    pose = scan.pose
-    try:
-        scan.pose = np.eye(4)
-        write_registered(path, [scan], labels=[labels],
-                         transforms_path=path.with_name(path.name.replace(".laz", ".frame.json")))
-    finally:
-        scan.pose = pose
+    from .scan import CLASSIFY_MARK
+
+    out = dataclasses.replace(scan, classification=np.asarray(labels, dtype=np.uint8),
+                              name=path.with_suffix("").name, meta=dict(scan.meta, classes=CLASSIFY_MARK))
+    out.write(path)

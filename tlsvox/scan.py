@@ -34,6 +34,9 @@ from .scene import atomic_write
 __all__ = ["AngularGrid", "PulseTable", "Scan", "read_scan", "sidecar_paths"]
 
 
+#: ``meta["classes"]`` of a scan whose LAS classification holds tlsvox.classify's PointClass codes
+CLASSIFY_MARK = "tlsvox.classify.PointClass"
+
 def sidecar_paths(path: "str | os.PathLike") -> tuple[Path, Path]:
     """The pulse-table and pose files that belong to a scan file."""
     path = Path(path)
@@ -151,6 +154,9 @@ class Scan:
         Row of :attr:`pulses` each echo belongs to.
     truth_material : (N,) uint8, optional
         :class:`tlsvox.materials.Material` of the surface hit (simulated scans).
+    classification : (N,) uint8, optional
+        :class:`tlsvox.classify.PointClass` codes (LAS ``classification``) of a
+        scan that ``tlsvox classify`` wrote; ``tlsvox voxelize`` uses them.
     pose : (4, 4) float64, optional
         World-from-scanner transform (estimated, or known).
     pose_true : (4, 4) float64, optional
@@ -167,6 +173,7 @@ class Scan:
     number_of_returns: np.ndarray | None = None
     pulse_id: np.ndarray | None = None
     truth_material: np.ndarray | None = None
+    classification: np.ndarray | None = None
     pose: np.ndarray | None = None
     pose_true: np.ndarray | None = None
     pulses: PulseTable | None = None
@@ -199,6 +206,7 @@ class Scan:
         self.number_of_returns = col("number_of_returns", np.uint8)
         self.pulse_id = col("pulse_id", np.int64)
         self.truth_material = col("truth_material", np.uint8)
+        self.classification = col("classification", np.uint8)
         if self.return_number is None:
             self.return_number = np.ones(n, np.uint8)
         if self.number_of_returns is None:
@@ -269,6 +277,8 @@ class Scan:
         las.gps_time = pid.astype(np.float64)
         if self.truth_material is not None:
             las.truth_material = self.truth_material
+        if self.classification is not None:
+            las.classification = self.classification
         atomic_write(path, lambda tmp: las.write(str(tmp)))
         pulses_path, pose_path = sidecar_paths(path)
         if self.pulses is not None:
@@ -319,6 +329,7 @@ class Scan:
                 intensity = inten
         pulse_id = np.asarray(las["pulse_id"], dtype=np.int64) if "pulse_id" in dims else None
         truth = np.asarray(las["truth_material"]) if "truth_material" in dims else None
+        codes = np.asarray(las.classification) if "classification" in dims else None
         pulses_path, pose_path = sidecar_paths(path)
         pulses = PulseTable.load(pulses_path) if pulses_path.exists() else None
         pose = pose_true = None
@@ -340,6 +351,8 @@ class Scan:
             number_of_returns=np.asarray(las.number_of_returns),
             pulse_id=pulse_id,
             truth_material=truth,
+            # only codes tlsvox classify wrote (PointClass); other tools' codes mean other things
+            classification=codes if meta.get("classes") == CLASSIFY_MARK else None,
             pose=pose,
             pose_true=pose_true,
             pulses=pulses,

@@ -62,6 +62,8 @@ class VoxelizeResult:
 
 def _kinds_for(scan: Scan, classes, class_codes: str) -> np.ndarray:
     if classes is None:
+        if scan.classification is not None:  # written by tlsvox classify
+            return kinds_from_pointclass(scan.classification)
         if scan.truth_material is not None:
             return kinds_from_material(scan.truth_material)
         return np.full(len(scan), EchoKind.LEAF, np.uint8)
@@ -93,8 +95,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     voxel_size : float, metres
     classes : sequence of (N_s,) arrays, optional
         Echo classes per scan (``tlsvox.classify`` labels by default, see
-        ``class_codes``).  Default: each scan's ``truth_material``, else every
-        echo counted as a leaf (the result is then plant area density).
+        ``class_codes``).  Default: each scan's ``classification`` (a scan
+        written by ``tlsvox classify``), else its ``truth_material``
+        (simulated), else every echo counted as a leaf (the result is then
+        plant area density).
     class_codes : {"pointclass", "material"}
     leaf_angle : str, dict or LeafAngle
         Leaf inclination model used for G(theta) (default uniform, the paper).
