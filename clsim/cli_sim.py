@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from voxlidar.errors import VoxlidarError, exit_code
-from voxlidar.safeio import check_outputs
+from voxlidar.safeio import check_outputs, save_figure
 
 from .errors import ClsimError, InputError
 from .sensor import Sensor, list_presets
@@ -173,7 +173,6 @@ def plot_result(res, path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from tlsvox.scene import atomic_write
 
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.plot(res.time_ns, res.waveform, "k", lw=1.5, label="total")
@@ -189,7 +188,7 @@ def plot_result(res, path) -> Path:
     ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -200,7 +199,6 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from tlsvox.scene import atomic_write
 
     if res.traces is None:
         raise InputError("the result has no photon traces; run with trace=N")
@@ -234,7 +232,7 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
     ax.set_zlabel("z (m)")
     ax.set_title(f"{len(res.traces)} photon paths")
     path = Path(path)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    save_figure(fig, path)
     plt.close(fig)
     return path
 

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import check_outputs
+from voxlidar.safeio import check_outputs, json_text, save_figure
 
 from .errors import InputError
 
@@ -295,8 +295,6 @@ def _plot(path: Path, wf, results, count: int) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tlsvox.scene import atomic_write
-
     from .decompose import gaussian_sum
 
     idx = [i for i, c in enumerate(results) if c is not None][:max(1, count)]
@@ -316,7 +314,7 @@ def _plot(path: Path, wf, results, count: int) -> None:
     axes[-1, 0].set_xlabel("time from first sample (ns)")
     axes[0, 0].legend(loc="upper right", fontsize=7)
     fig.tight_layout()
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -373,7 +371,7 @@ def cmd_georegister(args) -> int:
     doc = dict(transform=res.transform.tolist(), fitness=res.fitness,
                inlier_rmse_m=res.inlier_rmse, yaw_offset_deg=res.yaw_offset_deg,
                yaw_trials=res.trials, source=str(args.source), target=str(args.target))
-    atomic_write(args.output, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2)))
+    atomic_write(args.output, lambda tmp: Path(tmp).write_text(json_text(doc, indent=2)))
     print(f"fitness {res.fitness:.3f}, inlier RMSE {res.inlier_rmse:.3f} m, yaw offset "
           f"{res.yaw_offset_deg:+.1f} deg -> {args.output}")
     if args.output_cloud is not None:

@@ -9,8 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from tlsvox.scene import atomic_write
+from voxlidar.safeio import save_figure
 
 from .sensor import C_M_PER_NS
 
@@ -58,7 +57,7 @@ def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis
     ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    save_figure(fig, path)
     plt.close(fig)
     return path
 

@@ -215,3 +215,14 @@ def test_implausible_inputs_are_refused(files, tmp_path, capsys):
 
     with pytest.raises(InputError, match="negative PadBVTotal"):
         read_vox(vox)
+
+
+def test_pictures_follow_their_suffix(files, tmp_path, capsys):
+    """--plot x.jpg writes a JPEG (it used to write a PNG under that name); an unknown
+    suffix is one line and nothing is written."""
+    jpg, bad = tmp_path / "wf.jpg", tmp_path / "wf.tiff"
+    argv = ["simulate", str(files / "scene.npz"), "--photons", "2000", "-q", "-o"]
+    assert clsim_main(argv + [str(tmp_path / "a.npz"), "--plot", str(jpg)]) == 0
+    assert jpg.read_bytes()[:3] == b"\xff\xd8\xff"  # JPEG magic
+    assert clsim_main(argv + [str(tmp_path / "b.npz"), "--plot", str(bad)]) == 2
+    assert "unknown format '.tiff'" in capsys.readouterr().err and not bad.exists()

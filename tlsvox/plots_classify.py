@@ -7,9 +7,9 @@ import os
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import save_figure
 
 from .classify import Classification, PointClass
-from .scene import atomic_write
 
 __all__ = ["plot_reflectance_histograms", "render_classified", "CLASS_COLORS"]
 
@@ -87,7 +87,7 @@ def plot_reflectance_histograms(results: list[Classification], path: "str | os.P
         results[0].feature is None or np.isfinite(results[0].noise_threshold)) else "feature (see titles)")
     fig.tight_layout()
     path = Path(path)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    save_figure(fig, path)
     plt.close(fig)
     return path
 

@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from voxlidar.safeio import save_figure
 
 from .scene import atomic_write
 
@@ -241,7 +242,7 @@ def _render_mpl(items, path, eye, center, width, height, title):
     ax.set_axis_off()
     if title:
         ax.set_title(title)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    save_figure(fig, path, dpi=fig.dpi)
     plt.close(fig)
 
 

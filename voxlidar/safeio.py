@@ -28,7 +28,7 @@ from pathlib import Path
 
 from .errors import VoxlidarError
 
-__all__ = ["OutputConflictError", "check_outputs", "json_text"]
+__all__ = ["FIGURE_FORMATS", "OutputConflictError", "check_outputs", "json_text", "save_figure"]
 
 
 class OutputConflictError(VoxlidarError, ValueError):
@@ -122,3 +122,26 @@ def json_text(obj, *, indent=None) -> str:
     import json
 
     return json.dumps(_plain(obj), indent=indent, allow_nan=False)
+
+
+FIGURE_FORMATS = ("png", "pdf", "svg", "jpg", "jpeg")
+
+
+def save_figure(fig, path, *, dpi: int = 110) -> Path:
+    """Write a Matplotlib figure in the format its file name says (png, pdf, svg,
+    jpg), atomically: a temporary file renamed when complete.  Another suffix is
+    one clear error, not a PNG under a misleading name."""
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in FIGURE_FORMATS:
+        raise OutputConflictError(f"picture {path}: unknown format {path.suffix!r}; nothing was written: "
+                                  f"end the name in one of {', '.join('.' + f for f in FIGURE_FORMATS)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        fig.savefig(tmp, dpi=dpi, format="jpeg" if fmt == "jpg" else fmt)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
