@@ -194,3 +194,10 @@ def test_not_a_waveform_point_format(tmp_path):
     las.write(tmp_path / "p6.las")
     with pytest.raises(InputError, match="point format 6 has no waveform"):
         read_las_waveforms(tmp_path / "p6.las")
+
+
+def test_leica_laz_copy_says_its_packets_are_compressed(leica_dir):
+    """rlas's LAZ copy has LASzip-compressed packets (type 1, 80 bytes for 256 samples): one
+    clear error naming the fix, not 'compression=1; only uncompressed packets are defined'."""
+    with pytest.raises(InputError, match=r"packets are compressed .*compression type 1, packets of 80 bytes.*fix:"):
+        read_las_waveforms(leica_dir / "fwf.laz")

@@ -100,12 +100,17 @@ class WavePacketDescriptor:
         return cls(index=index, bits_per_sample=bits, n_samples=ns, spacing_ps=spacing,
                    gain=gain, offset=offset, compression=comp)
 
-    def check(self) -> None:
-        """Raise InputError if this reader/writer cannot handle the descriptor."""
+    def check(self, *, reading: bool = False) -> None:
+        """Raise InputError if this reader/writer cannot handle the descriptor.
+
+        ``reading``: a non-zero compression type is let through here; the
+        reader accepts it only where every packet still has its raw size, and
+        otherwise says the packets are compressed (LASzip writes type 1 and
+        compressed packets, in a ``.wdz`` beside a ``.laz``)."""
         if self.bits_per_sample not in _SAMPLE_DTYPES:
             raise InputError(f"wave packet descriptor {self.index}: bits_per_sample="
                              f"{self.bits_per_sample}; supported: 8, 16, 32")
-        if self.compression != 0:
+        if self.compression != 0 and not reading:
             raise InputError(f"wave packet descriptor {self.index}: compression="
                              f"{self.compression}; only uncompressed (0) packets are defined")
         if not 1 <= self.index <= 255:
@@ -349,7 +354,7 @@ def read_las_waveforms(path: "str | os.PathLike", *, wdp: "str | os.PathLike | N
                          f"one of {_WAVEFORM_POINT_FORMATS} (LAS 1.3/1.4 full waveform)")
     descriptors = _read_descriptors(hdr)
     for d in descriptors.values():
-        d.check()
+        d.check(reading=True)
     n = len(las.points)
     desc_idx = np.asarray(las["wavepacket_index"], dtype=np.uint8)
     offs = np.asarray(las["wavepacket_offset"], dtype=np.uint64)
@@ -368,6 +373,15 @@ def read_las_waveforms(path: "str | os.PathLike", *, wdp: "str | os.PathLike | N
     for idx in used:
         expect[desc_idx == idx] = descriptors[int(idx)].packet_size
     bad = np.flatnonzero(has & (sizes != expect))
+    if bad.size and descriptors[int(desc_idx[int(bad[0])])].compression != 0:
+        i = int(bad[0])
+        d = descriptors[int(desc_idx[i])]
+        raise InputError(
+            f"{path.name}: its waveform packets are compressed (descriptor {d.index}: compression type "
+            f"{d.compression}, packets of {int(sizes[i])} bytes for {d.n_samples} samples of "
+            f"{d.bits_per_sample} bits), which this reader does not decode; fix: read the uncompressed "
+            f"LAS with its .wdp (laszip -i {path.name} -o {path.stem}.las writes both from the .laz and "
+            "its .wdz)")
     if bad.size:
         i = int(bad[0])
         raise InputError(
