@@ -206,7 +206,7 @@ def test_implausible_inputs_are_refused(files, tmp_path, capsys):
     out = tmp_path / "s.npz"
     assert tlsvox_main(["voxelize", str(files / "s1.laz"), "-o", str(out), "--max-range", "-5", "-q"]) == 2
     assert "max_range=-5.0 must be a positive distance" in capsys.readouterr().err and not out.exists()
-    with pytest.raises(InputError, match="no canopy is that dense"):
+    with pytest.raises(InputError, match="no canopy is that dense"):  # 1e6 m2/m3
         Scene(origin=(0, 0, 0), voxel_size=1, shape=(1, 1, 1), ijk=[[0, 0, 0]], lad=[1e6])
     vox = tmp_path / "neg.vox"
     vox.write_text("VOXEL SPACE\n#min_corner: 0 0 0\n#max_corner: 2 1 1\n#split: 2 1 1\n#res: 1\n"

@@ -65,9 +65,11 @@ def _default_materials() -> dict:
     return out
 
 
-#: Largest leaf area density a scene accepts, m2/m3: 10x the densest leaf clusters
-#: measured (tlsvox voxelize warns above 20).
-LAD_MAX = 100.0
+#: Largest leaf area density a scene accepts, m2/m3: a solid stack of 0.2 mm leaves
+#: holds 5000 m2 per m3, so nothing above it can be leaves.  Estimates from real
+#: scans do reach a few hundred in single voxels (noise, partial hits); tlsvox
+#: voxelize warns above 20 (LAD_PLAUSIBLE_MAX) instead of refusing.
+LAD_MAX = 5000.0
 
 
 @dataclass
@@ -144,8 +146,8 @@ class Scene:
         if np.any(self.lad < 0):
             raise InputError("lad must be >= 0 m2/m3 everywhere (found negative values)")
         if self.lad.size and self.lad.max() > LAD_MAX:
-            raise InputError(f"lad reaches {self.lad.max():g} m2/m3, above {LAD_MAX:g}: no canopy is that dense "
-                             "(a wrong unit, or leaf area per voxel instead of per m3?)")
+            raise InputError(f"lad reaches {self.lad.max():g} m2/m3, above {LAD_MAX:g} (a solid stack of leaves): "
+                             "no canopy is that dense; a wrong unit, or leaf area per voxel instead of per m3?")
         self.wood = self._column("wood", self.wood, np.float64, m, default=0.0)
         self.occluded = self._column("occluded", self.occluded, bool, m, default=False)
         if self.lad_std is not None:
