@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from voxlidar.errors import VoxlidarError, exit_code
-from voxlidar.safeio import check_outputs, save_figure
+from voxlidar.safeio import check_figure_path, check_outputs, save_figure
 
 from .errors import ClsimError, InputError
 from .sensor import Sensor, list_presets
@@ -123,13 +123,15 @@ def cmd_simulate(args) -> int:
     try:
         check_outputs([("scene", args.scene)],
                       [("-o", args.output), ("--plot", args.plot), ("--trace-plot", args.trace_plot)])
+        check_figure_path("--plot", args.plot)
+        check_figure_path("--trace-plot", args.trace_plot)
+        target = _parse_target(args.target)
         if Path(args.scene).suffix.lower() == ".vox":
             from tlsvox.amapvox import read_vox
 
             scene = read_vox(args.scene)
         else:
             scene = Scene.load(args.scene)
-        target = _parse_target(args.target)
         over = {}
         if args.off_nadir is not None:
             over["off_nadir_deg"] = args.off_nadir

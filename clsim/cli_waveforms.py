@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import check_outputs, json_text, save_figure
+from voxlidar.safeio import check_figure_path, check_outputs, json_text, save_figure
 
 from .errors import InputError
 
@@ -218,6 +218,7 @@ def cmd_decompose(args) -> int:
     check_outputs([("file", args.file), ("file (waveform packets)", Path(args.file).with_suffix(".wdp")),
                    ("--geolocation", args.geolocation), ("--impulse", args.impulse)],
                   [("-o", args.output), ("--plot", args.plot)])
+    check_figure_path("--plot", args.plot)
     wf = load_waveforms(args.file, dt_ns=args.dt_ns, geolocation=args.geolocation)
     impulse = None
     if args.impulse is not None:

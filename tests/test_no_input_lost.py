@@ -108,6 +108,7 @@ TLSVOX_CASES = {
                                                           d / "m.laz", "--transforms", d / "s2.pose.json"],
     "classify -o is a scan file": lambda d: ["classify", d / "s1.laz", "-o", d / "s2.laz", "--no-ground"],
     "view --screenshot equals the scan": lambda d: ["view", d / "s1.laz", "--screenshot", d / "s1.laz"],
+    "view --screenshot equals its pose sidecar": lambda d: ["view", d / "s1.laz", "--screenshot", d / "s1.pose.json"],
 }
 
 
@@ -225,4 +226,5 @@ def test_pictures_follow_their_suffix(files, tmp_path, capsys):
     assert clsim_main(argv + [str(tmp_path / "a.npz"), "--plot", str(jpg)]) == 0
     assert jpg.read_bytes()[:3] == b"\xff\xd8\xff"  # JPEG magic
     assert clsim_main(argv + [str(tmp_path / "b.npz"), "--plot", str(bad)]) == 2
-    assert "unknown format '.tiff'" in capsys.readouterr().err and not bad.exists()
+    assert "unknown picture format '.tiff'" in capsys.readouterr().err and not bad.exists()
+    assert not (tmp_path / "b.npz").exists()  # refused before any work

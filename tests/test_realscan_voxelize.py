@@ -75,7 +75,8 @@ def test_real_scan_voxelised_at_20cm(real_scan):
     ground_area = np.pi * 8.0**2
     assert 0.5 < area / ground_area < 15
     assert res.lad.occluded.mean() < 0.9
-    assert not any("scan lines" in w for w in s.meta["warnings"])  # the right grid fits its lines
+    assert s.meta["scans"][0]["line_fit"] > 0.99  # the right grid fits its lines: no warning
+    assert not any("scan lines" in w for w in s.meta["warnings"])
 
 
 def test_a_wrong_angular_grid_is_flagged(real_scan):

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from voxlidar.errors import VoxlidarError, exit_code
-from voxlidar.safeio import check_outputs
+from voxlidar.safeio import check_figure_path, check_outputs
 
 from .errors import TlsvoxError
 from .versions import show_versions
@@ -26,6 +26,9 @@ from .versions import show_versions
 # sub-command modules that add themselves with register(subparsers)
 _PLUGINS = ("tlsvox.cli_register", "tlsvox.cli_voxelize")
 
+
+#: picture formats of ``tlsvox view --screenshot`` (Open3D renders a bitmap)
+SCREENSHOT_FORMATS = ("png", "jpg", "jpeg")
 
 def _cmd_tree(args) -> int:
     from .synthetic import TreeParams, make_tree
@@ -83,8 +86,12 @@ def _cmd_view(args) -> int:
 
     from .render import colormap, reflectance_colors, render
 
+    from .scan import sidecar_paths
+
     path = Path(args.file)
-    check_outputs([("file", path)], [("--screenshot", args.screenshot)])
+    sidecars = sidecar_paths(path) if path.suffix.lower() in (".las", ".laz") else ()
+    check_outputs([("file", p) for p in (path, *sidecars)], [("--screenshot", args.screenshot)])
+    check_figure_path("--screenshot", args.screenshot, formats=SCREENSHOT_FORMATS)
     if not args.screenshot and sys.platform.startswith("linux") and not (
             os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise TlsvoxError(f"no display to open a window on (DISPLAY is not set); fix: "
@@ -181,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("--color", choices=["reflectance", "material"], default="reflectance")
     p.add_argument("--scanner-frame", action="store_true", help="do not apply the scan's pose")
-    p.add_argument("--screenshot", help="write a PNG instead of opening a window")
+    p.add_argument("--screenshot", help="write a picture (.png or .jpg) instead of opening a window")
     p.add_argument("--point-size", type=float, default=2.0)
     p.set_defaults(func=_cmd_view)
 

@@ -172,6 +172,7 @@ def _write_classified(path: Path, scan, labels) -> None:
 
     from .scan import CLASSIFY_MARK
 
+    # the scan keeps its name, so `voxelize --transforms` finds its pose by it
     out = dataclasses.replace(scan, classification=np.asarray(labels, dtype=np.uint8),
-                              name=path.with_suffix("").name, meta=dict(scan.meta, classes=CLASSIFY_MARK))
+                              meta=dict(scan.meta, classes=CLASSIFY_MARK))
     out.write(path)

@@ -197,7 +197,8 @@ def _render_o3d(items, path, eye, center, up, fov, width, height, point_size, ba
         keep = int(round(_SIDE * aspect))
         box = ((_SIDE - keep) // 2, 0, (_SIDE - keep) // 2 + keep, _SIDE)
     img = img.crop(box).resize((int(width), int(height)))
-    atomic_write(path, lambda tmp: img.save(tmp, format="PNG"))
+    fmt = "JPEG" if Path(path).suffix.lower() in (".jpg", ".jpeg") else "PNG"
+    atomic_write(path, lambda tmp: img.convert("RGB").save(tmp, format=fmt))
 
 
 def _render_mpl(items, path, eye, center, width, height, title):

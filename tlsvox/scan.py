@@ -31,11 +31,12 @@ from voxlidar.safeio import json_text
 from .errors import InputError, ScanFileError
 from .scene import atomic_write
 
-__all__ = ["AngularGrid", "PulseTable", "Scan", "read_scan", "sidecar_paths"]
+__all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "read_scan", "sidecar_paths"]
 
 
 #: ``meta["classes"]`` of a scan whose LAS classification holds tlsvox.classify's PointClass codes
 CLASSIFY_MARK = "tlsvox.classify.PointClass"
+
 
 def sidecar_paths(path: "str | os.PathLike") -> tuple[Path, Path]:
     """The pulse-table and pose files that belong to a scan file."""
@@ -283,6 +284,8 @@ class Scan:
         pulses_path, pose_path = sidecar_paths(path)
         if self.pulses is not None:
             self.pulses.save(pulses_path)
+        elif pulses_path.exists():
+            pulses_path.unlink()  # an older scan's pulse table must not pair with these points
         pose_doc = {"name": self.name, "scan_id": int(self.scan_id), "frame": "scanner",
                     "meta": self.meta}
         if self.pose is not None:
@@ -340,7 +343,7 @@ class Scan:
             pose_true = doc.get("pose_true")
             name = doc.get("name", name)
             sid = int(doc.get("scan_id", 0))
-            meta = doc.get("meta", {})
+            meta = doc.get("meta") or {}
         elif len(las.points):
             sid = int(np.asarray(las.point_source_id)[0])
         return cls(

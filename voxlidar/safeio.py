@@ -28,7 +28,8 @@ from pathlib import Path
 
 from .errors import VoxlidarError
 
-__all__ = ["FIGURE_FORMATS", "OutputConflictError", "check_outputs", "json_text", "save_figure"]
+__all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "check_figure_path", "check_outputs",
+           "json_text", "save_figure"]
 
 
 class OutputConflictError(VoxlidarError, ValueError):
@@ -51,7 +52,8 @@ def check_outputs(inputs, outputs) -> None:
     Parameters
     ----------
     inputs : iterable of (label, path)
-        What the command reads, sidecars included (a missing one is ignored).
+        What the command reads, sidecars included; a sidecar that does not
+        exist is still protected (an output of that name would shadow it).
     outputs : iterable of (label, path)
         What it will write, sidecars included; ``None`` paths are skipped.
 
@@ -127,15 +129,27 @@ def json_text(obj, *, indent=None) -> str:
 FIGURE_FORMATS = ("png", "pdf", "svg", "jpg", "jpeg")
 
 
+class FigurePathError(VoxlidarError, ValueError):
+    """A picture's file name ends in a format that cannot be written."""
+
+
+def check_figure_path(label: str, path, formats=FIGURE_FORMATS) -> None:
+    """Refuse, before any work, a picture name whose suffix is not one of ``formats``."""
+    if path is None:
+        return
+    fmt = Path(path).suffix.lower().lstrip(".")
+    if fmt not in formats:
+        raise FigurePathError(f"{label} {path}: unknown picture format {Path(path).suffix!r}; nothing was "
+                              f"written: end the name in one of {', '.join('.' + f for f in formats)}")
+
+
 def save_figure(fig, path, *, dpi: int = 110) -> Path:
     """Write a Matplotlib figure in the format its file name says (png, pdf, svg,
     jpg), atomically: a temporary file renamed when complete.  Another suffix is
     one clear error, not a PNG under a misleading name."""
     path = Path(path)
+    check_figure_path("picture", path)
     fmt = path.suffix.lower().lstrip(".")
-    if fmt not in FIGURE_FORMATS:
-        raise OutputConflictError(f"picture {path}: unknown format {path.suffix!r}; nothing was written: "
-                                  f"end the name in one of {', '.join('.' + f for f in FIGURE_FORMATS)}")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
