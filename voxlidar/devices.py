@@ -50,8 +50,9 @@ from pathlib import Path
 
 from .errors import DeviceError
 
-__all__ = ["DeviceInfo", "KERNEL_SETS", "FIX_NO_DEVICE", "choose_device", "describe", "device_report",
-           "build_program", "find_devices", "open_queue", "unloadable_runtimes", "prepare_icd_loader", "probe", "rank_devices", "short_reason", "state_text"]
+__all__ = ["DeviceInfo", "FIX_NO_DEVICE", "KERNEL_SETS", "build_program", "choose_device",
+           "describe", "device_report", "find_devices", "open_queue", "prepare_icd_loader",
+           "probe", "rank_devices", "short_reason", "state_text", "unloadable_runtimes"]
 
 #: The kernels of each stage, probed by building them: name -> "module:function".
 #: The function takes a ``pyopencl.Device`` and returns None when the device
