@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import InputError
 from ._checks import _as_waveform
-from ._noise import noise_level
+from ._noise import noise_level, response_above_baseline
 
 
 def deconvolve(samples, impulse, *, iterations: int = 30, baseline=None) -> np.ndarray:
@@ -46,14 +46,9 @@ def deconvolve(samples, impulse, *, iterations: int = 30, baseline=None) -> np.n
     3
     """
     y = _as_waveform(samples)
-    h = _as_waveform(impulse, "impulse")
     if int(iterations) < 1:
         raise InputError(f"iterations must be >= 1; got {iterations!r}")
-    hb, _ = noise_level(h)
-    h = np.clip(h - hb, 0.0, None)
-    if h.sum() <= 0:
-        raise InputError("impulse has no signal above its baseline; pass the measured system "
-                         "response (a return from a hard target)")
+    h = response_above_baseline(impulse, "impulse")
     h = h / h.sum()
     c = int(np.argmax(h))
     b = noise_level(y)[0] if baseline is None else float(baseline)

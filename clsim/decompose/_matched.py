@@ -42,7 +42,7 @@ from scipy.ndimage import correlate1d
 from ..errors import InputError
 from ._checks import _as_waveform, _positive
 from ._model import FWHM_PER_SIGMA, Components
-from ._noise import noise_level
+from ._noise import noise_level, response_above_baseline
 
 #: Default expected number of false echoes per noise-only waveform.
 FALSE_ALARM = 0.01
@@ -104,12 +104,7 @@ class Pulse:
     @classmethod
     def measured(cls, samples) -> "Pulse":
         """From a measured system response (baseline removed, cut at 1 % of its peak)."""
-        h = _as_waveform(samples, "pulse")
-        hb = float(np.median(np.sort(h)[:max(3, h.size // 5)]))
-        h = np.clip(h - hb, 0.0, None)
-        if h.max() <= 0:
-            raise InputError("pulse has no signal above its baseline; pass the measured "
-                             "system response (a return from a hard target)")
+        h = response_above_baseline(samples, "pulse")
         h = h / h.max()
         c = int(np.argmax(h))
         above = np.flatnonzero(h >= 0.01)

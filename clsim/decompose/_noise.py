@@ -39,6 +39,17 @@ def noise_level(samples) -> tuple[float, float]:
     return baseline, max(sigma, q / np.sqrt(12.0))
 
 
+def response_above_baseline(samples, name: str) -> np.ndarray:
+    """A measured system response with its baseline (:func:`noise_level`) removed and
+    negative samples clipped; an InputError when nothing is left above the baseline."""
+    h = _as_waveform(samples, name)
+    h = np.clip(h - noise_level(h)[0], 0.0, None)
+    if h.max() <= 0:
+        raise InputError(f"{name} has no signal above its baseline; pass the measured system "
+                         "response (a return from a hard target)")
+    return h
+
+
 def _runs(y: np.ndarray):
     """Start and end (inclusive) indices of runs of equal consecutive values."""
     change = np.flatnonzero(np.diff(y) != 0)
