@@ -33,11 +33,11 @@ Ni-Meister, W., Jupp, D. L. B. & Dubayah, R. (2001). Modeling lidar waveforms
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 
 import numpy as np
 
+from .choices import Choice
 from .errors import InputError
 
 __all__ = [
@@ -56,22 +56,13 @@ __all__ = [
 C_HALF_M_PER_NS = 0.299792458 / 2.0 / 1.000293
 
 
-class Normalization(str, enum.Enum):
+class Normalization(Choice):
     """How waveforms are scaled before they are compared."""
 
     ENERGY = "energy"  # unit integral
     PEAK = "peak"  # unit maximum
     NONE = "none"
 
-    @classmethod
-    def parse(cls, value) -> "Normalization":
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError:
-            raise InputError(f"normalize={value!r} is not known; choose one of: "
-                             f"{', '.join(m.value for m in cls)}") from None
 
 
 def _pair(time_ns, waveform, name="waveform"):
@@ -102,7 +93,7 @@ def normalize(time_ns, waveform, *, method="energy") -> np.ndarray:
     [0.0, 1.0, 0.0]
     """
     t, w = _pair(time_ns, waveform)
-    m = Normalization.parse(method)
+    m = Normalization.parse(method, "normalize")
     if m is Normalization.NONE:
         return w.copy()
     scale = _energy(t, w) if m is Normalization.ENERGY else float(np.max(w))
@@ -299,7 +290,7 @@ def compare_waveforms(time_ns, waveform, ref_time_ns, ref_waveform, *, align: bo
     -------
     WaveformComparison
     """
-    method = Normalization.parse(normalize)
+    method = Normalization.parse(normalize, "normalize")
     t, w = _pair(time_ns, waveform)
     rt, rw = _pair(ref_time_ns, ref_waveform, "ref_waveform")
     if align:

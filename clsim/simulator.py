@@ -14,7 +14,6 @@ True
 
 from __future__ import annotations
 
-import enum
 import math
 import time
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ from voxlidar.errors import DeviceError as AnyDeviceError
 from voxlidar.safeio import json_text
 
 from .bricks import BRICK, BrickGrid, build_bricks
+from .choices import Choice
 from .errors import DeviceError, InputError
 from .rng import split_seed
 from .sensor import C_M_PER_NS, Sensor
@@ -58,27 +58,14 @@ PARAMS_DTYPE = np.dtype([
 ])
 
 
-class _Choice(str, enum.Enum):
-    @classmethod
-    def parse(cls, value, name):
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError:
-            raise InputError(
-                f"{name}={value!r} is not valid; choose one of: {', '.join(m.value for m in cls)}"
-            ) from None
-
-
-class Mode(_Choice):
+class Mode(Choice):
     """Interaction model: ``exact`` free flight with thinning, or the ``paper``'s fixed step."""
 
     EXACT = "exact"
     PAPER = "paper"
 
 
-class Detect(_Choice):
+class Detect(Choice):
     """Detection: ``nee`` next-event estimation, or ``analog`` photons through the aperture."""
 
     NEE = "nee"

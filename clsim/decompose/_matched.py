@@ -33,12 +33,12 @@ Rice, S. O. (1944). Mathematical analysis of random noise. Bell Syst. Tech. J.
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import correlate1d
 
+from ..choices import Choice
 from ..errors import InputError
 from ._checks import _as_waveform, _positive
 from ._model import FWHM_PER_SIGMA, Components
@@ -50,7 +50,7 @@ FALSE_ALARM = 0.01
 _FALLBACK_SIGMA = 2.0
 
 
-class Detection(str, enum.Enum):
+class Detection(Choice):
     """Echo detection of :func:`decompose`.
 
     ``matched``: matched filter with the system pulse, threshold from the
@@ -61,15 +61,6 @@ class Detection(str, enum.Enum):
     MATCHED = "matched"
     AMPLITUDE = "amplitude"
 
-    @classmethod
-    def parse(cls, value) -> "Detection":
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError:
-            raise InputError(f"detection={value!r} is not known; choose one of: "
-                             f"{', '.join(m.value for m in cls)}") from None
 
 
 @dataclass(frozen=True)

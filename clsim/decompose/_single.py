@@ -114,7 +114,7 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
     if detection is None:
         detection = ("amplitude" if min_amplitude is not None or impulse is not None
                      else "matched")
-    detection = Detection.parse(detection)
+    detection = Detection.parse(detection, "detection")
     if detection is Detection.MATCHED and (min_amplitude is not None or impulse is not None):
         raise InputError("detection='matched' sets its threshold from false_alarm and fits "
                          "the recorded samples; drop min_amplitude and impulse, or pass "
