@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from clsim import testscenes
-from clsim.cli_sim import benchmark_scene, device_benchmark
+from clsim.validation import testscenes
+from clsim.cli.simulate import benchmark_scene, device_benchmark
 from clsim.sensor import Sensor
-from clsim.simulator import Simulator, list_devices
-from clsim.transport_ref import ReferenceSimulator
+from clsim.transport.simulator import Simulator, list_devices
+from clsim.transport.reference import ReferenceSimulator
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -306,7 +306,7 @@ def main(argv=None) -> int:
     section_nee_vs_analog(args, lines, sim, img)
     section_precision(args, lines, sim, img)
     out = Path(args.out)
-    from tlsvox.scene import atomic_write
+    from voxlidar.safeio import atomic_write
 
     atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
     print("\n".join(lines))

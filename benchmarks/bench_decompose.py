@@ -39,7 +39,7 @@ from scipy.optimize import curve_fit
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from clsim.decompose import (decompose, decompose_batch, detect_peaks, gaussian_sum,
+from clsim.waveforms.decompose import (decompose, decompose_batch, detect_peaks, gaussian_sum,
                              noise_level)
 
 GDECOMP_PYTHON = ROOT / ".bench-venv" / "bin" / "python"
@@ -116,7 +116,7 @@ def figure(waves: list, out: Path, picks=(0, 57, 123, 260, 377, 441)) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from clsim.decompose import gaussian_sum
+    from clsim.waveforms.decompose import gaussian_sum
 
     fig, axes = plt.subplots(len(picks), 1, figsize=(7, 1.7 * len(picks)))
     for ax, i in zip(axes, picks):
@@ -177,7 +177,7 @@ def pair_set(separation_sigma: float, count: int, rng) -> np.ndarray:
 
 def load_leica(data: Path):
     """Raw 8-bit waveforms (2 ns) of the Leica file and each point's return time, ns."""
-    from clsim.waveio import read_las_waveforms
+    from clsim.waveforms.io import read_las_waveforms
 
     las = read_las_waveforms(data / "leica-fwf-las13" / "fwf.las")
     waves, times = [], []

@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from clsim.cli_sim import device_benchmark
-from tlsvox.grid import VoxelGrid
-from tlsvox.trace import Beams, Tracer
+from clsim.cli.simulate import device_benchmark
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.trace import Beams, Tracer
 from voxlidar.devices import device_report, state_text
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,8 +75,8 @@ def bench_tracer(devices, n_beams: int, repeats: int) -> list[dict]:
 
 def bench_choices(devices, photons: int, repeats: int) -> list[dict]:
     """exact + nee photons/s for fast math on/off x work-group size 1 / runtime's choice."""
-    from clsim.cli_sim import benchmark_scene
-    from clsim.simulator import Simulator
+    from clsim.cli.simulate import benchmark_scene
+    from clsim.transport.simulator import Simulator
 
     scene, sensor = benchmark_scene()
     runs = []

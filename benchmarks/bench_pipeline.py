@@ -2,7 +2,7 @@
 
 On the default synthetic oak (``make_tree(seed=1)``) the waveform a pulse
 would really record is known: the explicit-geometry mesh reference
-(:class:`clsim.meshref.MeshReferenceSimulator`, high photon count, cached on
+(:class:`clsim.validation.meshref.MeshReferenceSimulator`, high photon count, cached on
 disk) is "the truth".  Against it, for a nadir pulse through the crown centre
 and an oblique pulse near the crown edge:
 
@@ -47,8 +47,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-CACHE_SOURCES = ["clsim/meshref.py", "clsim/simulator.py", "clsim/waveform.py", "clsim/sensor.py",
-                 "tlsvox/synthetic.py", "tlsvox/scene.py"]
+CACHE_SOURCES = ["clsim/validation/meshref.py", "clsim/transport/simulator.py", "clsim/waveform.py", "clsim/sensor.py",
+                 "tlsvox/truth/synthetic.py", "voxlidar/scene.py"]
 
 
 def log(msg):
@@ -144,12 +144,12 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
     import clsim
-    from clsim.budget import default_pulses, waveform_metrics
-    from clsim.meshref import MeshReferenceSimulator
+    from clsim.validation.budget import default_pulses, waveform_metrics
+    from clsim.validation.meshref import MeshReferenceSimulator
     from clsim.sensor import C_M_PER_NS
     from tlsvox.pipeline import scene_from_scans
-    from tlsvox.scanner import paper_scan_poses, simulate_scan
-    from tlsvox.synthetic import make_tree
+    from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
+    from tlsvox.truth.synthetic import make_tree
 
     src = source_hash()
     tree = make_tree(seed=args.seed)
@@ -308,7 +308,7 @@ def main(argv=None) -> int:
 
 def report(d: dict, out: Path, png: Path) -> None:
     """Write the Markdown table and the two-panel chart from the measured figures."""
-    from tlsvox.scene import atomic_write
+    from voxlidar.safeio import atomic_write
 
     pn = [p["name"] for p in d["pulses"]]
     rows, prow = d["rows"], d["prow"]

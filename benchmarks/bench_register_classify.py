@@ -1,6 +1,6 @@
 """Registration and classification time (medians) and accuracy on the synthetic scan pair.
 
-Scans the default synthetic tree (tlsvox.synthetic) from the paper's two
+Scans the default synthetic tree (tlsvox.truth.synthetic) from the paper's two
 positions with the RIEGL VZ-400 preset (or a coarser step with --step), then
 times: target registration, FPFH + ICP registration, and per-scan
 classification by every method variant (tlsvox.classify.ClassifyMethod,
@@ -26,8 +26,8 @@ import numpy as np
 
 from tlsvox.classify import classify_scan, score
 from tlsvox.register import RegistrationError, pose_error, register_pair, true_relative_transform
-from tlsvox.scanner import ScannerPreset, paper_scan_poses, simulate_scan
-from tlsvox.synthetic import TreeParams, make_tree
+from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
+from tlsvox.truth.synthetic import TreeParams, make_tree
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tlsvox.scanner import ScannerPreset, paper_scan_poses, simulate_scan
-from tlsvox.synthetic import make_tree
+from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
+from tlsvox.truth.synthetic import make_tree
 
 ROOT = Path(__file__).resolve().parents[1]
 

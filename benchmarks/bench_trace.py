@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tlsvox.grid import VoxelGrid
-from tlsvox.pulses import beams_from_scan, rotation_from_rpy
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.pulses import beams_from_scan, rotation_from_rpy
 from tlsvox.scan import AngularGrid, Scan
-from tlsvox.trace import Beams, Tracer, trace_reference
+from tlsvox.voxel.trace import Beams, Tracer, trace_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("VOXLIDAR_SHARED_DATA", ROOT.parent / "shared" / "data"))
@@ -41,7 +41,7 @@ def subset(b: Beams, idx) -> Beams:
 
 def write_section(path: Path, title: str, body: str) -> None:
     """Replace (or append) the ``## title`` section of a markdown file, atomically."""
-    from tlsvox.scene import atomic_write
+    from voxlidar.safeio import atomic_write
 
     text = path.read_text() if path.exists() else "# Voxelisation benchmarks\n\nWritten by benchmarks/bench_*.py.\n"
     head = f"## {title}\n"

@@ -20,9 +20,9 @@ import numpy as np
 
 from bench_trace import write_section
 from tlsvox.errors import InputError
-from tlsvox.estimators import Estimator, estimate_lad
-from tlsvox.trace import Tracer
-from tlsvox.voxelize import score_lad, voxelize
+from tlsvox.voxel.estimators import Estimator, estimate_lad
+from tlsvox.voxel.trace import Tracer
+from tlsvox.voxel.voxlad import score_lad, voxelize
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,8 +35,8 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "voxelize.md"))
     ap.add_argument("--png", default=str(ROOT / "docs" / "img" / "voxel_size.png"))
     args = ap.parse_args(argv)
-    from tlsvox.scanner import paper_scan_poses, simulate_scan
-    from tlsvox.synthetic import make_tree
+    from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
+    from tlsvox.truth.synthetic import make_tree
 
     tree = make_tree(seed=args.seed)
     scans = []

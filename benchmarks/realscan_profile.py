@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tlsvox.estimators import Estimator, estimate_lad
-from tlsvox.pulses import rotation_from_rpy
+from tlsvox.voxel.estimators import Estimator, estimate_lad
+from tlsvox.voxel.pulses import rotation_from_rpy
 from tlsvox.scan import AngularGrid, Scan
-from tlsvox.voxelize import voxelize
+from tlsvox.voxel.voxlad import voxelize
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("VOXLIDAR_SHARED_DATA", ROOT.parent / "shared" / "data"))

@@ -5,15 +5,15 @@ decomposes waveforms into Gaussian echoes, and compares waveforms.  Heavy
 modules (PyOpenCL, Open3D) are imported only when used.
 """
 
-from .decompose import Components, decompose
-from .errors import ClsimError, DeviceError, InputError
-from .metrics import compare_waveforms, relative_heights
-from . import testscenes
-from .pointing import fit_pulse_directions, pointing_from_xyzt
-from .sensor import Sensor, list_presets
-from .simulator import Detect, Mode, SimulationResult, Simulator, list_devices
-from .transport_ref import ReferenceSimulator
-from .waveio import read_las_waveforms, read_pulsewaves, write_las_waveforms
+from clsim.waveforms.decompose import Components, decompose
+from clsim.errors import ClsimError, DeviceError, InputError
+from clsim.waveforms.metrics import compare_waveforms, relative_heights
+from clsim.validation import testscenes
+from clsim.waveforms.pointing import fit_pulse_directions, pointing_from_xyzt
+from clsim.sensor import Sensor, list_presets
+from clsim.transport.simulator import Detect, Mode, SimulationResult, Simulator, list_devices
+from clsim.transport.reference import ReferenceSimulator
+from clsim.waveforms.io import read_las_waveforms, read_pulsewaves, write_las_waveforms
 
 __version__ = "0.1.0"
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from voxlidar.safeio import save_figure
 
-from .sensor import C_M_PER_NS
+from clsim.sensor import C_M_PER_NS
 
 __all__ = ["plot_waveforms", "render_traces"]
 
@@ -84,7 +84,7 @@ def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: 
 
     from tlsvox.render import colormap, render, voxel_mesh
 
-    from .errors import InputError
+    from clsim.errors import InputError
 
     if result.traces is None:
         raise InputError("the result has no photon traces; run with trace=N")

@@ -17,7 +17,7 @@ Examples
 >>> Sensor.preset("nope")
 Traceback (most recent call last):
 ...
-clsim.errors.InputError: sensor preset 'nope' is unknown; choose one of: ahab-chiroptera-i, or pass a path to a .toml file
+voxlidar.errors.InputError: sensor preset 'nope' is unknown; choose one of: ahab-chiroptera-i, or pass a path to a .toml file
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from clsim.errors import InputError
 
 __all__ = ["Sensor", "list_presets", "C_M_PER_NS"]
 

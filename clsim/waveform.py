@@ -29,9 +29,9 @@ import math
 import numpy as np
 from scipy.special import erf
 
-from .errors import InputError
+from clsim.errors import InputError
 
-__all__ = ["fine_edges", "bin_times", "pulse_kernel", "convolve_fine", "digitize"]
+__all__ = ["fine_edges", "pulse_kernel", "convolve_fine", "digitize"]
 
 
 def fine_edges(t_start_ns: float, t_end_ns: float, dt_ns: float) -> np.ndarray:
@@ -43,19 +43,6 @@ def fine_edges(t_start_ns: float, t_end_ns: float, dt_ns: float) -> np.ndarray:
         )
     n = int(math.ceil((t_end_ns - t_start_ns) / dt_ns))
     return t_start_ns + dt_ns * np.arange(n + 1)
-
-
-def bin_times(path_length_m, edges_ns, weights=None):
-    """Histogram path lengths (m, emission to reception) on the fine grid.
-
-    Returns ``(energy (F,), outside)`` with the weight falling outside.
-    """
-    from .sensor import C_M_PER_NS
-
-    t = np.asarray(path_length_m, dtype=np.float64) / C_M_PER_NS
-    w = np.ones_like(t) if weights is None else np.asarray(weights, dtype=np.float64)
-    h, _ = np.histogram(t, bins=edges_ns, weights=w)
-    return h, float(w.sum() - h.sum())
 
 
 def pulse_kernel(dt_ns: float, fwhm_ns: float, *, impulse=None, impulse_dt_ns=None):

@@ -74,8 +74,8 @@ def reflectance_histograms(scans, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tlsvox.materials import Material
-    from tlsvox.scene import atomic_write
+    from voxlidar.materials import Material
+    from voxlidar.safeio import atomic_write
 
     fig, axes = plt.subplots(1, len(scans), figsize=(6 * len(scans), 4), squeeze=False)
     bins = np.linspace(-25, 12, 149)
@@ -97,10 +97,10 @@ def reflectance_histograms(scans, path):
 
 
 def stage_tree_and_scans(rep, args, out):
-    from tlsvox.materials import Material
+    from voxlidar.materials import Material
     from tlsvox.render import reflectance_colors, render
-    from tlsvox.scanner import ScannerPreset, paper_scan_poses, simulate_scan
-    from tlsvox.synthetic import TreeParams, make_tree
+    from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
+    from tlsvox.truth.synthetic import TreeParams, make_tree
 
     with rep.stage("tree"):
         params = TreeParams() if args.leaf_area is None else TreeParams(total_leaf_area=args.leaf_area)
@@ -145,9 +145,9 @@ def stage_tree_and_scans(rep, args, out):
 def stage_tls_pipeline(rep, args, out, tree, scans):
     from tlsvox.classify import score
     from tlsvox.pipeline import scene_from_scans
-    from tlsvox.plots_classify import plot_reflectance_histograms, render_classified
+    from tlsvox.classify.plots import plot_reflectance_histograms, render_classified
     from tlsvox.render import colormap, render, voxel_mesh
-    from tlsvox.voxelize import score_lad
+    from tlsvox.voxel.voxlad import score_lad
 
     with rep.stage("register, classify, voxelize"):
         pr = scene_from_scans(scans, voxel_size=args.voxel_size, progress=True)
@@ -227,9 +227,9 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
 
 def stage_waveforms(rep, args, out, tree, pr):
     from clsim import Sensor, Simulator
-    from clsim.budget import budget_table, default_pulses, run_budget
+    from clsim.validation.budget import budget_table, default_pulses, run_budget
     from clsim.figures import plot_waveforms, render_traces
-    from clsim.meshref import MeshReferenceSimulator
+    from clsim.validation.meshref import MeshReferenceSimulator
     from clsim.sensor import C_M_PER_NS
 
     sensor = Sensor.preset("ahab-chiroptera-i")

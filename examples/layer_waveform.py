@@ -2,7 +2,7 @@
 
 A 2 m layer of spherical leaves (LAD 1 m2/m3) 2 m above a Lambertian ground,
 seen at nadir by the AHAB Chiroptera I preset: the single-scattering canopy
-and ground energies are known in closed form (DESIGN §6), for the turbid
+and ground energies are known in closed form (docs/method.md §8), for the turbid
 return and, with ``hotspot=True``, for the correlated (one-way) return.
 
     .venv/bin/python examples/layer_waveform.py

@@ -15,8 +15,8 @@ cure (not implemented yet).
 import numpy as np
 
 from tlsvox import voxelize
-from tlsvox.scanner import ScannerPreset, ScanPose, simulate_scan
-from tlsvox.synthetic import make_leaf_slab
+from tlsvox.truth.scanner import ScannerPreset, ScanPose, simulate_scan
+from tlsvox.truth.synthetic import make_leaf_slab
 
 
 def main():

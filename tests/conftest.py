@@ -113,7 +113,7 @@ def cl_device(request):
 @pytest.fixture(scope="session")
 def sim(cl_device):
     """A clsim Simulator on each working OpenCL device in turn."""
-    from clsim.simulator import Simulator
+    from clsim.transport.simulator import Simulator
 
     return Simulator(device=cl_device)
 
@@ -121,7 +121,7 @@ def sim(cl_device):
 @pytest.fixture(scope="session", params=_params("tlsvox"))
 def tracer(request):
     """A tlsvox Tracer on each device that runs the tracer (float64) in turn."""
-    from tlsvox.trace import Tracer
+    from tlsvox.voxel.trace import Tracer
 
     return Tracer(device=request.param)
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clsim.cli import main as clsim_main
-from tlsvox.cli import main as tlsvox_main
+from clsim.cli.main import main as clsim_main
+from tlsvox.cli.main import main as tlsvox_main
 
 
 def sha(path: Path) -> str:
@@ -25,13 +25,13 @@ def sha(path: Path) -> str:
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """A scene, and a small scanned leaf box with its sidecars."""
-    from clsim.testscenes import homogeneous_layer
+    from clsim.validation.testscenes import homogeneous_layer
 
     d = tmp_path_factory.mktemp("inputs")
     homogeneous_layer(width=4.0, voxel_size=0.5).save(d / "scene.npz")
     pytest.importorskip("open3d")
-    from tlsvox.scanner import ScannerPreset, ScanPose, simulate_scan
-    from tlsvox.synthetic import make_leaf_slab
+    from tlsvox.truth.scanner import ScannerPreset, ScanPose, simulate_scan
+    from tlsvox.truth.synthetic import make_leaf_slab
 
     box = make_leaf_slab(lad=1.0, size=(1.0, 1.0, 1.0), origin=(-0.5, -0.5, 1.0), seed=3)
     preset = ScannerPreset.riegl_vz400(zenith_step_deg=1.0, azimuth_step_deg=1.0, n_subrays=1)
@@ -120,13 +120,13 @@ def test_tlsvox_commands_never_replace_their_inputs(case, files, capsys):
 
 
 def test_ctrl_c_is_one_line_and_exit_130(files, monkeypatch, capsys):
-    import clsim.cli_sim as cs
+    import clsim.cli.simulate as cs
 
     def interrupted(args):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(cs, "cmd_simulate", interrupted)
-    from clsim.cli import build_parser
+    from clsim.cli.main import build_parser
 
     args = build_parser().parse_args(["simulate", str(files / "scene.npz"), "-o", str(files / "x.npz")])
     assert args.func is interrupted
@@ -139,7 +139,7 @@ def test_json_outputs_are_standard_json(tmp_path):
     """NaN and infinities become null: strict JSON readers accept what we write."""
     import json
 
-    from clsim.testscenes import homogeneous_layer
+    from clsim.validation.testscenes import homogeneous_layer
     from voxlidar.safeio import json_text
 
     def strict(text):
@@ -166,8 +166,8 @@ def test_simulate_takes_a_target_and_a_vox_scene(files, tmp_path, capsys):
     """The guide's --target, and an AMAPVox .vox as the scene."""
     import json
 
-    from tlsvox.amapvox import write_vox
-    from tlsvox.scene import Scene
+    from tlsvox.voxel.amapvox import write_vox
+    from voxlidar.scene import Scene
 
     out = tmp_path / "wf.npz"
     argv = ["simulate", str(files / "scene.npz"), "--photons", "2000", "-o", str(out), "-q", "--target", "0.5,-0.25"]
@@ -185,7 +185,7 @@ def test_voxelize_strict_fails_on_a_quality_warning(files, tmp_path, monkeypatch
     """Warnings go to stderr; with --strict the command fails and writes nothing."""
     import importlib
 
-    vx = importlib.import_module("tlsvox.voxelize")  # the module (tlsvox.voxelize is also a function)
+    vx = importlib.import_module("tlsvox.voxel.voxlad")  # the module (tlsvox.voxel.voxlad is also a function)
 
     out = tmp_path / "scene.npz"
     argv = ["voxelize", str(files / "s1.laz"), str(files / "s2.laz"), "-o", str(out), "--voxel-size", "0.5", "-q"]
@@ -202,7 +202,7 @@ def test_implausible_inputs_are_refused(files, tmp_path, capsys):
     """Values that used to change results silently: a negative --max-range, a LAD of 1e6,
     a negative PAD in a .vox file."""
     from tlsvox.errors import InputError
-    from tlsvox.scene import Scene
+    from voxlidar.scene import Scene
 
     out = tmp_path / "s.npz"
     assert tlsvox_main(["voxelize", str(files / "s1.laz"), "-o", str(out), "--max-range", "-5", "-q"]) == 2
@@ -212,7 +212,7 @@ def test_implausible_inputs_are_refused(files, tmp_path, capsys):
     vox = tmp_path / "neg.vox"
     vox.write_text("VOXEL SPACE\n#min_corner: 0 0 0\n#max_corner: 2 1 1\n#split: 2 1 1\n#res: 1\n"
                    "i j k PadBVTotal\n0 0 0 0.5\n1 0 0 -2.0\n")
-    from tlsvox.amapvox import read_vox
+    from tlsvox.voxel.amapvox import read_vox
 
     with pytest.raises(InputError, match="negative PadBVTotal"):
         read_vox(vox)

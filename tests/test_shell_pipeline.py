@@ -7,14 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tlsvox.cli import main as tlsvox_main
+from tlsvox.cli.main import main as tlsvox_main
 
 
 @pytest.fixture(scope="module")
 def scanned_box(tmp_path_factory):
     pytest.importorskip("open3d")
-    from tlsvox.scanner import ScannerPreset, ScanPose, simulate_scan
-    from tlsvox.synthetic import make_leaf_slab
+    from tlsvox.truth.scanner import ScannerPreset, ScanPose, simulate_scan
+    from tlsvox.truth.synthetic import make_leaf_slab
 
     d = tmp_path_factory.mktemp("box")
     box = make_leaf_slab(lad=1.0, size=(1.0, 1.0, 1.0), origin=(-0.5, -0.5, 1.0), seed=3)
@@ -29,7 +29,7 @@ def scanned_box(tmp_path_factory):
 
 def test_classify_output_feeds_voxelize(scanned_box, tmp_path):
     from tlsvox.scan import Scan
-    from tlsvox.scene import Scene
+    from voxlidar.scene import Scene
 
     d, box = scanned_box
     cls = tmp_path / "cls"
@@ -65,7 +65,7 @@ def test_classified_scans_take_poses_from_register_transforms(scanned_box, tmp_p
     import json
 
     from tlsvox.scan import Scan
-    from tlsvox.scene import Scene
+    from voxlidar.scene import Scene
 
     d, _ = scanned_box
     raw = tmp_path / "raw"

@@ -4,17 +4,17 @@ The public API is re-exported here; Open3D is imported only by the modules
 that use it, so ``import tlsvox`` stays light.
 """
 
-from .errors import InputError, TlsvoxError
-from .estimators import Estimator
-from .classify import PointClass, classify_scan
-from .grid import VoxelGrid
-from .io import read_any
-from .register import RegistrationError, register_pair, register_scans
-from .leafangle import LeafAngle, LeafAngleKind
-from .materials import Material, Optics
-from .scene import Scene
-from .versions import show_versions
-from .voxelize import voxelize
+from tlsvox.errors import InputError, TlsvoxError
+from tlsvox.voxel.estimators import Estimator
+from tlsvox.classify import PointClass, classify_scan
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.io import read_any
+from tlsvox.register import RegistrationError, register_pair, register_scans
+from voxlidar.leafangle import LeafAngle, LeafAngleKind
+from voxlidar.materials import Material, Optics
+from voxlidar.scene import Scene
+from voxlidar.versions import show_versions
+from tlsvox.voxel.voxlad import voxelize
 
 __version__ = "0.1.0"
 

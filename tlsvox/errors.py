@@ -1,52 +1,36 @@
 """Exceptions raised by :mod:`tlsvox`.
 
-Every error the package raises on purpose derives from :class:`TlsvoxError`,
-so a caller can catch them all with one ``except`` clause; it is itself a
-:class:`voxlidar.errors.VoxlidarError`, the root both stages share.
+Every error derives from :class:`voxlidar.errors.VoxlidarError`, the root both
+stages share.  Bad input raises :class:`InputError` and a device that cannot
+run raises :class:`DeviceError`: the same classes in both stages (defined in
+:mod:`voxlidar.errors`, re-exported here); tlsvox's own failures derive from
+:class:`TlsvoxError`.
 """
 
 from __future__ import annotations
 
-from voxlidar.errors import DeviceError as _DeviceError
-from voxlidar.errors import VoxlidarError
+from voxlidar.errors import DeviceError, InputError, VoxlidarError
+
+__all__ = ["DeviceError", "InputError", "RegistrationError", "ScanFileError", "TlsvoxError"]
 
 
 class TlsvoxError(VoxlidarError):
-    """Base class of every error raised by tlsvox."""
-
-
-class InputError(TlsvoxError, ValueError):
-    """An argument or input file is not what was expected.
-
-    The message names the parameter, what was expected, what came, and how to
-    fix it.
-    """
+    """Base class of the errors that only tlsvox raises."""
 
 
 class ScanFileError(TlsvoxError, OSError):
     """A scan file could not be read or written."""
 
 
-class DeviceError(TlsvoxError, _DeviceError):
-    """No usable OpenCL device, or the device failed."""
+class RegistrationError(TlsvoxError, RuntimeError):
+    """Registration failed or its result cannot be trusted.
 
-
-def parse_choice(enum_cls, value, label: str, what: str):
-    """The member of ``enum_cls`` for ``value`` (case-insensitive), or an InputError
-    that names the parameter and lists the valid choices.
-
-    Examples
-    --------
-    >>> import enum
-    >>> class Colour(enum.Enum):
-    ...     RED = "red"
-    >>> parse_choice(Colour, "RED", "colour", "colour").value
-    'red'
+    Attributes
+    ----------
+    figures : dict
+        Fitness, inlier RMSE and whatever else was measured before failing.
     """
-    if isinstance(value, enum_cls):
-        return value
-    try:
-        return enum_cls(str(value).lower())
-    except ValueError:
-        choices = ", ".join(m.value for m in enum_cls)
-        raise InputError(f"{label}={value!r} is not a {what}; choose one of: {choices}") from None
+
+    def __init__(self, message: str, figures: dict | None = None):
+        super().__init__(message)
+        self.figures = dict(figures or {})

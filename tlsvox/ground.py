@@ -1,8 +1,8 @@
 """The ground plane under a scene: given, or fitted by RANSAC on the lowest points.
 
 :func:`fit_ground` keeps the lowest point of every ``cell`` x ``cell`` metre
-column (ground is what the lowest returns see), fits a plane with Open3D's
-RANSAC (``segment_plane``), and reports its height at the centre and its tilt.
+column (ground is what the lowest returns see), fits a plane with a seeded
+RANSAC (:func:`ransac_plane`), and reports its height at the centre and its tilt.
 The scene file stores a horizontal plane (``ground_z``); a tilt above a few
 degrees is reported so a user knows the approximation.
 
@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from tlsvox.errors import InputError
 
-__all__ = ["GroundPlane", "fit_ground", "ground_mask"]
+__all__ = ["GroundPlane", "fit_ground", "ground_mask", "ransac_plane"]
 
 
 @dataclass(frozen=True)
@@ -88,14 +88,12 @@ def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, n
         RANSAC inlier distance.
     num_iterations : int
     seed : int
-        Seeds Open3D's RANSAC (``o3d.utility.random.seed``).
+        Seeds the RANSAC.
 
     Returns
     -------
     GroundPlane
     """
-    import open3d as o3d
-
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) < 3:
         raise InputError(f"points: need at least 3 points to fit a ground plane, got {len(p)}")
@@ -111,10 +109,9 @@ def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, n
         raise InputError(
             f"only {len(low)} ground columns of {cell} m: the points cover too small an area; use a smaller cell"
         )
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(low))
-    o3d.utility.random.seed(int(seed))
-    plane, inliers = pc.segment_plane(distance_threshold=float(distance_threshold), ransac_n=3,
-                                      num_iterations=int(num_iterations))
+    plane = ransac_plane(low, distance_m=float(distance_threshold), rng=np.random.default_rng(seed),
+                         n_iter=int(num_iterations))
+    inliers = np.abs(low @ plane[:3] + plane[3]) < float(distance_threshold)
     a, b, c, d = (float(v) for v in plane)
     if c < 0:
         a, b, c, d = -a, -b, -c, -d
@@ -124,9 +121,57 @@ def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, n
     z_c = float(-(a * centre[0] + b * centre[1] + d) / c)
     res = (low[inliers] @ np.array([a, b, c]) + d) / np.linalg.norm([a, b, c])
     return GroundPlane((a, b, c, d), z_c, tuple(float(v) for v in centre),
-                       float(np.sqrt(np.mean(res**2))) if len(res) else 0.0, len(inliers))
+                       float(np.sqrt(np.mean(res**2))) if len(res) else 0.0, int(np.count_nonzero(inliers)))
 
 
 def ground_mask(points, plane: GroundPlane, *, tolerance: float = 0.15) -> np.ndarray:
     """(N,) bool: points within ``tolerance`` metres above (or any depth below) the plane."""
     return plane.distance(points) < float(tolerance)
+
+
+def ransac_plane(xyz: np.ndarray, *, distance_m: float, rng: np.random.Generator,
+                 n_iter: int = 1000, max_points: int = 20_000) -> np.ndarray:
+    """The dominant plane of a point set: seeded RANSAC, then a least-squares refit.
+
+    The one plane fit of tlsvox (the ground under a scene, the ground band of
+    a scan, the plane registration discounts).  NumPy only, so the same seed
+    gives the same plane on every machine (Open3D's RANSAC is multithreaded).
+
+    Parameters
+    ----------
+    xyz : (N, 3) float64, metres (N >= 3)
+    distance_m : float, metres
+        Inlier distance.
+    rng : numpy.random.Generator
+    n_iter : int
+        Random 3-point samples.
+    max_points : int
+        Points scored per sample (a random subset beyond this).
+
+    Returns
+    -------
+    (4,) float64
+        Unit normal ``n`` and offset ``d`` with ``n . x + d = 0``.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> pts = np.c_[rng.uniform(0, 10, (500, 2)), np.full(500, 2.0)]
+    >>> p = ransac_plane(pts, distance_m=0.01, rng=rng)
+    >>> bool(abs(abs(p[2]) - 1) < 1e-9 and abs(p[3] / p[2] + 2.0) < 1e-9)
+    True
+    """
+    pts = xyz if len(xyz) <= max_points else xyz[rng.choice(len(xyz), max_points, replace=False)]
+    tri = pts[rng.integers(0, len(pts), size=(n_iter, 3))]
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    ln = np.linalg.norm(nrm, axis=1)
+    good = ln > 1e-12
+    nrm = nrm[good] / ln[good, None]
+    off = -np.einsum("hi,hi->h", nrm, tri[good, 0])
+    count = np.array([np.count_nonzero(np.abs(pts @ n + d) < distance_m) for n, d in zip(nrm, off)])
+    k = int(np.argmax(count))
+    n, d = nrm[k], off[k]
+    inl = np.abs(pts @ n + d) < distance_m  # least-squares refit on the inliers
+    c = pts[inl].mean(axis=0)
+    n = np.linalg.svd(pts[inl] - c, full_matrices=False)[2][2]
+    return np.append(n, -n @ c)

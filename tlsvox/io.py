@@ -14,7 +14,7 @@ Examples
 >>> check_scan(Scan(xyz=np.zeros((1, 3)), name="lonely"))
 Traceback (most recent call last):
 ...
-tlsvox.errors.InputError: scan 'lonely': has 1 point(s) but at least 2 are needed; ...
+voxlidar.errors.InputError: scan 'lonely': has 1 point(s) but at least 2 are needed; ...
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, ScanFileError
-from .scan import Scan
+from tlsvox.errors import InputError, ScanFileError
+from tlsvox.scan import Scan
 
 __all__ = ["ScanFormat", "check_scan", "read_any", "read_open3d"]
 

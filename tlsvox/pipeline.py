@@ -1,12 +1,12 @@
 """The whole first half of the paper in one call: scans -> voxel scene.
 
 register (targets, else FPFH + ICP) -> classify (leaf / wood / ground / noise)
--> beam tracing and LAD estimation (:func:`tlsvox.voxelize`) -> Scene.
+-> beam tracing and LAD estimation (:func:`tlsvox.voxel.voxlad`) -> Scene.
 
 Georeferencing: registration puts every scan in the reference scan's frame.
 To place the scene in the world (the airborne frame) the reference scan needs
 a pose: with real data it comes from GNSS / total station, or from
-:mod:`clsim.georegister` against the airborne point cloud; for a simulated scan
+:mod:`tlsvox.register.georegister` against the airborne point cloud; for a simulated scan
 ``georeference="true"`` uses its true pose (``pose_true``), which is the role
 those tools play.
 """
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from tlsvox.errors import InputError
 
 __all__ = ["PipelineResult", "scene_from_scans"]
 
@@ -61,15 +61,15 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
         ``true``: the reference scan (the first) takes its ``pose_true``
         (simulated scans); ``none``: the scene stays in the first scan's frame.
     register_kwargs, voxelize_kwargs : dict, optional
-        Passed to :func:`tlsvox.register.register_scans` and :func:`tlsvox.voxelize`.
+        Passed to :func:`tlsvox.register.register_scans` and :func:`tlsvox.voxel.voxlad`.
 
     Returns
     -------
     PipelineResult
     """
-    from .classify import classify_scan
-    from .register import register_scans
-    from .voxelize import voxelize
+    from tlsvox.classify import classify_scan
+    from tlsvox.register import register_scans
+    from tlsvox.voxel.voxlad import voxelize
 
     scans = list(scans)
     if len(scans) < 1:
@@ -81,7 +81,7 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
     if georeference == "true":
         if ref.pose_true is None:
             raise InputError(f"georeference='true' needs the reference scan's pose_true; {ref.name!r} has none. "
-                             "Use georeference='none' or set scans[0].pose from GNSS / clsim.georegister")
+                             "Use georeference='none' or set scans[0].pose from GNSS / tlsvox.register.georegister")
         ref.pose = np.array(ref.pose_true)
     t0 = time.perf_counter()
     registration = register_scans(scans, **(register_kwargs or {})) if len(scans) > 1 else [None]

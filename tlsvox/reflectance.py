@@ -33,15 +33,15 @@ Examples
 from __future__ import annotations
 
 import csv
-import enum
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, parse_choice
-from .scan import Scan
+from tlsvox.errors import InputError
+from voxlidar.choices import Choice
+from tlsvox.scan import Scan
 
 __all__ = [
     "CalibrationTable",
@@ -54,16 +54,13 @@ __all__ = [
 ]
 
 
-class ReflectanceSource(enum.Enum):
+class ReflectanceSource(Choice):
     """Where :func:`apparent_reflectance` takes its values from."""
 
     AUTO = "auto"  #: dB when the scan has it, else intensity
     DB = "db"  #: the scan's ``reflectance_db``
     INTENSITY = "intensity"  #: the scan's raw ``intensity``, range corrected
 
-    @classmethod
-    def parse(cls, value: "str | ReflectanceSource") -> "ReflectanceSource":
-        return parse_choice(cls, value, "source", "reflectance source")
 
 
 def db_to_reflectance(db) -> np.ndarray:
@@ -239,7 +236,7 @@ def apparent_reflectance(scan: Scan, *, source: "str | ReflectanceSource" = Refl
         The scan has no usable reflectance/intensity, or only a relative
         result is possible and ``allow_relative`` is False.
     """
-    src = ReflectanceSource.parse(source)
+    src = ReflectanceSource.parse(source, "source")
     has_db = scan.reflectance_db is not None and np.any(np.isfinite(scan.reflectance_db))
     has_i = scan.intensity is not None and np.any(scan.intensity > 0)
     if src is ReflectanceSource.AUTO:

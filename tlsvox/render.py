@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from voxlidar.safeio import save_figure
 
-from .scene import atomic_write
+from voxlidar.safeio import atomic_write
 
 __all__ = ["render", "colormap", "reflectance_colors"]
 

@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 from voxlidar.safeio import json_text
 
-from .errors import InputError, ScanFileError
-from .scene import atomic_write
+from tlsvox.errors import InputError, ScanFileError
+from voxlidar.safeio import atomic_write
 
-__all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "read_scan", "sidecar_paths"]
+__all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "sidecar_paths"]
 
 
 #: ``meta["classes"]`` of a scan whose LAS classification holds tlsvox.classify's PointClass codes
@@ -154,7 +154,7 @@ class Scan:
     pulse_id : (N,) int64, optional
         Row of :attr:`pulses` each echo belongs to.
     truth_material : (N,) uint8, optional
-        :class:`tlsvox.materials.Material` of the surface hit (simulated scans).
+        :class:`voxlidar.materials.Material` of the surface hit (simulated scans).
     classification : (N,) uint8, optional
         :class:`tlsvox.classify.PointClass` codes (LAS ``classification``) of a
         scan that ``tlsvox classify`` wrote; ``tlsvox voxelize`` uses them.
@@ -241,45 +241,15 @@ class Scan:
 
     # -- LAS I/O ------------------------------------------------------------------
     def write(self, path: "str | os.PathLike") -> Path:
-        """Write LAS/LAZ (point format 6 + extra bytes) and the sidecar files.
+        """Write LAS/LAZ (point format 6 + extra bytes, :func:`las_data`) and the sidecar files.
 
         Every file goes to a temporary name first and is renamed when complete.
         """
-        import laspy
-
         path = Path(path)
         if path.suffix.lower() not in (".las", ".laz"):
             raise InputError(f"scan output {str(path)!r} must end in .las or .laz")
-        header = laspy.LasHeader(point_format=6, version="1.4")
-        header.scales = np.array([1e-4, 1e-4, 1e-4])
-        header.offsets = np.zeros(3)
-        extra = [laspy.ExtraBytesParams(name="reflectance_db", type=np.float32,
-                                        description="apparent reflectance dB"),
-                 laspy.ExtraBytesParams(name="pulse_id", type=np.uint32, description="pulse row")]
-        if self.truth_material is not None:
-            extra.append(laspy.ExtraBytesParams(name="truth_material", type=np.uint8,
-                                                description="tlsvox Material id"))
-        header.add_extra_dims(extra)
-        las = laspy.LasData(header)
-        n = len(self)
-        las.x, las.y, las.z = self.xyz[:, 0], self.xyz[:, 1], self.xyz[:, 2]
-        las.return_number = np.clip(self.return_number, 1, 15)
-        las.number_of_returns = np.clip(self.number_of_returns, 1, 15)
-        las.point_source_id = np.full(n, self.scan_id & 0xFFFF, np.uint16)
-        refl = self.reflectance_db if self.reflectance_db is not None else np.full(n, np.nan, np.float32)
-        las.reflectance_db = refl
-        if self.intensity is not None:
-            las.intensity = np.clip(self.intensity, 0, 65535).astype(np.uint16)
-        elif self.reflectance_db is not None:
-            # intensity: linear reflectance scaled so that 1.0 (0 dB) -> 10000
-            las.intensity = np.clip(self.reflectance * 1e4, 0, 65535).astype(np.uint16)
-        pid = self.pulse_id if self.pulse_id is not None else np.arange(n)
-        las.pulse_id = pid.astype(np.uint32)
-        las.gps_time = pid.astype(np.float64)
-        if self.truth_material is not None:
-            las.truth_material = self.truth_material
-        if self.classification is not None:
-            las.classification = self.classification
+        las = las_data([self], self.xyz, classification=None if self.classification is None
+                       else [self.classification])
         atomic_write(path, lambda tmp: las.write(str(tmp)))
         pulses_path, pose_path = sidecar_paths(path)
         if self.pulses is not None:
@@ -365,6 +335,64 @@ class Scan:
         )
 
 
-def read_scan(path, **kwargs) -> Scan:
-    """Read a scan file (LAS/LAZ); see :meth:`Scan.read`."""
-    return Scan.read(path, **kwargs)
+def las_data(scans: "list[Scan]", xyz: np.ndarray, *, classification=None):
+    """The points of ``scans`` as one ``laspy.LasData``: the one LAS layout of tlsvox.
+
+    LAS 1.4 point format 6, scale 0.1 mm, offsets at the floor of the
+    minimum (so projected coordinates such as UTM fit the 32-bit integers);
+    ``point_source_id`` = scan id; ``intensity`` = the raw intensity when a
+    scan has one, else the linear reflectance x 10,000 (0 dB -> 10,000);
+    ``gps_time`` = the pulse id (scans carry no clock); extra bytes
+    ``reflectance_db``, ``pulse_id`` and, when every scan has it,
+    ``truth_material``.
+
+    Parameters
+    ----------
+    scans : list of Scan
+    xyz : (N, 3) float64, metres
+        Their points in the frame to write (scanner frame for one scan,
+        the reference frame for a merged registration), N = total echoes.
+    classification : list of (N_i,) uint8, optional
+        Per-scan classes for the LAS ``classification`` field.
+    """
+    import laspy
+
+    n = len(xyz)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([1e-4, 1e-4, 1e-4])
+    header.offsets = np.floor(xyz.min(axis=0)) if n else np.zeros(3)
+    extra = [laspy.ExtraBytesParams(name="reflectance_db", type=np.float32, description="apparent reflectance dB"),
+             laspy.ExtraBytesParams(name="pulse_id", type=np.uint32, description="pulse row")]
+    with_truth = bool(scans) and all(s.truth_material is not None for s in scans)
+    if with_truth:
+        extra.append(laspy.ExtraBytesParams(name="truth_material", type=np.uint8, description="tlsvox Material id"))
+    header.add_extra_dims(extra)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+
+    def cat(get, dtype):
+        return np.concatenate([np.asarray(get(s), dtype=dtype) for s in scans]) if scans else np.zeros(0, dtype)
+
+    def intensity(s):
+        if s.intensity is not None:
+            return np.clip(s.intensity, 0, 65535)
+        if s.reflectance_db is not None:
+            return np.clip(np.nan_to_num(s.reflectance * 1e4), 0, 65535)
+        return np.zeros(len(s))
+
+    pid = cat(lambda s: s.pulse_id if s.pulse_id is not None else np.arange(len(s)), np.uint32)
+    las.return_number = cat(lambda s: np.clip(s.return_number, 1, 15), np.uint8)
+    las.number_of_returns = cat(lambda s: np.clip(s.number_of_returns, 1, 15), np.uint8)
+    las.point_source_id = cat(lambda s: np.full(len(s), s.scan_id & 0xFFFF), np.uint16)
+    las.reflectance_db = cat(lambda s: s.reflectance_db if s.reflectance_db is not None
+                             else np.full(len(s), np.nan), np.float32)
+    las.intensity = cat(intensity, np.uint16)
+    las.pulse_id = pid
+    las.gps_time = pid.astype(np.float64)
+    if with_truth:
+        las.truth_material = cat(lambda s: s.truth_material, np.uint8)
+    if classification is not None:
+        if len(classification) != len(scans) or any(len(c) != len(s) for c, s in zip(classification, scans)):
+            raise InputError("classification must hold one (N_i,) array per scan")
+        las.classification = np.concatenate([np.asarray(c, dtype=np.uint8) for c in classification])
+    return las

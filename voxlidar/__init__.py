@@ -1,14 +1,22 @@
 """voxlidar: the floor shared by both stages (:mod:`tlsvox` and :mod:`clsim`).
 
-It imports neither stage.  Today it holds the exception root and the OpenCL
-device layer (:mod:`voxlidar.devices`); see docs/devices.md.
+It imports neither stage.  It holds the contract between them (the
+:class:`~voxlidar.scene.Scene`, leaf angles, materials), one exception root,
+one parser of string choices, the OpenCL device layer, safe file writing, the
+command-line convention and the versions report; see docs/architecture.md.
 """
 
-from ._preload import preload_tbb
-from .errors import DeviceError, VoxlidarError
+from voxlidar import _moved
+from voxlidar._preload import preload_tbb
+from voxlidar.errors import DeviceError, InputError, VoxlidarError
+from voxlidar.leafangle import LeafAngle, LeafAngleKind
+from voxlidar.materials import Material, Optics
+from voxlidar.scene import Scene
 
 preload_tbb()  # before Open3D can load its older oneTBB (see voxlidar/_preload.py)
+_moved.install()  # old module paths (tlsvox.trace, clsim.decompose, ...) for one release
 
 __version__ = "0.1.0"
 
-__all__ = ["DeviceError", "VoxlidarError", "__version__"]
+__all__ = ["DeviceError", "InputError", "LeafAngle", "LeafAngleKind", "Material", "Optics", "Scene",
+           "VoxlidarError", "__version__"]

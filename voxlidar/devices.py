@@ -48,7 +48,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import DeviceError
+from voxlidar.errors import DeviceError
 
 __all__ = ["DeviceInfo", "FIX_NO_DEVICE", "KERNEL_SETS", "build_program", "choose_device",
            "describe", "device_report", "find_devices", "open_queue", "prepare_icd_loader",
@@ -58,8 +58,8 @@ __all__ = ["DeviceInfo", "FIX_NO_DEVICE", "KERNEL_SETS", "build_program", "choos
 #: The function takes a ``pyopencl.Device`` and returns None when the device
 #: can run them, or a one-line reason; a build failure raises.
 KERNEL_SETS = {
-    "clsim": "clsim.simulator:probe_build",
-    "tlsvox": "tlsvox.trace:probe_build",
+    "clsim": "clsim.transport.simulator:probe_build",
+    "tlsvox": "tlsvox.voxel.trace:probe_build",
 }
 
 FIX_NO_DEVICE = ("install a CPU OpenCL runtime: `sudo apt-get install pocl-opencl-icd` "

@@ -7,11 +7,19 @@ them all.
 
 from __future__ import annotations
 
-__all__ = ["DeviceError", "VoxlidarError", "exit_code"]
+__all__ = ["DeviceError", "InputError", "VoxlidarError", "exit_code"]
 
 
 class VoxlidarError(Exception):
     """Base class of every error raised on purpose by voxlidar's packages."""
+
+
+class InputError(VoxlidarError, ValueError):
+    """An argument or input file is not what was expected.
+
+    The message names the parameter, what was expected, what came, and how to
+    fix it.  Each stage's own ``InputError`` derives from this one.
+    """
 
 
 class DeviceError(VoxlidarError, RuntimeError):

@@ -26,9 +26,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .errors import VoxlidarError
+from voxlidar.errors import VoxlidarError
 
-__all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "check_figure_path", "check_outputs",
+__all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path", "check_outputs",
            "json_text", "save_figure"]
 
 
@@ -154,6 +154,23 @@ def save_figure(fig, path, *, dpi: int = 110) -> Path:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         fig.savefig(tmp, dpi=dpi, format="jpeg" if fmt == "jpg" else fmt)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def atomic_write(path: "str | os.PathLike", write) -> Path:
+    """Call ``write(tmp_path)`` then rename the temporary file onto ``path``.
+
+    A crash half-way leaves the destination untouched (never a half file).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}{path.suffix}")
+    try:
+        write(tmp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():

@@ -1,0 +1,318 @@
+"""``clsim simulate | devices | bench``: the command-line face of the simulator.
+
+``register(subparsers)`` adds the three commands to an argparse parser; each
+handler takes the parsed namespace and returns an exit status, so tests call
+them in-process.
+
+Examples
+--------
+>>> import argparse
+>>> p = argparse.ArgumentParser(prog="clsim")
+>>> register(p.add_subparsers(dest="command"))
+>>> a = p.parse_args(["simulate", "scene.npz", "--photons", "1000", "-o", "wf.npz"])
+>>> a.mode, a.detect, a.max_order, a.sensor
+('exact', 'nee', 3, 'ahab-chiroptera-i')
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from voxlidar.safeio import check_figure_path, check_outputs, save_figure
+
+from clsim.errors import InputError
+from clsim.sensor import Sensor, list_presets
+from clsim.transport.simulator import Detect, Mode
+
+__all__ = ["register", "cmd_simulate", "cmd_devices", "cmd_bench", "device_benchmark",
+           "benchmark_scene", "plot_result", "plot_traces"]
+
+
+def register(subparsers) -> None:
+    """Add ``simulate``, ``devices`` and ``bench`` to an argparse subparsers object."""
+    p = subparsers.add_parser(
+        "simulate", help="simulate a full waveform over a voxel scene",
+        description="Monte Carlo photon transport of one airborne LiDAR pulse through a voxel "
+                    "scene (NPZ, docs/formats.md); writes time_ns, waveform, by_order (orders x "
+                    "samples), the fine histograms and the run's settings to an NPZ file.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("scene", help="scene file: .npz written by tlsvox or clsim.validation.testscenes, or an AMAPVox "
+                                 ".vox (its PadBVTotal as LAD; no wood, no ground)")
+    p.add_argument("--target", default=None, metavar="X,Y[,Z]",
+                   help="where the beam axis meets the ground, metres in the scene's frame "
+                        "(default: the centre of the grid at ground level)")
+    p.add_argument("--sensor", default="ahab-chiroptera-i",
+                   help=f"preset name ({', '.join(list_presets())}) or a .toml file")
+    p.add_argument("--photons", type=int, default=1_000_000, help="photons launched")
+    p.add_argument("--seed", type=int, default=1, help="random seed (same seed, same device: same output)")
+    p.add_argument("-o", "--output", required=True, help="output waveform file (.npz)")
+    p.add_argument("--mode", choices=[m.value for m in Mode], default="exact",
+                   help="interaction model: exact free flight, or the paper's fixed 2 cm step")
+    p.add_argument("--detect", choices=[d.value for d in Detect], default="nee",
+                   help="next-event estimation, or analog counting through the virtual aperture")
+    p.add_argument("--max-order", type=int, default=3, help="highest scattering order")
+    p.add_argument("--leaf-off", action="store_true", help="drop the leaves (wood and ground only)")
+    p.add_argument("--hotspot", action="store_true",
+                   help="single-scattering returns retrace their free incoming path (transmittance 1), "
+                        "as explicit leaves do with a monostatic sensor; default: turbid, independent "
+                        "return (the paper's model). NEE only")
+    p.add_argument("--off-nadir", type=float, default=None, help="override the off-nadir angle, degrees")
+    p.add_argument("--fov", type=float, default=None, help="override the receiver FOV half angle, mrad")
+    p.add_argument("--batches", type=int, default=16, help="batches for standard errors")
+    p.add_argument("--trace", type=int, default=0, help="record the first events of this many photons")
+    p.add_argument("--plot", default=None, metavar="PNG", help="also write a waveform plot")
+    p.add_argument("--trace-plot", default=None, metavar="PNG",
+                   help="also draw the traced photon paths over the scene (needs --trace N)")
+    p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
+                   "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
+                   "device; `clsim devices` lists them)")
+    p.add_argument("--reference", action="store_true",
+                   help="run the NumPy float64 oracle instead of OpenCL (slow; no device needed)")
+    p.add_argument("--progress", action="store_true", help=argparse.SUPPRESS)  # the default now; kept for old scripts
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_simulate)
+
+    d = subparsers.add_parser("devices", help="list OpenCL devices and whether each works",
+                              description="List every OpenCL device found, best first, with its "
+                                          "state: each device builds the project's kernels once "
+                                          "(clsim transport, tlsvox tracer; cached), and a device "
+                                          "that cannot is shown as broken with the reason from its "
+                                          "build log. The device marked '*' is the one commands use.")
+    d.set_defaults(func=cmd_devices)
+
+    b = subparsers.add_parser("bench", help="photons/s and voxel steps/s on every device",
+                              description="Run the transport benchmark on every working OpenCL "
+                                          "device side by side (devices take turns run by run; "
+                                          "broken devices are skipped) and print a table (medians "
+                                          "of --repeats runs).",
+                              formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    b.add_argument("--photons", type=int, default=200_000)
+    b.add_argument("--repeats", type=int, default=3)
+    b.set_defaults(func=cmd_bench)
+
+
+
+def _parse_target(text):
+    """``"X,Y"`` or ``"X,Y,Z"`` (metres) -> tuple, or None."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in (2, 3) or not all(np.isfinite(values)):
+        raise InputError(f"--target {text!r} must be X,Y or X,Y,Z in metres, for example --target 1.5,-2")
+    return values
+
+
+def cmd_simulate(args) -> int:
+    """Handler of ``clsim simulate``."""
+    from voxlidar.scene import Scene
+
+    check_outputs([("scene", args.scene)],
+                  [("-o", args.output), ("--plot", args.plot), ("--trace-plot", args.trace_plot)])
+    check_figure_path("--plot", args.plot)
+    check_figure_path("--trace-plot", args.trace_plot)
+    target = _parse_target(args.target)
+    if Path(args.scene).suffix.lower() == ".vox":
+        from tlsvox.voxel.amapvox import read_vox
+
+        scene = read_vox(args.scene)
+    else:
+        scene = Scene.load(args.scene)
+    over = {}
+    if args.off_nadir is not None:
+        over["off_nadir_deg"] = args.off_nadir
+    if args.fov is not None:
+        over["fov_mrad"] = args.fov
+    sensor = Sensor.preset(args.sensor, **over)
+    if args.reference:
+        from clsim.transport.reference import ReferenceSimulator
+
+        sim = ReferenceSimulator()
+    else:
+        from clsim.transport.simulator import Simulator
+
+        sim = Simulator(device=args.device)
+    kw = dict(photons=args.photons, seed=args.seed, mode=args.mode, detect=args.detect,
+              max_order=args.max_order, leaf_off=args.leaf_off, batches=args.batches,
+              trace=args.trace, hotspot=args.hotspot, target=target)
+    if not args.reference:
+        kw["progress"] = not args.quiet
+    res = sim.run(scene, sensor, **kw)
+    res.save(args.output)
+    if args.plot:
+        plot_result(res, args.plot)
+    if args.trace_plot:
+        if not args.trace:
+            raise InputError("--trace-plot needs --trace N (the number of photons to draw)")
+        plot_traces(res, scene, args.trace_plot)
+    e, se = res.energy()
+    print(f"{args.photons:,} photons in {res.elapsed_s:.2f} s on {res.settings['device']}: "
+          f"received energy {e:.4g} +- {se:.2g} of the emitted pulse; wrote {args.output}")
+    for f in res.flags:
+        print(f"note: {f}")
+    return 0
+
+
+def plot_result(res, path) -> Path:
+    """Waveform (total and per order) as a PNG, written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(res.time_ns, res.waveform, "k", lw=1.5, label="total")
+    for k, row in enumerate(res.by_order):
+        ax.plot(res.time_ns, row, lw=0.8, label=f"order {k + 1}")
+    nz = np.nonzero(res.waveform > 1e-3 * res.waveform.max())[0] if res.waveform.max() > 0 else []
+    if len(nz):
+        ax.set_xlim(res.time_ns[nz[0]] - 5, res.time_ns[nz[-1]] + 5)
+    s = res.settings
+    ax.set_title(f"{s['sensor']['name']}: {s['mode']}/{s['detect']}, {s['photons']:,} photons")
+    ax.set_xlabel("time after emission (ns)")
+    ax.set_ylabel("received power (fraction of emitted energy / ns)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    save_figure(fig, path)
+    plt.close(fig)
+    return path
+
+
+def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
+    """Photon paths (``res.traces``) over the scene's voxels, 3-D, as a PNG (paper Fig. 8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if res.traces is None:
+        raise InputError("the result has no photon traces; run with trace=N")
+    fig = plt.figure(figsize=(6, 7))
+    ax = fig.add_subplot(projection="3d")
+    c = scene.centers()
+    if len(c):
+        pick = np.random.default_rng(0).choice(len(c), min(len(c), max_voxels), replace=False)
+        ax.scatter(*c[pick].T, s=1, c="green", alpha=0.15)
+    lo, hi = scene.extent
+    top = hi[2] + 0.5 * (hi[2] - lo[2])
+    colours = {1: "green", 2: "saddlebrown", 3: "grey", 0: "blue"}
+    for tr in res.traces:
+        ok = tr[:, 3] > -9
+        pts = tr[ok].astype(np.float64)
+        if len(pts) < 2:
+            continue
+        # clip the 360 m approach so the canopy stays visible
+        d = pts[1, :3] - pts[0, :3]
+        if pts[0, 2] > top and d[2] < 0:
+            pts[0, :3] = pts[1, :3] + d * (top - pts[1, 2]) / d[2]
+        esc = pts[:, 3] == 0
+        pts[esc, :3] = np.clip(pts[esc, :3], lo - 1.0, [hi[0] + 1, hi[1] + 1, top])
+        ax.plot(*pts[:, :3].T, lw=0.6, color="red", alpha=0.6)
+        for typ, col in colours.items():
+            sel = pts[:, 3] == typ
+            if sel.any():
+                ax.scatter(*pts[sel, :3].T, s=4, color=col)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.set_title(f"{len(res.traces)} photon paths")
+    path = Path(path)
+    save_figure(fig, path)
+    plt.close(fig)
+    return path
+
+
+def cmd_devices(args) -> int:
+    """Handler of ``clsim devices``: every device with its state; exit 1 when none works."""
+    from voxlidar.devices import FIX_NO_DEVICE, choose_device, device_report, state_text, unloadable_runtimes
+    from voxlidar.errors import DeviceError as AnyDeviceError
+
+    report = device_report(("clsim", "tlsvox"))
+    for lib, why in unloadable_runtimes():
+        print(f"! {lib} is installed but does not load ({why}); fix: reinstall it with its dependencies "
+              "(`make setup`, or pip install \"intel-opencl-rt\" \"intel-cmplr-lib-rt\")", file=sys.stderr)
+    if not report:
+        print(f"no OpenCL device found; fix: {FIX_NO_DEVICE}", file=sys.stderr)
+        return 1
+    chosen, errors = {}, []
+    for stage in ("clsim", "tlsvox"):
+        try:
+            chosen[stage] = choose_device(kernels=(stage,), devices=[info for info, _ in report]).key
+        except AnyDeviceError as err:
+            errors.append(str(err))
+    for info, verdict in report:
+        mark = "*" if info.key in chosen.values() else " "
+        print(f"{mark} {info.key}  {info.label}  [{info.runtime}, {info.kind}, {info.compute_units} compute "
+              f"units, {info.global_mem_bytes / 2**30:.1f} GiB, {'fp64' if info.fp64 else 'no fp64'}, "
+              f"{'int64 atomics' if info.int64_atomics else 'no int64 atomics'}]  {state_text(verdict)}")
+    for stage, key in chosen.items():
+        print(f"* {stage} uses {key} (override: --device, VOXLIDAR_DEVICE or PYOPENCL_CTX)")
+    if errors:
+        print("clsim devices: error: " + "; ".join(dict.fromkeys(errors)), file=sys.stderr)
+        return 1
+    return 0
+
+
+def benchmark_scene():
+    """(scene, sensor) of the device benchmark: a 10 m x 10 m x 2 m layer of 0.1 m voxels."""
+    from clsim.validation.testscenes import homogeneous_layer
+
+    scene = homogeneous_layer(lad=1.0, thickness=2.0, base_height=2.0, width=10.0, voxel_size=0.1)
+    return scene, Sensor.preset("ahab-chiroptera-i")
+
+
+def device_benchmark(*, photons: int = 200_000, repeats: int = 3, devices=None) -> list[dict]:
+    """photons/s and voxel steps/s (medians) for each working device and transport variant.
+
+    Devices and variants take turns run by run, so that a slow spell of a
+    shared machine falls on all of them alike; broken devices are skipped
+    (``clsim devices`` says why)."""
+    from clsim.transport.simulator import Simulator, working_devices
+
+    scene, sensor = benchmark_scene()
+    variants = (("exact", "nee", photons), ("exact", "analog", photons), ("paper", "nee", max(1, photons // 10)))
+    sims = [Simulator(device=dev) for dev in (working_devices() if devices is None else devices)]
+    for sim in sims:
+        for mode, detect, _ in variants:
+            sim.run(scene, sensor, photons=2000, seed=0, mode=mode, detect=detect)  # build
+    el = {(i, v): [] for i in range(len(sims)) for v in variants}
+    steps = {k: [] for k in el}
+    for r in range(repeats):
+        for i, sim in enumerate(sims):
+            for v in variants:
+                mode, detect, n = v
+                res = sim.run(scene, sensor, photons=n, seed=r + 1, mode=mode, detect=detect, max_order=3)
+                el[i, v].append(res.elapsed_s)
+                steps[i, v].append(res.stat("voxel_steps")[0] / res.elapsed_s)
+    rows = []
+    for (i, v), times in el.items():
+        mode, detect, n = v
+        sim = sims[i]
+        rows.append(dict(device=sim.device_name, runtime=sim.info.runtime, key=sim.info.key, kind=sim.info.kind,
+                         mode=mode, detect=detect, photons=n, photons_per_s=n / statistics.median(times),
+                         steps_per_s=statistics.median(steps[i, v]),
+                         steps_per_s_range=(min(steps[i, v]), max(steps[i, v]))))
+    return rows
+
+
+def cmd_bench(args) -> int:
+    """Handler of ``clsim bench``."""
+    rows = device_benchmark(photons=args.photons, repeats=args.repeats)
+    if not rows:
+        from voxlidar.devices import FIX_NO_DEVICE
+
+        print(f"no working OpenCL device (clsim devices says why); fix: {FIX_NO_DEVICE}", file=sys.stderr)
+        return 1
+    print(f"{'device':44s} {'runtime':22s} {'mode':6s} {'detect':7s} {'photons/s':>12s} {'voxel steps/s':>14s}")
+    for r in rows:
+        print(f"{r['key'] + ' ' + r['device']:44.44s} {r['runtime']:22.22s} {r['mode']:6s} {r['detect']:7s} "
+              f"{r['photons_per_s']:12,.0f} {r['steps_per_s'] / 1e6:12,.1f} M")
+    return 0

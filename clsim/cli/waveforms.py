@@ -1,0 +1,305 @@
+"""CLI sub-commands for real waveform files: ``waveforms info``, ``decompose``.
+
+(``clsim georegister`` is :mod:`tlsvox.cli.georegister`, kept here too for old scripts.)
+
+``register(subparsers)`` adds them to the ``clsim`` argument parser; each
+handler takes the parsed namespace and returns an exit status.
+
+Inputs by suffix: ``.las``/``.laz`` (LAS 1.3/1.4 waveform packets, ``.wdp``
+beside), ``.pls`` (PulseWaves, ``.wvs`` beside), ``.csv`` (one waveform per
+row, e.g. the NEON ``return.csv``; trailing zeros are padding).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import sys
+from pathlib import Path
+
+import numpy as np
+from voxlidar.safeio import check_figure_path, check_outputs, save_figure
+
+from clsim.errors import InputError
+
+__all__ = ["register", "cmd_info", "cmd_decompose", "load_waveforms"]
+
+
+def register(subparsers) -> None:
+    """Add ``waveforms``, ``decompose`` and ``georegister`` to an argparse subparsers object."""
+    wf = subparsers.add_parser(
+        "waveforms", help="inspect real full-waveform files (LAS 1.3/1.4 + .wdp, PulseWaves)",
+        description="Inspect full-waveform files.")
+    wsub = wf.add_subparsers(dest="waveforms_command", required=True)
+    info = wsub.add_parser("info", help="summary of a waveform file",
+                           description="Print format, counts, sampling, descriptors and the "
+                                       "first waveform of FILE (.las/.laz/.pls/.csv).")
+    info.add_argument("file", type=Path)
+    info.set_defaults(func=cmd_info)
+
+    dec = subparsers.add_parser(
+        "decompose", help="Gaussian decomposition of every waveform in a file",
+        description="Decompose each waveform of FILE into Gaussian echoes (matched-filter "
+                    "detection with a set false-alarm rate, Levenberg-Marquardt, BIC component "
+                    "count) and write one CSV row per echo: waveform index, "
+                    "amplitude, location_ns, sigma_ns, their standard errors, baseline and, "
+                    "when the file has geometry, x, y, z of the echo.")
+    dec.add_argument("file", type=Path)
+    dec.add_argument("-o", "--output", type=Path, required=True, help="echo table (.csv)")
+    dec.add_argument("--plot", type=Path, help="PNG of the first waveforms with their fits")
+    dec.add_argument("--plot-count", type=int, default=6, help="waveforms in the plot (6)")
+    dec.add_argument("--dt-ns", type=float, default=None,
+                     help="sample spacing for CSV input (default 1 ns)")
+    dec.add_argument("--min-amplitude", type=float, default=None,
+                     help="amplitude detection threshold above baseline (selects "
+                          "--detection amplitude; its default is 4 noise sigma)")
+    dec.add_argument("--detection", choices=("matched", "amplitude"), default=None,
+                     help="matched: matched filter with the system pulse, threshold from "
+                          "--false-alarm (default); amplitude: the 4-sigma amplitude rule")
+    dec.add_argument("--false-alarm", type=float, default=0.01,
+                     help="expected false echoes per noise-only waveform (matched; 0.01)")
+    dec.add_argument("--pulse-sigma-ns", type=float, default=None,
+                     help="Gaussian system pulse width for the matched filter, ns (default: "
+                          "from the strongest echoes)")
+    dec.add_argument("--batch", action="store_true",
+                     help="decompose all waveforms at once, vectorised (much faster on "
+                          "large files; matched detection, no --impulse/--min-amplitude)")
+    dec.add_argument("--impulse", type=Path,
+                     help="CSV whose first column is the system impulse response; "
+                          "deconvolve before fitting")
+    dec.add_argument("--geolocation", type=Path,
+                     help="NEON-style geolocation CSV (bin0_x..bin0_dz) for CSV input")
+    dec.add_argument("--limit", type=int, default=None, help="only the first N waveforms")
+    dec.set_defaults(func=cmd_decompose)
+
+    from tlsvox.cli.georegister import register as register_georegister
+
+    register_georegister(subparsers)  # the same command as `tlsvox georegister`
+
+
+# ----------------------------------------------------------------- input ---
+
+class _Waveforms:
+    """Waveforms of a file: samples, sample spacing, optional geometry per waveform."""
+
+    def __init__(self, kind, waves, dt_ns, geometry, meta):
+        self.kind = kind
+        self.waves = waves  # list of 1-D arrays
+        self.dt_ns = dt_ns  # list of float
+        self.geometry = geometry  # list of (origin, direction per ns) or None
+        self.meta = meta
+
+
+def _read_csv_rows(path: Path) -> list:
+    text = path.read_text()
+    rows = list(csv.reader(io.StringIO(text)))
+    out = []
+    for r in rows:
+        try:
+            vals = [float(v) for v in r if v.strip() != ""]
+        except ValueError:
+            if out:
+                raise InputError(f"{path.name}: non-numeric value in row {len(out) + 1}; one "
+                                 "waveform per row, numbers only (a header row is allowed)")
+            continue  # header
+        out.append(np.array(vals))
+    if not out:
+        raise InputError(f"{path.name}: no numeric rows")
+    return out
+
+
+def load_waveforms(path: Path, *, dt_ns=None, geolocation=None) -> _Waveforms:
+    """Load every waveform of a LAS/LAZ, PulseWaves or CSV file."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        raise InputError(f"input file {str(path)!r} does not exist")
+    if suffix in (".las", ".laz"):
+        from clsim.waveforms.io import read_las_waveforms
+
+        w = read_las_waveforms(path)
+        first = np.full(w.n_packets, -1)
+        valid = np.flatnonzero(w.packet >= 0)
+        first[w.packet[valid][::-1]] = valid[::-1]
+        waves, dts, geo = [], [], []
+        for p in range(w.n_packets):
+            i = int(first[p])
+            d = w.descriptor_of_point(i)
+            waves.append(w.samples(i, volts=False).astype(np.float64))
+            dts.append(d.spacing_ps / 1000.0)
+            geo.append(w.waveform_origin(i))
+        meta = dict(points=len(w), packets=w.n_packets,
+                    descriptors={k: vars(v) for k, v in w.descriptors.items()},
+                    multi_return_points=int(np.sum(w.number_of_returns > 1)))
+        return _Waveforms("LAS waveform packets", waves, dts, geo, meta)
+    if suffix == ".pls":
+        from clsim.waveforms.io import read_pulsewaves
+
+        pw = read_pulsewaves(path)
+        segs = [s for s in pw.segments if s.kind == "returning"]
+        waves = [s.samples.astype(np.float64) for s in segs]
+        dts = [s.sample_units_ns for s in segs]
+        geo = [pw.segment_origin(s) for s in segs]
+        meta = dict(pulses=len(pw), system=pw.header["system"],
+                    outgoing=[len(s.samples) for s in pw.segments if s.kind == "outgoing"],
+                    returning=[len(s.samples) for s in segs],
+                    returning_pulse=[s.pulse for s in segs])
+        return _Waveforms("PulseWaves", waves, dts, geo, meta)
+    if suffix == ".csv":
+        rows = _read_csv_rows(path)
+        waves = []
+        for r in rows:
+            nz = np.flatnonzero(r != 0)
+            waves.append(r[:nz[-1] + 1] if nz.size else r[:0])
+        dt = 1.0 if dt_ns is None else float(dt_ns)
+        geo = [None] * len(waves)
+        if geolocation is not None:
+            geo = _neon_geolocation(Path(geolocation), len(waves))
+        return _Waveforms("CSV (one waveform per row)", waves, [dt] * len(waves), geo,
+                          dict(rows=len(waves)))
+    raise InputError(f"{path.name}: unknown waveform file type {suffix!r}; expected .las, "
+                     ".laz, .pls or .csv")
+
+
+def _neon_geolocation(path: Path, n: int) -> list:
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    need = ["bin0_x", "bin0_y", "bin0_z", "bin0_dx", "bin0_dy", "bin0_dz"]
+    if not rows or any(k not in rows[0] for k in need):
+        raise InputError(f"{path.name}: geolocation CSV needs columns {need}")
+    if len(rows) != n:
+        raise InputError(f"{path.name}: {len(rows)} geolocation rows for {n} waveforms")
+    return [(np.array([float(r[k]) for k in need[:3]]),
+             np.array([float(r[k]) for k in need[3:]])) for r in rows]
+
+
+# -------------------------------------------------------------- handlers ---
+
+def cmd_info(args) -> int:
+    wf = load_waveforms(args.file)
+    out = sys.stdout
+    lens = [w.size for w in wf.waves]
+    print(f"file: {args.file}", file=out)
+    print(f"format: {wf.kind}", file=out)
+    for k, v in wf.meta.items():
+        if isinstance(v, list) and len(v) > 12:
+            v = f"{v[:12]} ... ({len(v)} values)"
+        print(f"{k}: {v}", file=out)
+    print(f"waveforms: {len(wf.waves)}", file=out)
+    if lens:
+        print(f"samples per waveform: min {min(lens)} max {max(lens)}", file=out)
+        print(f"sample spacing: {sorted(set(wf.dt_ns))} ns", file=out)
+        first = wf.waves[0][:16]
+        print(f"first waveform (first 16 samples): {first.astype(np.int64).tolist()}", file=out)
+    return 0
+
+
+def cmd_decompose(args) -> int:
+    from voxlidar.safeio import atomic_write
+
+    from clsim.waveforms.decompose import decompose, echo_positions
+
+    if args.output.suffix.lower() != ".csv":
+        raise InputError(f"--output must be a .csv file; got {str(args.output)!r}")
+    check_outputs([("file", args.file), ("file (waveform packets)", Path(args.file).with_suffix(".wdp")),
+                   ("--geolocation", args.geolocation), ("--impulse", args.impulse)],
+                  [("-o", args.output), ("--plot", args.plot)])
+    check_figure_path("--plot", args.plot)
+    wf = load_waveforms(args.file, dt_ns=args.dt_ns, geolocation=args.geolocation)
+    impulse = None
+    if args.impulse is not None:
+        impulse = _read_csv_rows(Path(args.impulse))
+        impulse = np.array([r[0] for r in impulse])
+    n = len(wf.waves) if args.limit is None else min(len(wf.waves), int(args.limit))
+    results = []
+    iterator = range(n)
+    if n > 200:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="decompose", unit="waveform")
+    if args.batch:
+        if impulse is not None or args.min_amplitude is not None or args.detection == "amplitude":
+            raise InputError("--batch uses matched-filter detection on the recorded samples; "
+                             "drop --impulse, --min-amplitude and --detection amplitude")
+        results = _decompose_batched(wf, n, args)
+        iterator = ()
+    for i in iterator:
+        y = wf.waves[i]
+        if y.size < 4:
+            results.append(None)
+            continue
+        results.append(decompose(y, dt_ns=wf.dt_ns[i], min_amplitude=args.min_amplitude,
+                                 impulse=impulse, detection=args.detection,
+                                 false_alarm=args.false_alarm,
+                                 pulse_sigma_ns=args.pulse_sigma_ns))
+    header = ["waveform", "echo", "amplitude", "location_ns", "sigma_ns", "amplitude_se",
+              "location_se_ns", "sigma_se_ns", "baseline", "x", "y", "z"]
+
+    def write(tmp):
+        with open(tmp, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            for i, c in enumerate(results):
+                if c is None:
+                    continue
+                geo = wf.geometry[i]
+                xyz = (echo_positions(c.location_ns, origin=geo[0], direction=geo[1])
+                       if geo is not None else np.full((len(c), 3), np.nan))
+                for k in range(len(c)):
+                    w.writerow([i, k] + [f"{getattr(c, col)[k]:.6g}" for col in c.COLUMNS]
+                               + [f"{c.baseline:.6g}"]
+                               + [("" if not np.isfinite(v) else f"{v:.4f}") for v in xyz[k]])
+
+    atomic_write(args.output, write)
+    n_echo = sum(len(c) for c in results if c is not None)
+    print(f"{n} waveforms, {n_echo} echoes -> {args.output}")
+    if args.plot is not None:
+        _plot(args.plot, wf, results, int(args.plot_count))
+        print(f"plot -> {args.plot}")
+    return 0
+
+
+def _decompose_batched(wf, n: int, args) -> list:
+    """Components per waveform (None under 4 samples) from ``decompose_batch``, one call
+    per sample spacing."""
+    from clsim.waveforms.decompose import decompose_batch
+
+    results = [None] * n
+    usable = [i for i in range(n) if wf.waves[i].size >= 4]
+    for dt in sorted({float(wf.dt_ns[i]) for i in usable}):
+        idx = [i for i in usable if float(wf.dt_ns[i]) == dt]
+        table = decompose_batch([wf.waves[i] for i in idx], dt_ns=dt,
+                                false_alarm=args.false_alarm,
+                                pulse_sigma_ns=args.pulse_sigma_ns)
+        for k, i in enumerate(idx):
+            results[i] = table[k]
+    return results
+
+
+def _plot(path: Path, wf, results, count: int) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from clsim.waveforms.decompose import gaussian_sum
+
+    idx = [i for i, c in enumerate(results) if c is not None][:max(1, count)]
+    fig, axes = plt.subplots(len(idx), 1, figsize=(7, 1.8 * len(idx)), squeeze=False,
+                             sharex=False)
+    for ax, i in zip(axes[:, 0], idx):
+        c = results[i]
+        t = np.arange(wf.waves[i].size) * wf.dt_ns[i]
+        tf = np.linspace(t[0], t[-1], 8 * t.size)
+        ax.plot(t, wf.waves[i], ".", ms=3, color="k", label="samples")
+        ax.plot(tf, c.model(tf), "-", color="C3", lw=1.2, label="fit")
+        for k in range(len(c)):
+            ax.plot(tf, c.baseline + gaussian_sum(tf, c.amplitude[k:k + 1],
+                                                  c.location_ns[k:k + 1], c.sigma_ns[k:k + 1]),
+                    "--", lw=0.8)
+        ax.set_ylabel(f"#{i}")
+    axes[-1, 0].set_xlabel("time from first sample (ns)")
+    axes[0, 0].legend(loc="upper right", fontsize=7)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)

@@ -1,0 +1,162 @@
+"""The outcome of a transport run: waveforms per order and kind, statistics, photon paths.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+import numpy as np
+from voxlidar.safeio import atomic_write
+from voxlidar.safeio import json_text
+from clsim.errors import InputError
+from clsim.waveform import digitize
+from clsim.transport.setup import COUNT_STATS, RunSetup, STAT_NAMES
+
+
+@dataclass
+class SimulationResult:
+    """A simulated waveform with its Monte Carlo statistics.
+
+    Attributes
+    ----------
+    time_ns : (S,) float64
+        Sample times after emission, ns, at the sensor's sampling rate.
+    waveform : (S,) float64
+        Received power, fraction of the emitted energy per ns (all orders).
+    by_order : (K, S) float64
+        ``waveform`` split by scattering order (row 0: single scattering).
+    fine_edges_ns : (F+1,) float64
+        Edges of the fine time bins.
+    fine : (K, 2, F) float64
+        Energy per fine bin (fraction of emitted energy) by order and by the
+        material of the last scattering (0 vegetation, 1 ground), before the
+        pulse convolution.
+    fine_batches : (B, K, 2, F) float64
+        The same per batch (photon id modulo B), each normalised by its own
+        photon count; the spread gives standard errors.
+    batch_photons : (B,) int
+    stats : dict of (B,) float64
+        Per-batch photon fates (weights per launched photon; counts for
+        ``detections``, ``voxel_steps``, ``events``, ``shadow_rays``).
+    settings : dict
+    flags : list of str
+        Things a user should know about this result.
+    traces : (P, 16, 4) float32 or None
+        First events (x, y, z in world metres, type) of the first P photons;
+        type -2 launch, 0 escape, 1 leaf, 2 wood, 3 ground, -1 absorbed, -9 unused.
+    elapsed_s : float
+    """
+
+    time_ns: np.ndarray
+    waveform: np.ndarray
+    by_order: np.ndarray
+    fine_edges_ns: np.ndarray
+    fine: np.ndarray
+    fine_batches: np.ndarray
+    batch_photons: np.ndarray
+    stats: dict
+    settings: dict
+    flags: list = field(default_factory=list)
+    traces: np.ndarray | None = None
+    elapsed_s: float = 0.0
+
+    _KINDS = {None: slice(None), "vegetation": 0, "ground": 1}
+
+    def _batch_values(self, values):
+        """(B,) per-photon estimates -> (mean, standard error)."""
+        v = np.asarray(values, dtype=np.float64)
+        n = self.batch_photons
+        ok = n > 0
+        mean = float(np.sum(v[ok] * n[ok]) / n[ok].sum())
+        se = float(np.std(v[ok], ddof=1) / math.sqrt(ok.sum())) if ok.sum() > 1 else math.nan
+        return mean, se
+
+    def energy(self, order=None, kind=None) -> tuple[float, float]:
+        """Received energy (fraction of emitted) and its standard error.
+
+        Parameters
+        ----------
+        order : int or None
+            Scattering order (1 = single); None for all.
+        kind : {"vegetation", "ground", None}
+            Material of the last scattering event; None for both.
+        """
+        if kind not in self._KINDS:
+            raise InputError(f"kind={kind!r} must be one of vegetation, ground, None")
+        fb = self.fine_batches
+        if order is not None:
+            if not 1 <= order <= fb.shape[1]:
+                raise InputError(f"order={order!r} must lie in 1..{fb.shape[1]}")
+            fb = fb[:, order - 1 : order]
+        per = fb[:, :, self._KINDS[kind]].reshape(fb.shape[0], -1).sum(axis=1)
+        return self._batch_values(per)
+
+    def stat(self, name: str) -> tuple[float, float]:
+        """A photon-fate statistic per launched photon (or total count) and its standard error."""
+        if name not in self.stats:
+            raise InputError(f"stat {name!r} unknown; have {sorted(self.stats)}")
+        if name in COUNT_STATS:
+            return float(np.sum(self.stats[name])), math.nan
+        return self._batch_values(self.stats[name])
+
+    @property
+    def photons_per_second(self) -> float:
+        return self.settings["photons"] / self.elapsed_s if self.elapsed_s > 0 else math.nan
+
+    def save(self, path) -> Path:
+        """Write ``time_ns``, ``waveform``, ``by_order``, the fine histograms and settings as NPZ."""
+        arrays = dict(time_ns=self.time_ns, waveform=self.waveform, by_order=self.by_order,
+                      fine_edges_ns=self.fine_edges_ns, fine=self.fine,
+                      batch_photons=self.batch_photons,
+                      settings=np.str_(json_text(self.settings)),
+                      flags=np.str_(json_text(self.flags)),
+                      **{f"stat_{k}": v for k, v in self.stats.items()})
+        if self.traces is not None:
+            arrays["traces"] = self.traces
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+
+        return atomic_write(path, write)
+
+
+def assemble_result(setup: RunSetup, hist, stats, traces, elapsed: float, device: str) -> SimulationResult:
+    """Turn raw tallies into a :class:`SimulationResult`.
+
+    ``hist`` (B, K, 2, F) and ``stats`` (B, NSTAT) are in tally units: NEE in
+    units of A / R_ref^2 per launched photon, weights per launched photon.
+    """
+    B = setup.batches
+    n_b = np.array([setup.photons // B + (b < setup.photons % B) for b in range(B)], dtype=np.int64)
+    scale = setup.sensor.aperture_area_m2 / setup.range_ref_m**2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inv = np.where(n_b > 0, 1.0 / np.maximum(n_b, 1), 0.0)
+    fine_b = hist * scale * inv[:, None, None, None]
+    fine = hist.sum(axis=0) * scale / setup.photons
+    st = {}
+    for i, name in enumerate(STAT_NAMES):
+        v = stats[:, i].astype(np.float64)
+        st[name] = v if name in COUNT_STATS else v * inv
+    st["outside_window"] = st["outside_window"] * scale
+    time_ns, by_order = digitize(setup.edges_ns, fine.sum(axis=1), sampling_ghz=setup.sensor.sampling_ghz,
+                                 pulse_fwhm_ns=setup.sensor.pulse_fwhm_ns)
+    flags = list(setup.flags)
+    res = SimulationResult(time_ns=time_ns, waveform=by_order.sum(axis=0), by_order=by_order,
+                           fine_edges_ns=setup.edges_ns, fine=fine, fine_batches=fine_b,
+                           batch_photons=n_b, stats=st, settings=dict(setup.settings, device=device),
+                           flags=flags, traces=traces, elapsed_s=elapsed)
+    trunc, _ = res.stat("truncated")
+    if trunc > 0.01:
+        flags.append(f"{100 * trunc:.1f} % of the launched energy was still travelling at max_order="
+                     f"{setup.max_order}; raise max_order for the higher orders")
+    outside = float(np.sum(st["outside_window"] * n_b)) / setup.photons
+    total = float(fine.sum())
+    if outside > 1e-3 * max(total, 1e-300):
+        flags.append(f"{outside:.3g} of received energy fell outside the time window")
+    if B < 2 or (n_b > 0).sum() < 2:
+        flags.append("fewer than 2 batches with photons: no standard errors (NaN)")
+    if total == 0.0:
+        flags.append("no energy reached the receiver")
+    return res

@@ -1,0 +1,269 @@
+"""Run the OpenCL photon transport: :class:`Simulator` and its result.
+
+Examples
+--------
+>>> from clsim.validation import testscenes
+>>> from clsim.sensor import Sensor
+>>> sim = Simulator()                      # VOXLIDAR_DEVICE, PYOPENCL_CTX or the best working device
+>>> res = sim.run(testscenes.ground_only(), Sensor.preset("ahab-chiroptera-i"),
+...               photons=4096, seed=1, max_order=1)
+>>> e, se = res.energy(kind="ground")                     # (A / R^2) rho_g / pi
+>>> bool(abs(e / (Sensor().aperture_area_m2 / 360.0**2 * 0.30 / np.pi) - 1) < 1e-3)
+True
+"""
+
+from __future__ import annotations
+
+import time
+from importlib import resources
+import numpy as np
+from voxlidar.scene import Scene
+from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe, device_report,
+                              open_queue, short_reason)
+from voxlidar.errors import DeviceError as AnyDeviceError
+from clsim.transport.bricks import BRICK
+from clsim.errors import DeviceError
+from clsim.transport.rng import split_seed
+from clsim.sensor import Sensor
+from clsim.transport.result import SimulationResult, assemble_result
+from clsim.transport.setup import COUNT_STATS, Detect, FIXED_SCALE, Mode, NG, NTAB, RunSetup, STAT_NAMES, TRACE_EVENTS, prepare_run
+
+__all__ = ["Detect", "Mode", "RunSetup", "SimulationResult", "Simulator", "build_options", "list_devices",
+           "prepare_run", "working_devices"]
+
+
+# -- devices -----------------------------------------------------------------------
+def list_devices() -> list[tuple[DeviceInfo, str | None]]:
+    """Every OpenCL device found, best first, with None where it runs the
+    transport kernel and the reason where it cannot (one build per device,
+    cached; see :mod:`voxlidar.devices`)."""
+    return [(info, verdict["clsim"]) for info, verdict in device_report(("clsim",))]
+
+
+def working_devices() -> list[DeviceInfo]:
+    """The devices that run the transport kernel, best first."""
+    return [info for info, reason in list_devices() if reason is None]
+
+
+def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = None,
+                  fast_math: bool = True) -> list[str]:
+    """``-D`` options of the transport kernel for a device, mode and detection.
+
+    ``-cl-fast-relaxed-math`` is safe: the kernels create no infinity or NaN
+    (kernels/common.cl).  64-bit atomics are used where the device has them
+    (``atomics64=None``), else two 32-bit atomics with an exact carry."""
+    mode = Mode.parse(mode, "mode")
+    detect = Detect.parse(detect, "detect")
+    use64 = info.int64_atomics if atomics64 is None else bool(atomics64) and info.int64_atomics
+    opts = [f"-DMODE={1 if mode is Mode.PAPER else 0}", f"-DDETECT={1 if detect is Detect.ANALOG else 0}",
+            f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}", f"-DNTAB={NTAB}", f"-DNG={NG}",
+            f"-DTRACE_EVENTS={TRACE_EVENTS}"]
+    opts += ["-cl-fast-relaxed-math"] if fast_math else ["-cl-mad-enable", "-cl-no-signed-zeros"]
+    if use64:
+        opts.append("-DCLSIM_ATOM64")
+    if info.runtime.startswith("PoCL"):
+        opts.append("-DCLSIM_CLANG_BUILTINS")  # PoCL compiles with clang (kernels/common.cl)
+    return opts
+
+
+def _kernel_source() -> tuple[str, str]:
+    kdir = resources.files("clsim") / "kernels"
+    return (kdir / "transport.cl").read_text(), f"-I{kdir}"
+
+
+def probe_build(device) -> str | None:
+    """Build the transport kernel (exact, nee) on a ``pyopencl.Device``; the
+    device layer's probe.  Raises on a build failure."""
+    import pyopencl as cl
+
+    info = describe(device)
+    src, inc = _kernel_source()
+    ctx = cl.Context([device])
+    build_program(ctx, src, [inc] + build_options(info, Mode.EXACT, Detect.NEE))
+    return None
+
+
+class Simulator:
+    """Owns an OpenCL context, queue and the built transport programs.
+
+    Parameters
+    ----------
+    device : voxlidar.devices.DeviceInfo, pyopencl.Device, str or None
+        ``"0:1"`` (platform:device), ``"cpu"``, ``"gpu"``, a name fragment,
+        or None for ``VOXLIDAR_DEVICE`` / ``PYOPENCL_CTX`` / the best working
+        device (:func:`voxlidar.devices.choose_device`).  Never prompts.
+    atomics64 : bool or None
+        Use 64-bit atomics where the device has them (None, True) or the
+        exact two-word fallback (False; for tests).
+    fast_math : bool
+        Build with ``-cl-fast-relaxed-math`` (default; safe, the kernels make
+        no infinity or NaN) or with only ``-cl-mad-enable`` (benchmarks).
+
+    Raises
+    ------
+    DeviceError
+        One line when no device can build the transport kernel, naming the
+        devices, the reasons and the fix (and the NumPy fallback).
+    """
+
+    def __init__(self, device=None, *, atomics64: bool | None = None, fast_math: bool = True):
+        try:
+            import pyopencl as cl
+        except ImportError as err:
+            raise DeviceError("pyopencl is not installed; fix: pip install pyopencl, or run the NumPy "
+                              "oracle clsim.transport.reference.ReferenceSimulator() (slow)") from err
+        self._cl = cl
+        try:
+            self.info = choose_device(device, kernels=("clsim",))
+        except AnyDeviceError as err:
+            raise DeviceError(f"{err} (the NumPy oracle clsim.transport.reference.ReferenceSimulator() "
+                              "needs no device)") from None
+        self.device = self.info.device
+        self.atomics64 = atomics64
+        self.fast_math = bool(fast_math)
+        try:
+            self.context, self.queue = open_queue(self.info)
+        except AnyDeviceError as err:
+            raise DeviceError(str(err)) from None
+        self._programs = {}
+        self.build_seconds = 0.0
+        # Work-group size of the launches.  On CPU runtimes one photon per work-group
+        # (measured against the runtime's own choice: Intel's runtime x2.6, PoCL 3.1
+        # +9 %, PoCL 3.0 -2 %; docs/benchmarks.md): photons diverge, so a group gains
+        # nothing from running in lock step.  GPUs: the runtime's choice.
+        self.local_size = None if self.info.is_gpu else (1,)
+
+    @property
+    def device_name(self) -> str:
+        return self.info.label
+
+    def program(self, mode: Mode, detect: Detect):
+        """(program, kernel) built for a mode and detection (cached per Simulator)."""
+        key = (Mode.parse(mode, "mode"), Detect.parse(detect, "detect"))
+        if key not in self._programs:
+            src, inc = _kernel_source()
+            opts = [inc] + build_options(self.info, key[0], key[1], atomics64=self.atomics64,
+                                         fast_math=self.fast_math)
+            t0 = time.perf_counter()
+            try:
+                prg = build_program(self.context, src, opts)
+            except self._cl.Error as err:
+                raise DeviceError(f"the transport kernel does not build on {self.device_name}: "
+                                  f"{short_reason(err)}; fix: choose another device (clsim devices)") from err
+            self.build_seconds += time.perf_counter() - t0
+            self._programs[key] = (prg, self._cl.Kernel(prg, "simulate"))
+        return self._programs[key]
+
+    def run(self, scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
+            detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
+            bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
+            chunk: int = 1 << 20, progress: bool = False, hotspot: bool = False) -> SimulationResult:
+        """Simulate one pulse of ``sensor`` over ``scene``.
+
+        Parameters
+        ----------
+        scene : voxlidar.scene.Scene
+        sensor : Sensor
+        photons : int
+            Photons launched (each carries 1/photons of the pulse energy).
+        seed : int
+            RNG seed; same seed and device give an identical result.
+        mode : {"exact", "paper"}
+            Interaction model (docs/method.md).
+        detect : {"nee", "analog"}
+            Detection: next-event estimation, or counting photons through the
+            enlarged virtual aperture.
+        max_order : int
+            Highest scattering order simulated and recorded.
+        leaf_off : bool
+            Drop the leaves (wood and ground only).
+        batches : int
+            Photons are split into this many batches (photon id modulo
+            batches) for standard errors.
+        bin_ns : float
+            Fine time bin, ns.
+        step_m : float
+            Step of the paper model, m.
+        target : (2,) or (3,) float, optional
+            Where the beam axis meets the ground (default: grid centre).
+        trace : int
+            Record the first events of this many photons.
+        chunk : int
+            Photons per kernel launch.
+        progress : bool
+            Show a tqdm progress bar.
+        hotspot : bool
+            Correlated return for single scattering: with a monostatic sensor
+            the return path of an order-1 event retraces the incoming one,
+            which was free, so its transmittance is 1 (exact for explicit
+            leaves; a turbid medium would apply exp(-tau) twice).  Higher
+            orders return independently.  See docs/method.md.
+        """
+        setup = prepare_run(scene, sensor, photons=photons, seed=seed, mode=mode, detect=detect,
+                            max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
+                            step_m=step_m, target=target, trace=trace, hotspot=hotspot)
+        return self.run_setup(setup, chunk=chunk, progress=progress)
+
+    def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False) -> SimulationResult:
+        cl = self._cl
+        _, kern = self.program(setup.mode, setup.detect)
+        ctx, q = self.context, self.queue
+        mf = cl.mem_flags
+        p = setup.p
+        B, K, F = setup.batches, setup.max_order, int(p["nbins"])
+        g = setup.bricks
+        pool = g.pool if len(g.pool) else np.zeros((1, 2), np.float32)
+        bufs = dict(
+            params=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.params),
+            index=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g.index),
+            pool=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(pool)),
+            ppf=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.ppf.astype(np.float32)),
+            gtab=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.gtab.astype(np.float32)),
+        )
+        hist = np.zeros(B * K * 2 * F, dtype=np.uint64)
+        stats = np.zeros(B * len(STAT_NAMES), dtype=np.uint64)
+        traces = np.full((max(setup.trace, 1) * TRACE_EVENTS, 4), np.nan, dtype=np.float32)
+        traces[:, 3] = -9
+        try:
+            hist_buf = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=hist)
+        except cl.Error as err:
+            raise DeviceError(f"cannot allocate the {hist.nbytes / 2**20:.0f} MiB histogram on "
+                              f"{self.device_name}; lower batches, max_order or raise bin_ns") from err
+        stats_buf = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=stats)
+        trace_buf = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=traces)
+        lo, hi = split_seed(setup.seed)
+        key = np.array([lo, hi], dtype=np.uint32).view(cl.cltypes.uint2)[0]
+        chunk = max(1, int(chunk))
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=setup.photons, unit="photon", unit_scale=True, desc="clsim")
+        t0 = time.perf_counter()
+        try:
+            for start in range(0, setup.photons, chunk):
+                n = min(chunk, setup.photons - start)
+                kern(q, (n,), self.local_size, bufs["params"], bufs["index"], bufs["pool"], bufs["ppf"],
+                     bufs["gtab"], hist_buf, stats_buf, trace_buf, key, np.uint64(start), np.uint32(n))
+                if bar is not None:
+                    q.finish()
+                    bar.update(n)
+            cl.enqueue_copy(q, hist, hist_buf)
+            cl.enqueue_copy(q, stats, stats_buf)
+            cl.enqueue_copy(q, traces, trace_buf)
+            q.finish()
+        except cl.Error as err:
+            raise DeviceError(f"transport kernel failed on {self.device_name}: {err}") from err
+        finally:
+            if bar is not None:
+                bar.close()
+        elapsed = time.perf_counter() - t0
+        stats = stats.reshape(B, len(STAT_NAMES)).astype(np.float64)
+        weight_cols = [i for i, n in enumerate(STAT_NAMES) if n not in COUNT_STATS]
+        stats[:, weight_cols] /= FIXED_SCALE
+        tr = None
+        if setup.trace:
+            tr = traces.reshape(setup.trace, TRACE_EVENTS, 4).copy()
+            tr[..., :3] += setup.scene.origin.astype(np.float32)
+        return assemble_result(setup, hist.reshape(B, K, 2, F).astype(np.float64) / FIXED_SCALE,
+                               stats, tr, elapsed, self.device_name)

@@ -1,0 +1,192 @@
+"""Classification: two-Gaussian fit, thresholds, geometric refinement, scoring vs truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlsvox.classify import (PointClass, classify_scan, fit_two_gaussians, incidence_cosine, isolated,
+                             leaf_wood_threshold, linearity, neighbourhood_mean, refine_geometric, score)
+from tlsvox.errors import InputError
+from voxlidar.materials import Material
+from tlsvox.scan import Scan
+
+
+def test_em_recovers_a_known_mixture(rng):
+    n0, n1 = 30000, 10000
+    x = np.concatenate([rng.normal(0.18, 0.05, n0), rng.normal(0.33, 0.06, n1)])
+    mix = fit_two_gaussians(x)
+    # ML estimates: standard errors ~ sigma/sqrt(n) ~ 0.0005; allow 10 of them
+    np.testing.assert_allclose(mix.means, [0.18, 0.33], atol=0.005)
+    np.testing.assert_allclose(mix.sigmas, [0.05, 0.06], atol=0.005)
+    np.testing.assert_allclose(mix.weights, [0.75, 0.25], atol=0.02)
+
+
+def test_thresholds_midway_and_equal_posterior(rng):
+    x = np.concatenate([rng.normal(0.2, 0.04, 30000), rng.normal(0.4, 0.04, 10000)])
+    mix = fit_two_gaussians(x)
+    assert leaf_wood_threshold(mix, rule="midway") == pytest.approx(mix.means.mean())
+    # equal sigmas: t = midpoint + s^2 ln(w0/w1) / (m1 - m0), shifted towards the rarer class
+    s = mix.sigmas.mean()
+    expect = mix.means.mean() + s**2 * np.log(mix.weights[0] / mix.weights[1]) / np.diff(mix.means)[0]
+    assert leaf_wood_threshold(mix, rule="equal_posterior") == pytest.approx(expect, abs=2e-3)
+    assert leaf_wood_threshold(mix, rule="equal_posterior") > mix.means.mean()
+    with pytest.raises(InputError, match="midway, equal_posterior"):
+        leaf_wood_threshold(mix, rule="otsu")
+
+
+def test_score_confusion_matrix():
+    truth = np.array([Material.LEAF] * 4 + [Material.BARK] * 3 + [Material.GROUND])
+    labels = np.array([PointClass.LEAF, PointClass.LEAF, PointClass.WOOD, PointClass.NOISE,
+                       PointClass.WOOD, PointClass.WOOD, PointClass.LEAF, PointClass.GROUND])
+    sc = score(labels, truth)
+    assert sc.recall["leaf"] == pytest.approx(2 / 4)
+    assert sc.precision["leaf"] == pytest.approx(2 / 3)
+    assert sc.recall["wood"] == pytest.approx(2 / 3)
+    assert sc.precision["wood"] == pytest.approx(2 / 3)
+    assert sc.confusion.sum() == len(truth)
+    assert "| leaf |" in sc.table()
+
+
+def test_linearity_and_refinement_move_branch_edges_only(rng):
+    # a thin branch (radius 1 cm, 2 m long, ~5 mm point spacing: 20 neighbours
+    # span ~10 cm, several diameters) and a leaf cluster
+    t = rng.uniform(0, 2, 400)
+    ph = rng.uniform(0, 2 * np.pi, 400)
+    branch = np.column_stack([t, 0.01 * np.cos(ph), 0.01 * np.sin(ph)])
+    blob = rng.normal(size=(2000, 3)) * 0.3 + [1.0, 1.5, 0.0]
+    xyz = np.vstack([branch, blob])
+    lin = linearity(xyz, k=20)
+    assert np.median(lin[:400]) > 0.9 and np.median(lin[400:]) < 0.5
+    labels = np.full(len(xyz), PointClass.LEAF, np.uint8)
+    labels[:400] = PointClass.WOOD
+    edge = rng.choice(400, 60, replace=False)  # dark partial hits on the branch edge
+    labels[edge] = PointClass.LEAF
+    new, moved = refine_geometric(xyz, labels)
+    assert np.all(new[edge] == PointClass.WOOD)
+    assert np.all(new[400:] == PointClass.LEAF)  # the leaf cluster is untouched
+    assert moved == 60
+
+
+@pytest.fixture(scope="module")
+def synthetic_scan():
+    from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
+    from tlsvox.truth.synthetic import TreeParams, make_tree
+
+    tree = make_tree(TreeParams(height=8.0, crown_base=2.0, crown_radius=3.0, total_leaf_area=60.0,
+                                trunk_radius=0.15), seed=3)
+    preset = ScannerPreset.riegl_vz400(zenith_step_deg=0.12, azimuth_step_deg=0.12)
+    return simulate_scan(tree, pose=paper_scan_poses(tree)[1], preset=preset, seed=2, name="near",
+                         progress=False)
+
+
+def _f1(sc, name):
+    p, r = sc.precision[name], sc.recall[name]
+    return 2 * p * r / (p + r)
+
+
+def test_classify_synthetic_scan_against_truth(synthetic_scan):
+    s = synthetic_scan
+    paper = classify_scan(s, method="paper")
+    plain = classify_scan(s)
+    refined = classify_scan(s, refine=True)
+    sp, sd, sr = (score(c.labels, s.truth_material) for c in (paper, plain, refined))
+    print("\npaper\n" + sp.table() + "\ndefault\n" + sd.table() + "\nrefined\n" + sr.table())
+    # retro-reflectors read above 0 dB: no Lambertian echo can; the ground is a plane
+    for sc in (sp, sd):
+        assert sc.recall["target"] == 1.0 and sc.precision["target"] == 1.0
+        assert sc.recall["ground"] > 0.99 and sc.precision["ground"] > 0.99
+    # two peaks: leaf darker than bark, the threshold between them
+    for c in (paper, plain):
+        m0, m1 = c.mixture.means
+        assert m0 < c.leaf_wood_threshold < m1
+    # the paper's noise rule: every truth leaf below 50 % of 0.267 is lost as noise,
+    # so leaf recall cannot exceed the fraction of leaf echoes above it
+    leaf = s.truth_material == Material.LEAF
+    above = np.mean(paper.reflectance[leaf] >= paper.noise_threshold)
+    assert sp.recall["leaf"] <= above + 1e-12
+    # default (neighbourhood-mean dB, fit on full hits, geometric noise).  Measured on this
+    # seeded scan (tree seed 3, scan seed 2, 0.12 deg, 10 m): leaf P 0.923 R 0.969, wood P 0.916
+    # R 0.799; asserted 0.025 below (library versions: KD-tree ties, Open3D RANSAC ground).
+    assert sd.precision["leaf"] >= 0.90 and sd.recall["leaf"] >= 0.94
+    assert sd.precision["wood"] >= 0.89 and sd.recall["wood"] >= 0.77
+    # it beats the paper's rule on both classes (F1: paper leaf 0.33, wood 0.77)
+    assert _f1(sd, "leaf") > _f1(sp, "leaf") + 0.3
+    assert _f1(sd, "wood") > _f1(sp, "wood")
+    # no true echo is isolated in the air: the geometric noise rule takes almost none
+    assert plain.counts["noise"] < 0.005 * np.count_nonzero(np.isin(s.truth_material, [1, 2]))
+    # refinement moves branch-edge echoes to wood: wood recall rises, leaf precision does not drop
+    assert refined.moved_to_wood > 0
+    assert sr.recall["wood"] > sd.recall["wood"]
+    assert sr.precision["leaf"] >= sd.precision["leaf"]
+
+
+def test_injected_noise_is_found(synthetic_scan):
+    """Seeded noise echoes along random pulses at random ranges, dark as partial hits."""
+    from dataclasses import replace
+
+    s = synthetic_scan
+    rng = np.random.default_rng(11)
+    n = 300
+    pulse = rng.choice(len(s.pulses.direction), n, replace=False)
+    r = rng.uniform(2.0, 25.0, n)
+    xyz = s.pulses.direction[pulse] * r[:, None]
+    noisy = replace(s, xyz=np.vstack([s.xyz, xyz]),
+                    reflectance_db=np.concatenate([s.reflectance_db, rng.uniform(-20, -5, n)]).astype(np.float32),
+                    return_number=np.concatenate([s.return_number, np.ones(n, np.uint8)]),
+                    number_of_returns=np.concatenate([s.number_of_returns, np.ones(n, np.uint8)]),
+                    pulse_id=np.concatenate([s.pulse_id, pulse]),
+                    truth_material=np.concatenate([s.truth_material, np.zeros(n, np.uint8)]))
+    c = classify_scan(noisy)
+    sc = score(c.labels, noisy.truth_material)
+    print("\n" + sc.table())
+    # a noise echo inside the crown has true neighbours and is missed: measured recall 0.98,
+    # precision 0.85 (the other calls are lone true echoes); asserted with margin
+    assert sc.recall["noise"] >= 0.9
+    assert sc.precision["noise"] >= 0.75
+    # the paper's reflectance rule calls thousands of true leaf echoes noise
+    assert score(classify_scan(noisy, method="paper").labels, noisy.truth_material).precision["noise"] < 0.1
+
+
+def test_isolated_and_incidence_on_a_known_plane(rng):
+    # a wall x = 5 m sampled on a 0.1 deg grid from the origin, plus 20 points alone in the air
+    step = 0.1
+    zen, az = np.meshgrid(np.deg2rad(np.arange(80, 100, step)), np.deg2rad(np.arange(-10, 10, step)))
+    d = np.column_stack([np.sin(zen.ravel()) * np.cos(az.ravel()), np.sin(zen.ravel()) * np.sin(az.ravel()),
+                         np.cos(zen.ravel())])
+    wall = d * (5.0 / d[:, 0])[:, None]
+    air = rng.uniform([1.0, -0.3, -0.3], [4.0, 0.3, 0.3], (20, 3))
+    lone = isolated(np.vstack([wall, air]), angular_step_deg=step)
+    assert not lone[:len(wall)].any() and lone[len(wall):].all()
+    # the step estimated from the cloud gives the same answer
+    assert np.array_equal(isolated(np.vstack([wall, air])), lone)
+    # incidence on the wall: cos = x / range exactly (normal along x)
+    cos = incidence_cosine(wall, k=20)
+    np.testing.assert_allclose(cos, wall[:, 0] / np.linalg.norm(wall, axis=1), atol=1e-6)
+    # neighbourhood mean of a constant is the constant
+    np.testing.assert_allclose(neighbourhood_mean(wall, np.full(len(wall), -7.0), k=10), -7.0)
+
+
+def test_classify_bad_input(rng):
+    xyz = rng.normal(size=(100, 3))
+    with pytest.raises(InputError, match="neither reflectance"):
+        classify_scan(Scan(xyz=xyz, name="noref"))
+    with pytest.raises(InputError, match="1 point"):
+        classify_scan(Scan(xyz=xyz[:1], reflectance_db=[-3.0]))
+    with pytest.raises(InputError, match="neighbourhood, echo, paper"):
+        classify_scan(Scan(xyz=xyz, reflectance_db=rng.uniform(-8, -2, 100)), method="otsu")
+    with pytest.raises(InputError, match="rule"):
+        classify_scan(Scan(xyz=xyz, reflectance_db=rng.uniform(-8, -2, 100)), rule="kmeans")
+    with pytest.raises(InputError, match="all values are equal"):
+        fit_two_gaussians(np.full(100, 0.3))
+
+
+def test_pictures_fig3_and_fig5e(synthetic_scan, tmp_path):
+    from tlsvox.classify.plots import plot_reflectance_histograms, render_classified
+
+    c = classify_scan(synthetic_scan, refine=True)
+    png = plot_reflectance_histograms([c], tmp_path / "fig3.png", truth=[synthetic_scan.truth_material])
+    assert png.stat().st_size > 10_000
+    backend = render_classified(synthetic_scan.xyz, c.labels, tmp_path / "fig5e.png", backend="matplotlib",
+                                width=400, height=400)
+    assert backend == "matplotlib" and (tmp_path / "fig5e.png").stat().st_size > 5_000

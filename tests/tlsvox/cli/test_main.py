@@ -1,0 +1,58 @@
+"""The tlsvox command line, run in-process."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tlsvox.cli.main import build_parser, main
+from tlsvox.scan import Scan
+
+
+def test_help_reads_like_a_man_page(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
+    for word in ("tree", "scan", "view", "Examples"):
+        assert word in text
+    for sub in ("tree", "scan", "view"):
+        with pytest.raises(SystemExit):
+            main([sub, "--help"])
+        assert "usage: tlsvox " + sub in capsys.readouterr().out
+
+
+def test_tree_scan_view(tmp_path, capsys):
+    ply = tmp_path / "oak.ply"
+    assert main(["tree", "-o", str(ply), "--seed", "2", "--height", "5", "--crown-radius", "1.5",
+                 "--leaf-area", "3"]) == 0
+    meta = json.loads((tmp_path / "oak.json").read_text())
+    assert meta["leaf_area_m2"] == pytest.approx(3.0)
+    las = tmp_path / "s.laz"
+    assert main(["scan", str(tmp_path / "oak.json"), "-o", str(las), "--position", "0", "-8", "1.7",
+                 "--yaw", "20", "--step", "0.2", "--quiet"]) == 0
+    scan = Scan.read(las)
+    assert len(scan) > 1000 and scan.pose_true is not None
+    np.testing.assert_allclose(scan.pose_true[:3, 3], [0, -8, 1.7])
+    png = tmp_path / "s.png"
+    assert main(["view", str(las), "--color", "material", "--screenshot", str(png)]) == 0
+    assert png.stat().st_size > 1000
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_errors_are_reported_not_raised(tmp_path, capsys):
+    assert main(["scan", str(tmp_path / "missing.json"), "-o", str(tmp_path / "x.laz")]) == 2
+    err = capsys.readouterr().err
+    assert "not found" in err and "tlsvox tree" in err
+    assert not (tmp_path / "x.laz").exists()
+
+
+def test_parser_lists_subcommands():
+    sub = [a for a in build_parser()._actions if a.dest == "command"][0]
+    assert {"tree", "scan", "view"} <= set(sub.choices)
+
+
+def test_versions_lists_opencl_devices(capsys):
+    assert main(["versions"]) == 0
+    out = capsys.readouterr().out
+    assert "open3d" in out and "OpenCL" in out and "numpy" in out

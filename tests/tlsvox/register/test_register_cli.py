@@ -1,0 +1,82 @@
+"""`tlsvox register` and `tlsvox classify`, run in-process."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tlsvox.cli.main import main
+from tlsvox.register import pose_error, true_relative_transform
+from tlsvox.scan import Scan
+from test_register import P_A, P_B, pose, toy_scan  # noqa: E402 - test helpers
+
+
+def run(argv):
+    """The ``tlsvox`` command in-process: its exit code."""
+    return main([str(a) for a in argv])
+
+
+@pytest.fixture(scope="module")
+def toy_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("scans")
+    A, B = toy_scan(1, P_A, "A"), toy_scan(2, P_B, "B")
+    A.write(d / "A.laz")
+    B.write(d / "B.laz")
+    return d, A, B
+
+
+def test_register_command_writes_merged_cloud_and_transforms(toy_files, tmp_path, capsys):
+    d, A, B = toy_files
+    out = tmp_path / "merged.laz"
+    tj = tmp_path / "T.json"
+    assert run(["register", str(d / "A.laz"), str(d / "B.laz"), "-o", str(out), "--transforms", str(tj)]) == 0
+    assert "vs truth" in capsys.readouterr().out
+    doc = json.loads(tj.read_text())
+    assert [s["name"] for s in doc["scans"]] == ["A", "B"]
+    T = np.array(doc["scans"][1]["pose"])
+    rot, tr = pose_error(T, true_relative_transform(B, A))
+    assert rot < 0.05 and tr < 0.005
+    merged = Scan.read(out)
+    assert len(merged) == len(A) + len(B)
+
+
+def test_register_command_fails_cleanly_without_overlap(toy_files, tmp_path, capsys):
+    d, A, _ = toy_files
+    far = toy_scan(3, pose(190.0, 10.0, 1.7, 80.0), "far", other_plot=True, crown_seed=99,
+                   shift=(200.0, 0.0), layout=np.array([[7.0, 1.0, 0.5], [-2.0, 6.0, 1.0], [1.0, -4.0, 0.3]]))
+    far.write(tmp_path / "far.laz")
+    out = tmp_path / "merged.laz"
+    # targets only (fast): the far plot's 3 targets do not match A's 4
+    assert run(["register", str(d / "A.laz"), str(tmp_path / "far.laz"), "-o", str(out),
+                "--method", "targets"]) == 1
+    assert "no 3 targets in common" in capsys.readouterr().err
+    assert not out.exists() and not out.with_suffix(".transforms.json").exists()
+
+
+def test_classify_command(toy_files, tmp_path, capsys):
+    d, A, _ = toy_files
+    out = tmp_path / "cls"
+    assert run(["classify", str(d / "A.laz"), "-o", str(out), "--refine", "--plot", str(out / "histograms.png")]) == 0
+    assert "leaf P/R" in capsys.readouterr().out
+    doc = json.loads((out / "classification.json").read_text())
+    assert doc["scans"][0]["refined"] is True
+    assert "confusion" in doc["scans"][0]["score"]
+    las = Scan.read(out / "A.classified.laz")
+    assert len(las) == len(A)
+    assert (out / "histograms.png").stat().st_size > 1000
+
+
+def test_classify_command_rejects_scan_without_reflectance(tmp_path, capsys):
+    Scan(xyz=np.random.default_rng(0).normal(size=(100, 3)), name="plain").write(tmp_path / "plain.las")
+    assert run(["classify", str(tmp_path / "plain.las"), "-o", str(tmp_path / "out")]) == 2  # input error
+    assert "neither reflectance" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_help_reads_like_a_man_page(capsys):
+    with pytest.raises(SystemExit):
+        run(["register", "--help"])
+    text = capsys.readouterr().out
+    assert "retro-reflective" in text and "--transforms" in text

@@ -1,0 +1,140 @@
+"""The synthetic truth world: procedural tree and exact per-voxel truth."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from tlsvox import InputError, LeafAngle, Material
+from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
+from tlsvox.truth.synthetic import TreeParams, load_tree, make_tree
+
+SMALL = dict(height=6.0, crown_base=1.5, crown_radius=2.0, trunk_radius=0.12, total_leaf_area=12.0,
+             n_scaffolds=4, branch_levels=2, target_distance=4.0)
+
+
+def small_tree(seed=3, **kw):
+    return make_tree(TreeParams(**{**SMALL, **kw}), seed=seed)
+
+
+@pytest.mark.parametrize("area", [0.5, 12.0, 37.25])
+def test_leaf_area_is_what_was_requested(area):
+    tree = small_tree(total_leaf_area=area)
+    assert tree.leaf_area() == pytest.approx(area, rel=1e-12)
+
+
+def test_default_tree_is_the_paper_oak():
+    p = TreeParams()
+    assert p.height == 13.6
+    # dense crown: leaf area index over the crown projection between 3 and 6
+    lai = p.total_leaf_area / (np.pi * p.crown_radius**2)
+    assert 3.0 < lai < 6.0
+
+
+def _mesh_leaf_zenith(tree):
+    """Zenith of each leaf's plane normal, recomputed from its first triangle."""
+    leaf_tris = tree.triangle_coords(Material.LEAF)[::6]  # 6 triangles per leaf
+    n = np.cross(leaf_tris[:, 1] - leaf_tris[:, 0], leaf_tris[:, 2] - leaf_tris[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return np.arccos(np.abs(n[:, 2]))
+
+
+@pytest.mark.parametrize("kind", ["uniform", "planophile", "erectophile", "spherical", "plagiophile"])
+def test_leaf_zenith_follows_the_requested_distribution(kind):
+    tree = small_tree(leaf_angle=kind, total_leaf_area=8.0, seed=11)
+    zen = _mesh_leaf_zenith(tree)
+    assert len(zen) == tree.n_leaves > 5000
+    # Kolmogorov-Smirnov against the distribution's CDF; p-value would be
+    # uniform under H0: failing at 1e-3 is a 1-in-1000 false alarm.
+    res = stats.kstest(zen, LeafAngle(kind).cdf)
+    assert res.pvalue > 1e-3, res
+    # and the test has power: the same sample against another distribution fails
+    other = "erectophile" if kind in ("planophile", "uniform") else "planophile"
+    assert stats.kstest(zen, LeafAngle(other).cdf).pvalue < 1e-6
+
+
+def test_leaf_azimuth_faces_out_of_the_crown():
+    tree = small_tree(leaf_azimuth="outward")
+    n, c = tree.leaf_normals, tree.leaf_centers
+    tilted = np.hypot(n[:, 0], n[:, 1]) > 0.1
+    radial = c[:, :2] - tree.crown_center[:2]
+    cosang = np.einsum("ij,ij->i", n[tilted, :2], radial[tilted]) / (
+        np.linalg.norm(n[tilted, :2], axis=1) * np.linalg.norm(radial[tilted], axis=1))
+    assert np.all(cosang > 1 - 1e-9)
+
+
+def test_per_voxel_truth_sums_to_total():
+    tree = small_tree()
+    lo, hi = tree.bounds()
+    for h in (0.05, 0.2, 0.5):
+        shape = np.ceil((hi - lo) / h).astype(int) + 2
+        a = tree.leaf_area_per_voxel(origin=lo - h, voxel_size=h, shape=shape)
+        assert a.sum() == pytest.approx(tree.leaf_area(), rel=1e-9)
+        assert a.min() >= 0
+
+
+def test_area_per_voxel_of_a_plane_is_h_squared():
+    # a 2 x 2 m horizontal square split into two triangles over 0.25 m voxels
+    sq = np.array([[[0, 0, 0.3], [2, 0, 0.3], [2, 2, 0.3]], [[0, 0, 0.3], [2, 2, 0.3], [0, 2, 0.3]]], float)
+    a = area_per_voxel(sq, origin=(0, 0, 0), voxel_size=0.25, shape=(8, 8, 4))
+    np.testing.assert_allclose(a[:, :, 1], 0.0625, rtol=1e-12)
+    assert a.sum() == pytest.approx(4.0, rel=1e-12)
+
+
+def test_area_per_voxel_matches_monte_carlo(rng):
+    # random triangles: the area falling in each voxel, estimated by sampling
+    # uniform points on the triangles (standard error ~ 1/sqrt(n))
+    tris = rng.uniform(0, 1, (40, 3, 3))
+    a = area_per_voxel(tris, origin=(0, 0, 0), voxel_size=0.5, shape=(2, 2, 2))
+    areas = triangle_areas(tris)
+    n = 20000
+    r1, r2 = rng.random((2, len(tris), n))
+    s = np.sqrt(r1)
+    pts = ((1 - s)[..., None] * tris[:, None, 0] + (s * (1 - r2))[..., None] * tris[:, None, 1]
+           + (s * r2)[..., None] * tris[:, None, 2])
+    ijk = np.floor(pts / 0.5).astype(int).clip(0, 1)
+    flat = np.ravel_multi_index(ijk.reshape(-1, 3).T, (2, 2, 2))
+    w = np.repeat(areas / n, n)
+    mc = np.bincount(flat, weights=w, minlength=8).reshape(2, 2, 2)
+    se = areas.sum() / np.sqrt(n * len(tris))
+    assert np.all(np.abs(mc - a) < 5 * se + 1e-12)
+
+
+def test_same_seed_same_tree_other_seed_other_tree():
+    a, b, c = small_tree(seed=5), small_tree(seed=5), small_tree(seed=6)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.material, b.material)
+    assert a.vertices.shape != c.vertices.shape or not np.array_equal(a.vertices, c.vertices)
+
+
+def test_save_and_rebuild(tmp_path):
+    tree = small_tree()
+    ply, meta = tree.save(tmp_path / "oak.ply")
+    assert ply.stat().st_size > 0 and meta.exists()
+    again = load_tree(meta)
+    np.testing.assert_array_equal(again.vertices, tree.vertices)
+
+
+def test_materials_present():
+    tree = small_tree()
+    mats = set(np.unique(tree.material).tolist())
+    assert mats == {Material.LEAF, Material.BARK, Material.GROUND, Material.TARGET}
+    assert len(tree.targets) >= 4
+
+
+@pytest.mark.parametrize("bad, word", [(dict(height=-1.0), "height"), (dict(total_leaf_area=-3.0), "total_leaf_area"),
+                                       (dict(crown_base=7.0), "crown_base"), (dict(leaf_angle="flat"), "leaf_angle"),
+                                       (dict(leaf_azimuth="north"), "leaf_azimuth")])
+def test_bad_tree_parameters_name_the_parameter(bad, word):
+    with pytest.raises(InputError, match=word):
+        TreeParams(**{**SMALL, **bad})
+
+
+def test_truth_scene_holds_the_leaf_area_and_wood():
+    tree = small_tree()
+    scene = tree.truth_scene(0.25)
+    assert scene.total_leaf_area() == pytest.approx(tree.leaf_area(), rel=1e-9)
+    assert scene.wood.max() <= 1.0 and scene.wood.max() > 0.5  # trunk voxels are nearly opaque
+    assert scene.leaf_angle == tree.params.leaf_angle_model and scene.leaf_azimuth == "outward"
+    # trunk voxel at the base: bark surface of the trunk segment inside it
+    i, j, k = np.floor((np.array([0.0, 0.0, 0.1]) - scene.origin) / 0.25).astype(int)
+    assert scene.dense("wood")[i, j, k] > 0

@@ -1,0 +1,206 @@
+"""LAD estimators on sampled Poisson (turbid medium) processes with known LAD.
+
+Free paths in a turbid medium of LAD ``u`` are exponential with rate
+``G(theta) u``.  Beams are sampled with that law, traced, and the estimate is
+compared with ``u`` within 2 of its own standard errors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlsvox.errors import InputError
+from tlsvox.voxel.estimators import Estimator, Flag, estimate_lad
+from tlsvox.voxel.grid import VoxelGrid
+from voxlidar.leafangle import LeafAngle
+from tlsvox.voxel.trace import Beams, EchoKind, trace
+
+
+def _slab_beams(rng, grid, n, rate, *, axis=0, g=1.0, first=0.0):
+    """n beams along +axis through a 1-voxel-thick grid, exponential leaf hits.
+
+    ``rate`` is the attenuation (G u) per metre; ``first`` is where (as a
+    fraction of h) the medium starts inside the voxel.
+    """
+    h = grid.voxel_size
+    lo, hi = grid.lower, grid.upper
+    o = lo + rng.random((n, 3)) * (hi - lo)
+    o[:, axis] = lo[axis] - 1.0
+    d = np.zeros((n, 3))
+    d[:, axis] = 1.0
+    x = rng.exponential(1.0 / rate, n) + first * h if rate > 0 else np.full(n, np.inf)
+    length = 1.0 + h * grid.shape[axis]
+    r = np.where(x < h * grid.shape[axis], 1.0 + x, np.inf)
+    b = Beams.from_rays(o, d, hit_range=r, kind=EchoKind.LEAF, max_range=length + 1)
+    b.g = np.full(n, g)
+    return b
+
+
+@pytest.mark.parametrize("estimator,lad,h,n", [
+    ("bcmle", 2.0, 0.5, 4000),
+    ("voxlad", 2.0, 0.5, 4000),
+    ("beer_lambert", 2.0, 0.5, 4000),
+    # contact frequency is only consistent for thin voxels (I ~ lambda delta): lambda delta = 0.01
+    ("contact_frequency", 0.4, 0.05, 200000),
+])
+def test_known_lad_recovered_within_two_standard_errors(estimator, lad, h, n, rng):
+    g = 0.5  # spherical leaves
+    grid = VoxelGrid((0, 0, 0), h, (1, 1, 1))
+    beams = _slab_beams(rng, grid, n, g * lad, g=g)
+    res = estimate_lad(trace(grid, beams), estimator=estimator, leaf_size=None)
+    got, se = float(res.lad[0, 0, 0]), float(res.lad_std[0, 0, 0])
+    assert se > 0
+    assert abs(got - lad) < 2 * se, (got, lad, se)
+    assert res.flags[0, 0, 0] == 0
+
+
+@pytest.mark.parametrize("estimator", ["bcmle", "voxlad"])
+def test_pooled_directions_with_leaf_angle_g(estimator, rng):
+    """Beams from all directions, planophile G(theta): the per-beam G pools exactly."""
+    lad = 1.5
+    model = LeafAngle("planophile")
+    grid = VoxelGrid((0, 0, 0), 0.4, (1, 1, 1))
+    n = 6000
+    centre = np.full(3, 0.2)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    target = centre + (rng.random((n, 3)) - 0.5) * 0.4
+    o = target - 2.0 * d
+    gb = model.G(np.arccos(d[:, 2]))
+    x = rng.exponential(1.0 / (gb * lad))
+    # entry distance of each beam into the cube, so hits are drawn inside it only
+    t_in = np.max(np.minimum((grid.lower - o) / d, (grid.upper - o) / d), axis=1)
+    r = t_in + x
+    beams = Beams.from_rays(o, d, hit_range=r, kind=EchoKind.LEAF)
+    beams.g = gb
+    res = estimate_lad(trace(grid, beams), estimator=estimator, leaf_size=None)
+    got, se = float(res.lad[0, 0, 0]), float(res.lad_std[0, 0, 0])
+    assert abs(got - lad) < 2 * se, (got, lad, se)
+    assert gb.min() < res.g_eff[0, 0, 0] < gb.max()
+
+
+def test_bcmle_removes_the_small_sample_bias(rng):
+    """Many voxels of 20 beams each: the MLE is biased high, bcmle is not."""
+    lad, g, h, nv, per = 2.0, 0.5, 1.0, 2000, 20
+    grid = VoxelGrid((0, 0, 0), h, (nv, 1, 1))
+    n = nv * per
+    o = np.column_stack([(np.repeat(np.arange(nv), per) + rng.random(n)) * h,
+                         np.full(n, -1.0), rng.random(n) * h])
+    d = np.tile([0.0, 1.0, 0.0], (n, 1))
+    x = rng.exponential(1.0 / (g * lad), n)
+    beams = Beams.from_rays(o, d, hit_range=np.where(x < h, 1.0 + x, np.inf), max_range=3.0)
+    beams.g = np.full(n, g)
+    stats = trace(grid, beams)
+    bc = estimate_lad(stats, estimator="bcmle", leaf_size=None).lad.ravel()
+    mle = estimate_lad(stats, estimator="voxlad", leaf_size=None).lad.ravel()
+    se_bc = bc.std(ddof=1) / np.sqrt(nv)
+    se_mle = mle.std(ddof=1) / np.sqrt(nv)
+    assert abs(bc.mean() - lad) < 2 * se_bc, (bc.mean(), se_bc)
+    assert mle.mean() - lad > 3 * se_mle, (mle.mean(), se_mle)
+
+
+@pytest.mark.parametrize("estimator", [e.value for e in Estimator])
+def test_all_transmitted_gives_zero(estimator, rng):
+    grid = VoxelGrid((0, 0, 0), 0.3, (2, 2, 2))
+    beams = _slab_beams(rng, grid, 500, 0.0)
+    res = estimate_lad(trace(grid, beams), estimator=estimator, leaf_size=None)
+    assert np.all(res.lad == 0.0) and np.all(res.lad_std == 0.0)
+    assert np.all(res.flags == 0)
+
+
+def _finite(res):
+    for a in (res.lad, res.lad_std, res.lad_raw, res.g_eff):
+        assert np.all(np.isfinite(a))
+        assert np.all(a >= 0)
+
+
+@pytest.mark.parametrize("estimator", [e.value for e in Estimator])
+def test_too_few_beams_flagged_and_finite(estimator, rng):
+    grid = VoxelGrid((0, 0, 0), 0.3, (1, 1, 1))
+    beams = _slab_beams(rng, grid, 3, 2.0)
+    res = estimate_lad(trace(grid, beams), estimator=estimator, n_min=5)
+    _finite(res)
+    assert res.flags[0, 0, 0] & Flag.FEW_BEAMS
+    assert res.occluded[0, 0, 0] and res.lad[0, 0, 0] == 0.0
+
+
+@pytest.mark.parametrize("estimator", [e.value for e in Estimator])
+def test_no_beams_at_all_flagged_and_finite(estimator):
+    grid = VoxelGrid((0, 0, 0), 0.3, (2, 1, 1))
+    beams = Beams.from_rays([0, 0, 5], [[0, 0, 1]])  # misses the grid
+    res = estimate_lad(trace(grid, beams), estimator=estimator)
+    _finite(res)
+    assert np.all(res.flags & Flag.FEW_BEAMS)
+
+
+@pytest.mark.parametrize("estimator", [e.value for e in Estimator])
+def test_saturated_voxel_flagged_and_finite(estimator, rng):
+    """Every entering beam is stopped by a leaf inside the voxel."""
+    grid = VoxelGrid((0, 0, 0), 0.3, (1, 1, 1))
+    n = 50
+    o = np.column_stack([np.full(n, -1.0), rng.random((n, 2)) * 0.3])
+    beams = Beams.from_rays(o, np.tile([1.0, 0, 0], (n, 1)), hit_range=1.0 + rng.uniform(0.05, 0.25, n))
+    res = estimate_lad(trace(grid, beams), estimator=estimator, leaf_size=None)
+    _finite(res)
+    assert res.flags[0, 0, 0] & Flag.SATURATED
+    assert res.lad[0, 0, 0] > 0
+    if estimator == "beer_lambert":  # ln(2N + 2) / (G delta), G = 1 here
+        assert res.lad[0, 0, 0] == pytest.approx(np.log(2 * n + 2) / 0.3, rel=1e-9)
+
+
+@pytest.mark.parametrize("estimator", [e.value for e in Estimator])
+def test_hits_at_entry_face_low_explored_and_finite(estimator, rng):
+    """All beams stop at the very front: no free path, nothing seen behind."""
+    grid = VoxelGrid((0, 0, 0), 0.3, (1, 1, 1))
+    n = 40
+    o = np.column_stack([np.full(n, -1.0), rng.random((n, 2)) * 0.3])
+    beams = Beams.from_rays(o, np.tile([1.0, 0, 0], (n, 1)), hit_range=np.full(n, 1.0))
+    res = estimate_lad(trace(grid, beams), estimator=estimator, leaf_size=None)
+    _finite(res)
+    assert res.flags[0, 0, 0] & Flag.SATURATED
+    assert res.flags[0, 0, 0] & Flag.LOW_EXPLORED
+    assert res.occluded[0, 0, 0]
+
+
+def test_large_leaves_flagged(rng):
+    grid = VoxelGrid((0, 0, 0), 0.05, (1, 1, 1))
+    beams = _slab_beams(rng, grid, 200, 1.0)
+    stats = trace(grid, beams)
+    assert estimate_lad(stats, leaf_size=0.05).flags[0, 0, 0] & Flag.LARGE_LEAVES
+    assert not estimate_lad(stats, leaf_size=0.01).flags[0, 0, 0] & Flag.LARGE_LEAVES
+    assert not estimate_lad(stats, leaf_size=None).flags[0, 0, 0] & Flag.LARGE_LEAVES
+
+
+def test_layer_fill_and_small_voxel_factor(rng):
+    """Occluded crown voxels take their layer's mean; the factor scales everything."""
+    lad, g = 1.0, 0.5
+    grid = VoxelGrid((0, 0, 0), 0.5, (3, 1, 1))
+    n = 3000
+    o = np.column_stack([np.full(n, -1.0), rng.random(n) * 0.5, rng.random(n) * 0.5])
+    x = rng.exponential(1.0 / (g * lad), n)
+    beams = Beams.from_rays(o, np.tile([1.0, 0, 0], (n, 1)), hit_range=np.where(x < 1.0, 1.0 + x, np.inf),
+                            max_range=2.0)  # the third voxel is never reached
+    beams.g = np.full(n, g)
+    stats = trace(grid, beams)
+    mask = np.ones(grid.shape, bool)
+    plain = estimate_lad(stats, leaf_size=None)
+    assert plain.occluded[2, 0, 0] and not plain.occluded[:2, 0, 0].any()
+    filled = estimate_lad(stats, leaf_size=None, fill="layer", fill_mask=mask)
+    assert filled.flags[2, 0, 0] & Flag.FILLED
+    assert filled.lad[2, 0, 0] == pytest.approx(plain.lad[:2, 0, 0].mean(), rel=1e-12)
+    scaled = estimate_lad(stats, leaf_size=None, small_voxel_factor=0.95)
+    np.testing.assert_allclose(scaled.lad, 0.95 * plain.lad, rtol=1e-12)
+
+
+def test_bad_options_rejected(rng):
+    grid = VoxelGrid((0, 0, 0), 0.3, (1, 1, 1))
+    stats = trace(grid, _slab_beams(rng, grid, 10, 1.0))
+    with pytest.raises(InputError, match="bcmle, voxlad, beer_lambert, contact_frequency"):
+        estimate_lad(stats, estimator="beer-lambert")
+    with pytest.raises(InputError, match="fill"):
+        estimate_lad(stats, fill="height")
+    with pytest.raises(InputError, match="n_min"):
+        estimate_lad(stats, n_min=0)
+    with pytest.raises(InputError, match="small_voxel_factor"):
+        estimate_lad(stats, small_voxel_factor=-1)

@@ -1,0 +1,184 @@
+"""The voxelize pipeline end to end: a turbid box of known LAD, bad input, the CLI,
+and (slow) the synthetic oak scored against its mesh truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlsvox.cli.voxelize import main as cli_main
+from tlsvox.errors import InputError
+from voxlidar.materials import Material
+from tlsvox.scan import PulseTable, Scan
+from voxlidar.scene import Scene
+from tlsvox.voxel.voxlad import score_lad, voxelize
+
+BOX_LO = np.array([-1.0, -1.0, 1.0])
+BOX_HI = np.array([1.0, 1.0, 3.0])
+LAD = 0.8  # m2/m3, spherical leaves: attenuation G * LAD = 0.4 per metre
+
+
+def _box_scan(rng, position, yaw_deg, *, n_az=160, n_zen=120, scan_id=0):
+    """Pulses from ``position`` over the box; leaf hits sampled from the turbid medium."""
+    c = 0.5 * (BOX_LO + BOX_HI) - position
+    az0, zen0 = np.arctan2(c[1], c[0]), np.arccos(c[2] / np.linalg.norm(c))
+    az, zen = np.meshgrid(az0 + np.linspace(-0.45, 0.45, n_az), zen0 + np.linspace(-0.45, 0.45, n_zen))
+    d = np.column_stack([np.sin(zen.ravel()) * np.cos(az.ravel()), np.sin(zen.ravel()) * np.sin(az.ravel()),
+                         np.cos(zen.ravel())])
+    with np.errstate(divide="ignore"):
+        ta, tb = (BOX_LO - position) / d, (BOX_HI - position) / d
+    t_in = np.max(np.minimum(ta, tb), axis=1)
+    t_out = np.min(np.maximum(ta, tb), axis=1)
+    x = t_in + rng.exponential(1.0 / (0.5 * LAD), len(d))
+    hit = (t_out > t_in) & (x < t_out)
+    y = np.deg2rad(yaw_deg)
+    rot = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rot, position
+    d_scanner = d @ rot  # scanner frame = R^T world
+    xyz = d_scanner[hit] * x[hit, None]
+    return Scan(xyz=xyz, pulse_id=np.nonzero(hit)[0], truth_material=np.full(hit.sum(), Material.LEAF),
+                return_number=np.ones(hit.sum()), number_of_returns=np.ones(hit.sum()), pose=pose,
+                pulses=PulseTable(d_scanner, hit.astype(int)), scan_id=scan_id, name=f"box{scan_id}")
+
+
+@pytest.fixture(scope="module")
+def box_scans():
+    rng = np.random.default_rng(2024)
+    return [_box_scan(rng, np.array([-6.0, -1.0, 1.6]), 20.0, scan_id=0),
+            _box_scan(rng, np.array([4.0, 5.0, 1.6]), -70.0, scan_id=1)]
+
+
+def test_turbid_box_total_leaf_area(box_scans):
+    res = voxelize(box_scans, voxel_size=0.5, leaf_angle="spherical", ground=None,
+                   bounds=[BOX_LO, BOX_HI], progress=False)
+    lad = res.lad
+    assert not lad.occluded.any()
+    true_area = LAD * np.prod(BOX_HI - BOX_LO)
+    v = res.grid.voxel_volume
+    area = lad.lad.sum() * v
+    se = np.sqrt(np.sum(lad.lad_std**2)) * v
+    assert abs(area - true_area) < 2 * se, (area, true_area, se)
+    # each voxel within 3 of its standard errors (64 voxels: a 3-sigma miss has p ~ 0.17 overall)
+    z = (lad.lad - LAD) / lad.lad_std
+    assert np.all(np.abs(z) < 3.5), z.ravel()
+    sc = score_lad(lad.lad, np.full(lad.lad.shape, LAD), voxel_volume=v)
+    assert abs(sc["bias"]) < 2 * np.sqrt(np.mean(lad.lad_std**2) / lad.lad.size)
+    s = res.scene
+    assert isinstance(s, Scene) and s.leaf_angle.kind.value == "spherical"
+    assert np.all(np.isfinite(s.lad)) and s.meta["beams"] == sum(len(b.pulses) for b in box_scans)
+
+
+def test_no_pose_is_an_error(box_scans):
+    a, b = box_scans
+    nopose = Scan(xyz=b.xyz, pulse_id=b.pulse_id, pulses=b.pulses, name="b")
+    with pytest.raises(InputError, match="'b' has no pose.*register"):
+        voxelize([a, nopose], progress=False, ground=None)
+    with pytest.raises(InputError, match="scanner_frame=True"):
+        voxelize([nopose], progress=False, ground=None)
+
+
+def test_mismatched_scans_are_errors(box_scans):
+    a, b = box_scans
+    far = Scan(xyz=b.xyz, pulse_id=b.pulse_id, pulses=b.pulses, pose=b.pose @ np.diag([1, 1, 1, 1.0]),
+               name="far", truth_material=b.truth_material)
+    far.pose[:3, 3] += [500.0, 0, 0]
+    with pytest.raises(InputError, match="not co-registered"):
+        voxelize([a, far], progress=False, ground=None)
+    with pytest.raises(InputError, match="classes has 1 entries for 2 scans"):
+        voxelize([a, b], classes=[np.zeros(len(a))], progress=False, ground=None)
+    with pytest.raises(InputError, match="labels for its"):
+        voxelize([a, b], classes=[np.zeros(3), np.zeros(len(b))], class_codes="material",
+                 progress=False, ground=None)
+
+
+def test_grid_too_large_reports_size(box_scans):
+    with pytest.raises(InputError, match=r"needs [0-9.]+ [KMG]iB .* only 1.0 KiB"):
+        voxelize(box_scans, voxel_size=0.5, ground=None, max_bytes=1024, progress=False)
+
+
+def test_bad_choices_list_valid_ones(box_scans):
+    with pytest.raises(InputError, match="bcmle, voxlad"):
+        voxelize(box_scans, estimator="mle", progress=False)
+    with pytest.raises(InputError, match="count_stretch, voxlad"):
+        voxelize(box_scans, wood="paper", progress=False)
+    with pytest.raises(InputError, match="ground="):
+        voxelize(box_scans, ground="flat", progress=False)
+
+
+def test_cli_in_process(box_scans, tmp_path, capsys):
+    paths = []
+    for s in box_scans:
+        p = tmp_path / f"{s.name}.laz"
+        s.write(p)
+        paths.append(str(p))
+    out = tmp_path / "scene.npz"
+    vox = tmp_path / "scene.vox"
+    rc = cli_main(paths + ["--voxel-size", "0.5", "--leaf-angle", "spherical", "--estimator", "bcmle",
+                           "--ground", "none", "--bounds=-1,-1,1,1,1,3", "-o", str(out), "--vox", str(vox)])
+    assert rc == 0
+    scene = Scene.load(out)
+    assert scene.total_leaf_area() == pytest.approx(LAD * 8.0, rel=0.1)
+    assert vox.exists()
+    assert '"estimator": "bcmle"' in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        cli_main(paths + ["--estimator", "mle", "-o", str(out)])
+    with pytest.raises(SystemExit):  # argparse rejects 5 numbers
+        cli_main([paths[0], "-o", str(tmp_path / "x.npz"), "--bounds=0,0,0,1,1"])
+    # a library error becomes exit code 2 with the message, not a traceback
+    rc = cli_main([str(tmp_path / "missing.laz"), "-o", str(tmp_path / "x.npz"), "-q"])
+    assert rc == 2 and "does not exist" in capsys.readouterr().err
+
+
+def test_cli_takes_poses_from_register_transforms(box_scans, tmp_path, capsys):
+    """`tlsvox voxelize --transforms` (the JSON `tlsvox register` writes) replaces the pose
+    sidecars: scans written with a wrong pose give the box's leaf area back only with it."""
+    import copy
+    import json
+
+    paths, doc = [], {"format": "tlsvox-registration-1", "scans": []}
+    for s in box_scans:
+        wrong = copy.copy(s)
+        wrong.pose = s.pose.copy()
+        wrong.pose[:3, 3] += [0.0, 2.5, 0.0]  # 2.5 m off: misses the box
+        p = tmp_path / f"{s.name}.laz"
+        wrong.write(p)
+        paths.append(str(p))
+        doc["scans"].append({"name": s.name, "pose": s.pose.tolist()})
+    tr = tmp_path / "merged.transforms.json"
+    tr.write_text(json.dumps(doc))
+    args = ["--voxel-size", "0.5", "--leaf-angle", "spherical", "--ground", "none", "--bounds=-1,-1,1,1,1,3", "-q"]
+    rc = cli_main(paths + args + ["--transforms", str(tr), "-o", str(tmp_path / "good.npz")])
+    assert rc == 0
+    assert Scene.load(tmp_path / "good.npz").total_leaf_area() == pytest.approx(LAD * 8.0, rel=0.1)
+    rc = cli_main(paths + args + ["-o", str(tmp_path / "bad.npz")])
+    assert rc == 0  # the sidecars' wrong poses: the box is not where the echoes are
+    assert Scene.load(tmp_path / "bad.npz").total_leaf_area() < 0.7 * LAD * 8.0
+    doc["scans"] = doc["scans"][:1]
+    tr.write_text(json.dumps(doc))
+    rc = cli_main(paths + args + ["--transforms", str(tr), "-o", str(tmp_path / "x.npz")])
+    assert rc == 2 and "no pose for scan(s) ['box1']" in capsys.readouterr().err
+    assert not (tmp_path / "x.npz").exists()
+
+
+@pytest.mark.slow
+def test_synthetic_oak_two_scans_20cm():
+    """The procedural oak, two simulated scans, 20 cm voxels, scored against the mesh."""
+    from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
+    from tlsvox.truth.synthetic import make_tree
+
+    tree = make_tree(seed=1)
+    scans = []
+    for i, pose in enumerate(paper_scan_poses(tree)):
+        s = simulate_scan(tree, pose=pose, seed=10 + i, scan_id=i, progress=False)
+        s.pose = s.pose_true  # registration is tested elsewhere
+        scans.append(s)
+    res = voxelize(scans, voxel_size=0.2, leaf_angle="uniform", estimator="bcmle", ground=0.0, progress=False)
+    g = res.grid
+    truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
+    occ = res.lad.occluded
+    visible = score_lad(np.where(occ, 0, res.lad.lad), np.where(occ, 0, truth), voxel_volume=g.voxel_volume)
+    # the goal: leaf area within 5% where the scans can see
+    assert abs(visible["area_error"]) < 0.05, visible
+    per_voxel = score_lad(res.lad.lad, truth, mask=~occ)
+    assert abs(per_voxel["bias"]) < 0.05 * truth[~occ & (truth > 0)].mean()

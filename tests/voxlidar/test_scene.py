@@ -1,0 +1,108 @@
+"""Scene NPZ save/load and AMAPVox .vox import/export round trips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlsvox.voxel.amapvox import read_vox, write_vox
+from tlsvox.errors import InputError
+from voxlidar.leafangle import LeafAngle
+from voxlidar.scene import Scene
+
+
+@pytest.fixture
+def scene(rng):
+    shape = (6, 5, 4)
+    ijk = np.argwhere(rng.random(shape) < 0.4)
+    m = len(ijk)
+    occluded = rng.random(m) < 0.2
+    lad = np.where(occluded, 0.0, rng.gamma(2.0, 0.7, m))
+    lad[occluded & (rng.random(m) < 0.5)] = 0.9  # some occluded voxels filled
+    return Scene(origin=(10.2, -3.4, 0.6), voxel_size=0.2, shape=shape, ijk=ijk, lad=lad,
+                 wood=rng.random(m) * (rng.random(m) < 0.3), wood_kind="probability", occluded=occluded,
+                 lad_std=lad * 0.1, leaf_angle=LeafAngle("beta", mu=2.8, nu=1.2), leaf_azimuth="outward",
+                 crown_center=(10.8, -2.9), ground_z=0.6, meta={"estimator": "bcmle"})
+
+
+def _same(a: Scene, b: Scene):
+    assert a.shape == b.shape and a.voxel_size == pytest.approx(b.voxel_size)
+    np.testing.assert_allclose(a.origin, b.origin, atol=1e-6)
+    for name in ("lad", "wood", "occluded", "lad_std"):
+        np.testing.assert_allclose(a.dense(name), b.dense(name), rtol=1e-7, atol=1e-9, err_msg=name)
+    assert a.leaf_angle == b.leaf_angle
+    assert a.leaf_azimuth == b.leaf_azimuth and a.wood_kind == b.wood_kind
+    assert a.ground_z == pytest.approx(b.ground_z)
+    np.testing.assert_allclose(a.crown_center, b.crown_center)
+
+
+def test_npz_round_trip(scene, tmp_path):
+    path = scene.save(tmp_path / "s.npz")
+    back = Scene.load(path)
+    _same(scene, back)
+    assert back.meta == scene.meta
+    np.testing.assert_array_equal(back.ijk, scene.ijk)
+    assert back.total_leaf_area() == pytest.approx(scene.total_leaf_area(), rel=1e-12)
+
+
+def test_vox_round_trip(scene, tmp_path):
+    path = write_vox(scene, tmp_path / "s.vox")
+    text = path.read_text().splitlines()
+    assert text[0] == "VOXEL SPACE"
+    assert text[3] == "#split: 6 5 4"
+    assert text[6].startswith("i j k PadBVTotal")
+    assert len(text) == 7 + 6 * 5 * 4  # every voxel of the grid, AMAPVox style
+    back = read_vox(path)
+    _same(scene, back)
+
+
+def test_vox_occluded_unfilled_is_nan(scene, tmp_path):
+    path = write_vox(scene, tmp_path / "s.vox")
+    rows = np.loadtxt(path, skiprows=7)
+    dense_occ = scene.dense("occluded").ravel()
+    dense_lad = scene.dense("lad").ravel()
+    assert np.all(np.isnan(rows[dense_occ & (dense_lad == 0), 3]))
+    assert np.all(np.isfinite(rows[~dense_occ, 3]))
+
+
+def test_reads_plain_amapvox_layout(tmp_path):
+    """A file as AMAPVox writes it: other columns, NaN PAD, #res on the #type line."""
+    lines = ["VOXEL SPACE", "#min_corner: 0.0 0.0 0.0", "#max_corner: 1.0 1.0 0.5", "#split: 2 2 1",
+             "#type: TLS #res: 0.5 #MAX_PAD: 5.0",
+             "i j k PadBVTotal angleMean bsEntering bsIntercepted nbSampling transmittance",
+             "0 0 0 1.25 45 10 2 10 0.8", "0 1 0 NaN 45 0 0 0 NaN", "1 0 0 0 45 10 0 10 1", "1 1 0 3.5 45 10 5 10 0.5"]
+    p = tmp_path / "a.vox"
+    p.write_text("\n".join(lines) + "\n")
+    s = read_vox(p)
+    assert s.shape == (2, 2, 1) and s.voxel_size == 0.5
+    assert s.dense("lad")[:, :, 0].tolist() == [[1.25, 0.0], [0.0, 3.5]]
+    assert s.dense("occluded")[0, 1, 0] and not s.dense("occluded")[1, 1, 0]
+
+
+def test_bad_vox_files(tmp_path):
+    p = tmp_path / "bad.vox"
+    p.write_text("hello\n")
+    with pytest.raises(InputError, match="VOXEL SPACE"):
+        read_vox(p)
+    p.write_text("VOXEL SPACE\n#min_corner: 0 0 0\n#split: 1 1 1\ni j k PadBVTotal\n0 0 0 1\n")
+    with pytest.raises(InputError, match="max_corner"):
+        read_vox(p)
+    with pytest.raises(InputError, match="does not exist"):
+        read_vox(tmp_path / "none.vox")
+    with pytest.raises(InputError, match="Scene"):
+        write_vox("scene.npz", tmp_path / "x.vox")
+
+
+def test_npz_write_is_atomic(scene, tmp_path, monkeypatch):
+    """A failure while writing leaves the previous file intact."""
+    path = scene.save(tmp_path / "s.npz")
+    before = path.read_bytes()
+
+    def boom(*a, **k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(np, "savez_compressed", boom)
+    with pytest.raises(RuntimeError):
+        scene.save(path)
+    assert path.read_bytes() == before
+    assert [f.name for f in tmp_path.iterdir()] == ["s.npz"]

@@ -1,0 +1,230 @@
+"""Classifying a scan: leaf, wood, ground, noise (the three methods of :class:`ClassifyMethod`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import numpy as np
+from tlsvox.errors import InputError
+from voxlidar.choices import Choice
+from tlsvox.io import check_scan
+from voxlidar.materials import DEFAULT_OPTICS, Material
+from tlsvox.reflectance import apparent_reflectance
+from tlsvox.scan import Scan
+from tlsvox.classify._classes import PointClass
+from tlsvox.classify._geometry import ground_band_mask, incidence_cosine, isolated, neighbourhood_mean, refine_geometric
+from tlsvox.classify._mixture import GaussianMixture2, ThresholdRule, fit_two_gaussians, leaf_wood_threshold
+
+
+class ClassifyMethod(Choice):
+    """How echoes are split into leaf, wood and noise (see the module docstring)."""
+
+    NEIGHBOURHOOD = "neighbourhood"  #: neighbourhood-mean dB reflectance, geometric noise
+    ECHO = "echo"  #: per-echo reflectance, geometric noise
+    PAPER = "paper"  #: per-echo reflectance, noise below a fraction of the leaf reflectance
+
+
+@dataclass
+class Classification:
+    """Labels of one scan and how they were decided.
+
+    Attributes
+    ----------
+    labels : (N,) uint8
+        :class:`PointClass` of every echo.
+    reflectance : (N,) float64
+        Apparent reflectance of every echo (linear, before any correction).
+    feature : (N,) float64
+        The value the leaf/wood threshold splits (NaN where not fitted:
+        ground, target, noise): linear reflectance (``paper``, ``echo``,
+        divided by the incidence cosine with ``incidence_correction``) or
+        neighbourhood-mean reflectance in dB (``neighbourhood``).
+    feature_label : str
+        What ``feature`` is, with its unit.
+    mixture : GaussianMixture2
+        Two-Gaussian fit to ``feature`` of the vegetation echoes.
+    leaf_wood_threshold : float
+        In the unit of ``feature``.
+    noise_threshold : float
+        Linear reflectance below which an echo is noise (``paper``); NaN for
+        the geometric noise rule.
+    target_threshold : float
+        Linear reflectance above which an echo is a target.
+    method, rule : str
+    moved_to_wood : int
+        Echoes the geometric refinement moved (0 without it).
+    """
+
+    scan_name: str
+    labels: np.ndarray
+    reflectance: np.ndarray
+    mixture: GaussianMixture2
+    leaf_wood_threshold: float
+    noise_threshold: float
+    target_threshold: float
+    rule: str
+    refined: bool = False
+    moved_to_wood: int = 0
+    counts: dict = field(default_factory=dict)
+    method: str = ClassifyMethod.PAPER.value
+    feature: np.ndarray | None = None
+    feature_label: str = "apparent reflectance"
+    incidence_correction: bool = False
+    fit_single_returns: bool = False
+
+    def summary(self) -> dict:
+        m = self.mixture
+        nt = self.noise_threshold
+        return {"scan": self.scan_name, "method": self.method, "rule": self.rule,
+                "incidence_correction": self.incidence_correction,
+                "fit_single_returns": self.fit_single_returns, "feature": self.feature_label,
+                "leaf_wood_threshold": self.leaf_wood_threshold,
+                "noise_threshold": float(nt) if np.isfinite(nt) else None,
+                "target_threshold": self.target_threshold,
+                "means": m.means.tolist(), "sigmas": m.sigmas.tolist(), "weights": m.weights.tolist(),
+                "refined": self.refined, "moved_to_wood": self.moved_to_wood, "counts": self.counts}
+
+
+def _scan_step_deg(scan: Scan) -> float | None:
+    grid = getattr(getattr(scan, "pulses", None), "grid", None)
+    if grid is None:
+        return None
+    return float(min(grid.zenith_step_deg, grid.azimuth_step_deg))
+
+
+def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod.NEIGHBOURHOOD,
+                  rule: "str | ThresholdRule" = ThresholdRule.MIDWAY,
+                  incidence_correction: bool = False, fit_single_returns: bool = True,
+                  smooth_k: int = 10, normal_k: int = 20,
+                  min_cos: float = 0.2, noise_radius_cells: float = 10.0, noise_min_neighbours: int = 1,
+                  nominal_leaf_reflectance: float | None = None, noise_fraction: float = 0.5,
+                  target_threshold: float = 1.0, ground: bool = True, ground_band_m: float = 0.5,
+                  ground_tolerance_m: float = 0.05, refine: bool = False, refine_k: int = 20,
+                  min_linearity: float = 0.6, min_wood_fraction: float = 0.5,
+                  wavelength_nm: float = 1550.0, **reflectance_kwargs) -> Classification:
+    """Classify every echo of one scan as leaf, wood, noise, ground or target.
+
+    Parameters
+    ----------
+    scan : Scan
+        Needs reflectance (dB) or intensity (then pass ``calibration=``, see
+        :func:`tlsvox.reflectance.apparent_reflectance`).  Points in the
+        scanner frame (scanner at the origin, z up).
+    method : {'neighbourhood', 'echo', 'paper'}
+        See :class:`ClassifyMethod` and the module docstring.
+    rule : {'midway', 'equal_posterior'}
+        Leaf/wood threshold rule.
+    incidence_correction : bool, default False
+        Divide each echo's reflectance by its estimated incidence cosine
+        (:func:`incidence_cosine`, ``normal_k`` neighbours, clamped at
+        ``min_cos``) before the fit.  Off by default: with normals estimated
+        from the cloud it lowers the scores on the synthetic truth
+        (docs/classify_register.md).
+    fit_single_returns : bool, default True
+        ``neighbourhood`` and ``echo``: fit the two Gaussians to the echoes of
+        single-echo pulses only (when there are at least 10), then threshold
+        every echo.  An echo of a multi-echo pulse carries only part of the
+        beam, so its reflectance is lowered by an unknown fraction; full hits
+        show the material.  Ignored without return counts.
+    smooth_k : int, default 10
+        Neighbours averaged by the ``neighbourhood`` method.
+    noise_radius_cells, noise_min_neighbours
+        Geometric noise rule (``neighbourhood`` and ``echo``), see :func:`isolated`.
+    nominal_leaf_reflectance : float, optional
+        ``paper`` only.  Defaults to the leaf reflectance of
+        :data:`voxlidar.materials.DEFAULT_OPTICS` at ``wavelength_nm`` (0.267 at 1550 nm).
+    noise_fraction : float, default 0.5
+        ``paper`` only: noise below ``noise_fraction * nominal_leaf_reflectance``.
+    target_threshold : float, default 1.0
+        Above this (0 dB) an echo is a retro-reflective target.
+    ground : bool, default True
+        Set apart the ground plane (scanner z taken as up).
+    ground_band_m, ground_tolerance_m : float, metres
+        The plane is fitted to echoes within ``ground_band_m`` of the lowest
+        and takes echoes within ``ground_tolerance_m`` of it.
+    refine : bool, default False
+        Apply :func:`refine_geometric`.
+    refine_k, min_linearity, min_wood_fraction
+        See :func:`refine_geometric`.
+
+    Returns
+    -------
+    Classification
+
+    References
+    ----------
+    Béland et al. (2014), doi:10.1016/j.agrformet.2013.09.005
+    Kaasalainen et al. (2011), doi:10.3390/rs3102207
+    """
+    method = ClassifyMethod.parse(method, "method")
+    rule = ThresholdRule.parse(rule, "rule")
+    check_scan(scan, min_points=30, require_reflectance=True)
+    if method is ClassifyMethod.PAPER:
+        if nominal_leaf_reflectance is None:
+            key = int(round(wavelength_nm))
+            if key not in DEFAULT_OPTICS:
+                raise InputError(f"wavelength_nm={wavelength_nm!r}: no default leaf reflectance; "
+                                 f"pass nominal_leaf_reflectance= (tabulated: {sorted(DEFAULT_OPTICS)} nm)")
+            nominal_leaf_reflectance = DEFAULT_OPTICS[key][Material.LEAF].reflectance
+        if not (0 < noise_fraction < 1):
+            raise InputError(f"noise_fraction={noise_fraction!r} must lie in (0, 1)")
+    for name, v in (("smooth_k", smooth_k), ("normal_k", normal_k)):
+        if int(v) < 1:
+            raise InputError(f"{name}={v!r} must be an integer >= 1")
+    rho = apparent_reflectance(scan, **reflectance_kwargs)
+    rho = np.where(np.isfinite(rho), rho, 0.0)
+    labels = np.full(len(scan), PointClass.NOISE, np.uint8)
+    is_ground = (ground_band_mask(scan.xyz, band_m=ground_band_m, tolerance_m=ground_tolerance_m,
+                              max_tilt_deg=15.0) if ground else np.zeros(len(scan), bool))
+    is_target = rho > target_threshold
+    candidate = (~is_ground) & (~is_target)
+    if method is ClassifyMethod.PAPER:
+        noise_t = noise_fraction * nominal_leaf_reflectance
+        veg = candidate & (rho >= noise_t)
+        why = f"between the noise threshold {noise_t:.3f} and {target_threshold}"
+    else:
+        noise_t = float("nan")
+        veg = candidate & (rho > 0)
+        if np.count_nonzero(veg):
+            idx = np.flatnonzero(veg)
+            lone = isolated(scan.xyz[idx], angular_step_deg=_scan_step_deg(scan),
+                            radius_cells=noise_radius_cells, min_neighbours=noise_min_neighbours)
+            veg[idx[lone]] = False
+        why = f"above 0 and below {target_threshold} with neighbours (not isolated)"
+    if np.count_nonzero(veg) < 10:
+        raise InputError(
+            f"scan {scan.name!r}: only {int(np.count_nonzero(veg))} echoes lie {why}; check the "
+            "reflectance units (linear 0-1 expected; pass calibration= for raw intensity)")
+    idx = np.flatnonzero(veg)
+    value = rho[idx]
+    if incidence_correction:
+        value = value / incidence_cosine(scan.xyz[idx], k=normal_k, min_cos=min_cos)
+    if method is ClassifyMethod.NEIGHBOURHOOD:
+        value = neighbourhood_mean(scan.xyz[idx], 10.0 * np.log10(value), k=smooth_k)
+        label = f"mean reflectance of {smooth_k + 1} neighbours, dB"
+    else:
+        label = "apparent reflectance"
+    if incidence_correction:
+        label += " / cos(incidence)"
+    fit = np.ones(len(idx), bool)
+    if (fit_single_returns and method is not ClassifyMethod.PAPER
+            and getattr(scan, "number_of_returns", None) is not None):
+        single = np.asarray(scan.number_of_returns)[idx] == 1
+        if np.count_nonzero(single) >= 10:
+            fit = single
+    mix = fit_two_gaussians(value[fit])
+    t = leaf_wood_threshold(mix, rule=rule)
+    feature = np.full(len(scan), np.nan)
+    feature[idx] = value
+    labels[idx] = np.where(value < t, PointClass.LEAF, PointClass.WOOD)
+    labels[is_target & ~is_ground] = PointClass.TARGET
+    labels[is_ground] = PointClass.GROUND
+    moved = 0
+    if refine:
+        labels, moved = refine_geometric(scan.xyz, labels, k=refine_k, min_linearity=min_linearity,
+                                         min_wood_fraction=min_wood_fraction)
+    counts = {c.name.lower(): int(np.count_nonzero(labels == c)) for c in PointClass}
+    return Classification(scan.name, labels, rho, mix, t, noise_t, target_threshold, rule.value,
+                          refine, moved, counts, method=method.value, feature=feature, feature_label=label,
+                          incidence_correction=bool(incidence_correction),
+                          fit_single_returns=bool(fit.sum() < len(fit)))

@@ -1,0 +1,168 @@
+"""``tlsvox register`` and ``tlsvox classify``: sub-commands over the library.
+
+:func:`register` adds both sub-commands to an ``argparse`` sub-parser set;
+each sets ``func`` to its handler, which takes the parsed namespace and
+returns an exit status (0 = success, 1 = a clear failure printed to stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+from voxlidar.safeio import check_figure_path, check_outputs, json_text
+
+from tlsvox.errors import TlsvoxError
+from tlsvox.scan import sidecar_paths
+
+__all__ = ["register", "cmd_register", "cmd_classify"]
+
+_REGISTER_HELP = """\
+Co-register two or more scans of one plot and merge them.
+
+Every scan is registered to the first one (the reference): retro-reflective
+targets when three or more are seen by both scans (bright clusters above
+0 dB), otherwise FPFH features + RANSAC, refined by point-to-plane ICP.  A
+result that cannot be trusted (no consensus, low fitness) stops with the
+fit figures instead of writing a wrong cloud.
+
+Writes the merged cloud (LAS 1.4, reference frame, point_source_id = scan id)
+and a JSON with each scan's 4x4 pose and fit figures (fitness, inlier RMSE,
+and, for simulated scans, the error against the true pose).
+"""
+
+_CLASSIFY_HELP = """\
+Classify the echoes of each scan as leaf, wood, noise, ground or target.
+
+Per scan: a two-Gaussian fit to the reflectance of the vegetation echoes,
+leaf/wood threshold midway between the means (or at equal posterior),
+optional geometric refinement of branch edges.  Methods (--method):
+neighbourhood (default) fits the mean dB reflectance of each echo and its
+10 nearest neighbours, on the echoes of single-echo pulses, and calls an
+echo noise when it has no neighbour within 10 scan-grid steps; echo does the
+same per echo; paper is the paper's rule (noise below 50 %% of the nominal
+leaf reflectance).  Writes OUT/NAME.classified.laz per scan (LAS
+classification: 2 ground, 5 leaf, 7 noise, 64 wood, 65 target) and
+OUT/classification.json with thresholds, fits and, for simulated scans,
+the confusion matrix and precision/recall against the truth.
+"""
+
+
+def register(subparsers) -> None:
+    """Add the ``register`` and ``classify`` sub-commands to ``subparsers``."""
+    p = subparsers.add_parser("register", help="co-register scans and merge them",
+                              description=_REGISTER_HELP,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scans", nargs="+", metavar="SCAN", help="scan files (LAS/LAZ/PLY/PCD/XYZ); the first is the reference")
+    p.add_argument("-o", "--output", required=True, help="merged cloud, .las or .laz")
+    p.add_argument("--transforms", default=None, help="JSON of poses and fit figures (default: OUTPUT with .transforms.json)")
+    p.add_argument("--method", default="auto", choices=["auto", "targets", "fpfh"],
+                   help="coarse alignment (default: auto = targets, else FPFH)")
+    p.add_argument("--min-fitness", type=float, default=0.25, help="least accepted fitness (default 0.25)")
+    p.add_argument("--icp-after-targets", action="store_true", help="also refine a target fit by ICP")
+    p.add_argument("--seed", type=int, default=0, help="first RANSAC seed (default 0)")
+    p.set_defaults(func=cmd_register)
+
+    c = subparsers.add_parser("classify", help="leaf/wood/noise classification by reflectance",
+                              description=_CLASSIFY_HELP,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    c.add_argument("scans", nargs="+", metavar="SCAN", help="scan files with reflectance (dB) or intensity")
+    c.add_argument("-o", "--output", required=True, help="output folder")
+    c.add_argument("--rule", default="midway", choices=["midway", "equal_posterior"],
+                   help="leaf/wood threshold rule (default: midway, the paper's)")
+    c.add_argument("--method", default="neighbourhood", choices=["neighbourhood", "echo", "paper"],
+                   help="classification method (default: neighbourhood)")
+    c.add_argument("--incidence-correction", action="store_true",
+                   help="divide reflectance by the estimated incidence cosine before the fit")
+    c.add_argument("--refine", action="store_true", help="geometric refinement of branch edges")
+    c.add_argument("--no-ground", action="store_true", help="do not set the ground plane apart")
+    c.add_argument("--plot", type=Path, default=None, metavar="PATH",
+                   help="also write the reflectance histograms (paper Fig. 3) to PATH (.png, .pdf, .svg, .jpg)")
+    c.set_defaults(func=cmd_classify)
+
+
+
+def cmd_register(args) -> int:
+    """Handler of ``tlsvox register``."""
+    from tlsvox.io import read_any
+    from tlsvox.register import register_scans, write_registered
+
+    out = Path(args.output)
+    check_outputs(_scan_inputs(args.scans),
+                  [("-o", out), ("--transforms", Path(args.transforms) if args.transforms
+                                 else out.with_suffix(".transforms.json"))])
+    scans = [read_any(p, scan_id=k) for k, p in enumerate(args.scans)]
+    if len(scans) < 2:
+        raise TlsvoxError(f"register needs at least 2 scans, got {len(scans)}")
+    results = register_scans(scans, method=args.method, min_fitness=args.min_fitness,
+                             icp_after_targets=args.icp_after_targets, seed=args.seed)
+    las, js = write_registered(args.output, scans, results=results, transforms_path=args.transforms)
+    for r in results:
+        if r is None:
+            continue
+        line = (f"{r.source} -> {r.reference}: {r.method}, fitness {r.fitness:.3f}, "
+                f"inlier RMSE {r.inlier_rmse_m * 1000:.1f} mm")
+        if r.error_vs_truth:
+            line += (f"; vs truth {r.error_vs_truth['rotation_deg']:.4f} deg, "
+                     f"{r.error_vs_truth['translation_m'] * 1000:.1f} mm")
+        print(line)
+    print(f"wrote {las} and {js}")
+    return 0
+
+
+def cmd_classify(args) -> int:
+    """Handler of ``tlsvox classify``."""
+    from tlsvox.classify import classify_scan, score
+    from tlsvox.io import read_any
+    from voxlidar.safeio import atomic_write
+
+    out = Path(args.output)
+    names = [Path(p).with_suffix("").name for p in args.scans]
+    check_outputs(_scan_inputs(args.scans),
+                  [(f"-o {out}/", p) for n in names
+                   for p in (out / f"{n}.classified.laz", *sidecar_paths(out / f"{n}.classified.laz"))]
+                  + [(f"-o {out}/", out / "classification.json")]
+                  + [("--plot", args.plot)])
+    check_figure_path("--plot", args.plot)
+    scans = [read_any(p, scan_id=k, require_reflectance=True) for k, p in enumerate(args.scans)]
+    results = [classify_scan(s, method=args.method, rule=args.rule, refine=args.refine,
+                             incidence_correction=args.incidence_correction, ground=not args.no_ground)
+               for s in scans]
+    doc = {"scans": []}
+    out.mkdir(parents=True, exist_ok=True)
+    for s, c, name in zip(scans, results, names):
+        entry = c.summary()
+        if s.truth_material is not None:
+            sc = score(c.labels, s.truth_material)
+            entry["score"] = sc.to_dict()
+            print(f"{s.name}: leaf P/R {sc.precision['leaf']:.3f}/{sc.recall['leaf']:.3f}, "
+                  f"wood P/R {sc.precision['wood']:.3f}/{sc.recall['wood']:.3f}")
+        _write_classified(out / f"{name}.classified.laz", s, c.labels)
+        doc["scans"].append(entry)
+    atomic_write(out / "classification.json",
+                 lambda tmp: Path(tmp).write_text(json_text(doc, indent=1)))
+    if args.plot:
+        from tlsvox.classify.plots import plot_reflectance_histograms
+
+        plot_reflectance_histograms(results, args.plot)
+    print(f"wrote {len(scans)} classified scan(s) to {out}")
+    return 0
+
+
+def _scan_inputs(paths) -> list:
+    """(label, path) of every scan file and the sidecars read beside it."""
+    return [("scan", p) for path in paths for p in (path, *sidecar_paths(path))]
+
+
+def _write_classified(path: Path, scan, labels) -> None:
+    """Write a scan with its labels as LAS classification codes, with its pulse table
+    and pose sidecars, so that ``tlsvox voxelize`` takes it as it is."""
+    import dataclasses
+
+    from tlsvox.scan import CLASSIFY_MARK
+
+    # the scan keeps its name, so `voxelize --transforms` finds its pose by it
+    out = dataclasses.replace(scan, classification=np.asarray(labels, dtype=np.uint8),
+                              meta=dict(scan.meta, classes=CLASSIFY_MARK))
+    out.write(path)

@@ -1,0 +1,16 @@
+"""The voxel stage (VoxLAD): registered scans -> leaf area density, wood and ground.
+
+- :mod:`tlsvox.voxel.grid`: the regular grid beams are traced through;
+- :mod:`tlsvox.voxel.pulses`: beams (pulses with their echoes) from scans;
+- :mod:`tlsvox.voxel.trace`: beam tracing on OpenCL (per-voxel sums);
+- :mod:`tlsvox.voxel.estimators`: LAD estimators on those sums;
+- :mod:`tlsvox.voxel.wood`: wood per voxel;
+- :mod:`tlsvox.voxel.voxlad`: the whole stage, :func:`~tlsvox.voxel.voxlad.voxelize`;
+- :mod:`tlsvox.voxel.amapvox`: AMAPVox ``.vox`` import and export.
+"""
+
+from tlsvox.voxel.estimators import Estimator
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.voxlad import voxelize
+
+__all__ = ["Estimator", "VoxelGrid", "voxelize"]

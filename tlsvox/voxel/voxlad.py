@@ -1,0 +1,347 @@
+"""The VoxLAD pipeline: scans (+ echo classes) -> grid -> trace -> LAD -> wood -> ground -> Scene.
+
+:func:`voxelize` takes registered scans (each with a world-from-scanner
+pose), turns every pulse into a beam (:mod:`tlsvox.voxel.pulses`), traces them
+through a voxel grid (:mod:`tlsvox.voxel.trace`), estimates leaf area density
+(:mod:`tlsvox.voxel.estimators`) and wood (:mod:`tlsvox.voxel.wood`), finds the ground
+(:mod:`tlsvox.ground`), and returns a :class:`~voxlidar.scene.Scene` with the
+intermediate results for inspection.  :func:`score_lad` compares a LAD grid
+with a known truth.
+
+Examples
+--------
+>>> import numpy as np
+>>> from tlsvox.scan import Scan, PulseTable
+>>> rng = np.random.default_rng(0)
+>>> d = rng.normal(size=(2000, 3)); d[:, 2] = np.abs(d[:, 2]); d /= np.linalg.norm(d, axis=1)[:, None]
+>>> hit = rng.random(2000) < 0.3
+>>> scan = Scan(xyz=d[hit] * 3.0, pulse_id=np.nonzero(hit)[0], truth_material=np.ones(hit.sum()),
+...             pose=np.eye(4), pulses=PulseTable(d, hit.astype(int)))
+>>> res = voxelize([scan], voxel_size=0.5, ground=None, progress=False)
+>>> res.scene.n_voxels > 0 and bool(np.all(np.isfinite(res.scene.lad)))
+True
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tlsvox.errors import InputError
+from tlsvox.voxel.estimators import Estimator, FillMode, LadEstimate, estimate_lad
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.ground import GroundPlane, fit_ground, ground_mask
+from voxlidar.leafangle import LeafAngle
+from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass
+from tlsvox.scan import AngularGrid, Scan
+from voxlidar.scene import Scene
+from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats
+from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
+
+__all__ = ["VoxelizeResult", "voxelize", "score_lad"]
+
+#: estimator work arrays, bytes per voxel, on top of the tracer's
+_ESTIMATE_BYTES = 24 * 8
+
+
+@dataclass
+class VoxelizeResult:
+    """What :func:`voxelize` made, and from what."""
+
+    scene: Scene
+    grid: VoxelGrid
+    stats: VoxelStats
+    lad: LadEstimate
+    wood: WoodEstimate
+    ground: GroundPlane | None
+    scans: list = field(default_factory=list)  #: per-scan info dicts
+    timings: dict = field(default_factory=dict)  #: seconds per stage
+
+
+def _kinds_for(scan: Scan, classes, class_codes: str) -> np.ndarray:
+    if classes is None:
+        if scan.classification is not None:  # written by tlsvox classify
+            return kinds_from_pointclass(scan.classification)
+        if scan.truth_material is not None:
+            return kinds_from_material(scan.truth_material)
+        return np.full(len(scan), EchoKind.LEAF, np.uint8)
+    c = np.asarray(classes).reshape(-1)
+    if len(c) != len(scan):
+        raise InputError(f"classes for scan {scan.name!r} has {len(c)} labels for its {len(scan)} echoes; "
+                         "pass one label per echo, in the scan's order")
+    if class_codes == "pointclass":
+        return kinds_from_pointclass(c)
+    if class_codes == "material":
+        return kinds_from_material(c)
+    raise InputError(f"class_codes={class_codes!r} must be 'pointclass' (tlsvox.classify) or 'material'")
+
+
+def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str = "pointclass",
+             leaf_angle="uniform", leaf_azimuth: str = "uniform", estimator="bcmle",
+             wood="count_stretch", wood_percentile: float = 90.0, ground="ransac",
+             ground_tolerance: float = 0.15, bounds=None, margin: float = 0.0, n_min: int = 5,
+             min_explored: float = 0.05, leaf_size: float | None = 0.05, small_voxel_factor: float = 1.0,
+             fill="none", max_range: float | None = None, angular_grid: AngularGrid | None = None,
+             socs_rotation=None, scanner_frame: bool = False, crown_center=None,
+             tracer: Tracer | None = None, max_bytes: int | None = None, progress: bool = True) -> VoxelizeResult:
+    """Build the voxel scene from registered scans.
+
+    Parameters
+    ----------
+    scans : sequence of Scan
+        Each with ``pose`` (world-from-scanner) unless ``scanner_frame``.
+    voxel_size : float, metres
+    classes : sequence of (N_s,) arrays, optional
+        Echo classes per scan (``tlsvox.classify`` labels by default, see
+        ``class_codes``).  Default: each scan's ``classification`` (a scan
+        written by ``tlsvox classify``), else its ``truth_material``
+        (simulated), else every echo counted as a leaf (the result is then
+        plant area density).
+    class_codes : {"pointclass", "material"}
+    leaf_angle : str, dict or LeafAngle
+        Leaf inclination model used for G(theta) (default uniform, the paper).
+    leaf_azimuth : {"uniform", "outward"}
+        Stored in the scene for the simulator.
+    estimator : {"bcmle", "voxlad", "beer_lambert", "contact_frequency"}
+    wood : {"count_stretch", "voxlad"}
+    wood_percentile : float
+        ``count_stretch``: percentile of non-zero counts that maps to 1.
+    ground : "ransac", float, GroundPlane or None
+        Fit a plane to the lowest echoes, use a given height, or no ground.
+    ground_tolerance : float, metres
+        Echoes within this height above the plane stop beams as ground, not leaves.
+    bounds : (2, 3) float, metres, optional
+        Region to voxelise; default the echoes' bounding box (+ ``margin``).
+    n_min, min_explored, leaf_size, small_voxel_factor, fill
+        See :func:`tlsvox.voxel.estimators.estimate_lad`.
+    max_range, angular_grid, socs_rotation
+        See :func:`tlsvox.voxel.pulses.beams_from_scan` (real scans without pulse tables);
+        ``max_range`` must be positive (metres).
+    scanner_frame : bool
+        Allow a single scan without a pose: the world is its own frame.
+    crown_center : (2,) float, optional
+        Default: the LAD-weighted centroid.
+    tracer : Tracer, optional
+        OpenCL tracer to reuse (default: a new one).
+    max_bytes : int, optional
+        Memory limit for the grid (default: what the system has available).
+    progress : bool
+        tqdm progress bars.
+
+    Returns
+    -------
+    VoxelizeResult
+    """
+    timings = {}
+    t0 = time.perf_counter()
+    if isinstance(scans, Scan):
+        scans = [scans]
+    scans = list(scans)
+    if not scans:
+        raise InputError("scans is empty: pass at least one Scan")
+    for s in scans:
+        if not isinstance(s, Scan):
+            raise InputError(f"scans must hold tlsvox Scan objects, got {type(s).__name__}")
+    if classes is not None and len(classes) != len(scans):
+        raise InputError(f"classes has {len(classes)} entries for {len(scans)} scans: one array per scan")
+    if max_range is not None and not (np.isfinite(max_range) and max_range > 0):
+        raise InputError(f"max_range={max_range!r} must be a positive distance in metres (how far empty "
+                         "pulses are followed), or None for the scanner's range")
+    est = Estimator.parse(estimator, "estimator")
+    fill = FillMode.parse(fill, "fill")
+    wood_m = WoodMethod.parse(wood, "wood")
+    la = LeafAngle.from_dict(leaf_angle)
+    poses = []
+    for s in scans:
+        if s.pose is not None:
+            poses.append(s.pose)
+        elif scanner_frame and len(scans) == 1:
+            poses.append(np.eye(4))
+        else:
+            hint = ("; or for a single scan use its own frame (scanner_frame=True, CLI --scanner-frame)"
+                    if len(scans) == 1 else "")
+            raise InputError(f"scan {s.name!r} has no pose (world-from-scanner 4x4): register the scans "
+                             f"first (tlsvox register){hint}")
+    world = [s.world_xyz(p) for s, p in zip(scans, poses)]
+    if len(world) > 1:
+        boxes = [(w.min(axis=0), w.max(axis=0)) for w in world if len(w)]
+        for i in range(1, len(boxes)):
+            lo = np.maximum(boxes[0][0], boxes[i][0])
+            hi = np.minimum(boxes[0][1], boxes[i][1])
+            if np.any(lo > hi):
+                raise InputError(
+                    f"scan {scans[i].name!r} does not overlap scan {scans[0].name!r} in the world frame "
+                    f"(boxes {np.round(boxes[0], 2).tolist()} and {np.round(boxes[i], 2).tolist()}): "
+                    "the scans are not co-registered; register them first"
+                )
+    kinds = [_kinds_for(s, None if classes is None else classes[i], class_codes) for i, s in enumerate(scans)]
+
+    # ground
+    plane = None
+    if isinstance(ground, GroundPlane):
+        plane = ground
+    elif isinstance(ground, str):
+        if ground.lower() == "ransac":
+            pts = np.vstack([w[k != EchoKind.IGNORE] for w, k in zip(world, kinds)])
+            plane = fit_ground(pts)
+        elif ground.lower() != "none":
+            raise InputError(f"ground={ground!r} must be 'ransac', 'none', a height in metres or a GroundPlane")
+    elif ground is not None:
+        plane = GroundPlane.horizontal(float(ground))
+    if plane is not None:
+        for w, k in zip(world, kinds):
+            near = ground_mask(w, plane, tolerance=ground_tolerance) & (k == EchoKind.LEAF)
+            k[near] = EchoKind.OTHER
+    timings["prepare"] = time.perf_counter() - t0
+
+    # grid (and the memory it needs, checked before anything large is made)
+    if bounds is None:
+        # the vegetation's box: ground and targets may reach far beyond the trees
+        veg = [w[(k == EchoKind.LEAF) | (k == EchoKind.WOOD)] for w, k in zip(world, kinds)]
+        pts = np.vstack(veg)
+        if len(pts) == 0:
+            raise InputError("the scans have no leaf or wood echoes to size the grid from; pass bounds=")
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        if plane is not None:
+            lo[2] = max(lo[2], plane.z_center - voxel_size)
+        grid = VoxelGrid.from_bounds(lo, hi, voxel_size=voxel_size, margin=margin)
+    else:
+        b = np.asarray(bounds, dtype=np.float64)
+        if b.shape != (2, 3):
+            raise InputError(f"bounds must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got shape {b.shape}")
+        grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin)
+    tracer = tracer or Tracer()
+    grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,
+                      what="tracing and estimation")
+
+    # beams
+    t1 = time.perf_counter()
+    parts, infos = [], []
+    it = list(zip(scans, poses, kinds))
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(it, desc="pulses", unit="scan", leave=False)
+    for s, p, k in it:
+        b, info = beams_from_scan(s, kinds=k, pose=p, leaf_angle=la, max_range=max_range,
+                                  angular_grid=angular_grid, socs_rotation=socs_rotation)
+        parts.append(b)
+        infos.append(info)
+    beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
+    timings["pulses"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    stats = tracer.trace(grid, beams, progress=progress, max_bytes=max_bytes)
+    timings["trace"] = time.perf_counter() - t2
+
+    t3 = time.perf_counter()
+    lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
+                       small_voxel_factor=small_voxel_factor, fill=fill)
+    wood_est = estimate_wood(stats, method=wood_m, percentile=wood_percentile, n_min=n_min)
+    values = lad.lad.copy()
+    occluded = lad.occluded.copy()
+    if plane is not None:
+        top = grid.lower[2] + (np.arange(grid.shape[2]) + 1) * grid.voxel_size
+        below = top <= plane.z_center
+        values[:, :, below] = 0.0
+        occluded[:, :, below] = False
+    keep = (values > 0) | (wood_est.value > 0) | occluded
+    ijk = np.argwhere(keep)
+    sel = tuple(ijk.T)
+    if crown_center is None:
+        w = values[sel]
+        cc = (grid.centers(ijk)[:, :2] * w[:, None]).sum(axis=0) / w.sum() if w.sum() > 0 else np.zeros(2)
+    else:
+        cc = np.asarray(crown_center, dtype=np.float64).reshape(2)
+    timings["estimate"] = time.perf_counter() - t3
+    timings["total"] = time.perf_counter() - t0
+    warnings = quality_warnings(values[sel], occluded[sel], infos)
+    meta = {
+        "estimator": est.value, "options": lad.options, "flags": lad.counts(), "wood_method": wood_m.value,
+        "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,
+        "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
+        "ground": None if plane is None else {"coefficients": list(plane.coefficients),
+                                              "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
+    }
+    scene = Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=values[sel],
+                  wood=wood_est.value[sel], wood_kind=wood_est.kind, occluded=occluded[sel],
+                  lad_std=lad.lad_std[sel], leaf_angle=la, leaf_azimuth=leaf_azimuth, crown_center=cc,
+                  ground_z=None if plane is None else plane.z_center, meta=meta)
+    return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
+
+
+#: Quality gates (``tlsvox voxelize`` warns; with ``--strict`` it fails).
+LAD_PLAUSIBLE_MAX = 20.0  #: m2/m3: dense crowns reach a few, leaf clusters rarely 10
+OCCLUDED_SHARE_MAX = 0.5  #: of the stored voxels
+LINE_FIT_MIN = 0.9  #: of first echoes on their reconstructed scan line
+
+
+def quality_warnings(lad, occluded, infos) -> list[str]:
+    """Signs that a voxelisation went wrong, one sentence each, with the likely cause.
+
+    Parameters
+    ----------
+    lad : (M,) float, m2/m3, and occluded : (M,) bool
+        The stored voxels.
+    infos : list of dict
+        Per-scan pulse bookkeeping (``line_fit`` where empty pulses were rebuilt).
+
+    Examples
+    --------
+    >>> quality_warnings(np.array([1.0, 25.0]), np.array([False, False]), [])[0][:34]
+    '1 voxels have LAD above 20 m2/m3 ('
+    """
+    out = []
+    lad = np.asarray(lad, dtype=np.float64)
+    occluded = np.asarray(occluded, dtype=bool)
+    high = lad > LAD_PLAUSIBLE_MAX
+    if high.any():
+        out.append(f"{int(high.sum())} voxels have LAD above {LAD_PLAUSIBLE_MAX:g} m2/m3 (max {lad.max():.0f}), "
+                   "more than any canopy holds: check the angular grid, the voxel size and the scan's units")
+    if occluded.size and occluded.mean() > OCCLUDED_SHARE_MAX:
+        out.append(f"{100 * occluded.mean():.0f} % of the stored voxels are occluded (no estimate): add scan "
+                   "positions, or use a larger voxel size")
+    for info in infos:
+        fit = info.get("line_fit")
+        if fit is not None and fit < LINE_FIT_MIN:
+            out.append(f"scan {info.get('scan', '?')!r}: only {100 * fit:.0f} % of its first echoes lie on the "
+                       f"reconstructed scan lines (expected above {100 * LINE_FIT_MIN:.0f} %): the angular grid "
+                       "(--angular-grid) is probably wrong, so the rebuilt empty pulses are too")
+    return out
+
+
+def score_lad(lad, truth, *, mask=None, voxel_volume: float = 1.0) -> dict:
+    """Compare a LAD grid with the truth.
+
+    Parameters
+    ----------
+    lad, truth : (nx, ny, nz) float, m2/m3
+    mask : (nx, ny, nz) bool, optional
+        Voxels scored for RMSE and bias (e.g. not occluded); default all.
+    voxel_volume : float, m3
+        For total leaf areas.
+
+    Returns
+    -------
+    dict
+        ``total_area``, ``true_area`` (m2, all voxels), ``area_error`` (relative),
+        ``rmse``, ``bias`` (m2/m3, in ``mask``), ``n_scored``.
+
+    Examples
+    --------
+    >>> s = score_lad(np.array([1.0, 2.0]), np.array([1.0, 1.0]))
+    >>> s["area_error"], s["bias"]
+    (0.5, 0.5)
+    """
+    lad = np.asarray(lad, dtype=np.float64)
+    truth = np.asarray(truth, dtype=np.float64)
+    if lad.shape != truth.shape:
+        raise InputError(f"lad {lad.shape} and truth {truth.shape} must have the same shape")
+    m = np.ones(lad.shape, bool) if mask is None else np.asarray(mask, bool)
+    diff = (lad - truth)[m]
+    ta, tt = float(lad.sum() * voxel_volume), float(truth.sum() * voxel_volume)
+    return {"total_area": ta, "true_area": tt, "area_error": (ta - tt) / tt if tt > 0 else float("nan"),
+            "rmse": float(np.sqrt(np.mean(diff**2))) if diff.size else 0.0,
+            "bias": float(np.mean(diff)) if diff.size else 0.0, "n_scored": int(m.sum())}
