@@ -5,7 +5,6 @@ decomposes waveforms into Gaussian echoes, and compares waveforms.  Heavy
 modules (PyOpenCL, Open3D) are imported only when used.
 """
 
-from clsim.waveforms.decompose import Components, decompose
 from clsim.errors import ClsimError, DeviceError, InputError
 from clsim.waveforms.metrics import compare_waveforms, relative_heights
 from clsim.validation import testscenes
@@ -16,6 +15,17 @@ from clsim.transport.reference import ReferenceSimulator
 from clsim.waveforms.io import read_las_waveforms, read_pulsewaves, write_las_waveforms
 
 __version__ = "0.1.0"
+
+#: names whose modules load on first use (the decomposition pulls in scipy.ndimage and scipy.optimize)
+_LAZY = {"Components": "clsim.waveforms.decompose", "decompose": "clsim.waveforms.decompose"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'clsim' has no attribute {name!r}")
 
 __all__ = [
     "Detect",

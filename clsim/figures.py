@@ -11,9 +11,36 @@ from pathlib import Path
 import numpy as np
 from voxlidar.safeio import save_figure
 
+from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
 
-__all__ = ["plot_waveforms", "render_traces"]
+__all__ = ["plot_result", "plot_traces", "plot_waveforms", "render_traces", "trace_paths"]
+
+
+def _save(fig, path) -> Path:
+    """Lay out, write (format by suffix, atomically) and close a figure."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    out = save_figure(fig, Path(path))
+    plt.close(fig)
+    return out
+
+
+def trace_paths(result, top: float):
+    """The recorded photon paths of ``result``, each (k, 4): x, y, z (m) and event type.
+
+    The approach from the sensor (hundreds of metres) is cut at height ``top``
+    so that the canopy stays visible.
+    """
+    for tr in result.traces:
+        p = tr[tr[:, 3] > -9].astype(np.float64)
+        if len(p) < 2:
+            continue
+        d = p[1, :3] - p[0, :3]
+        if p[0, 2] > top and d[2] < 0:
+            p[0, :3] = p[1, :3] + d * (top - p[1, 2]) / d[2]
+        yield p
 
 
 def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis=True) -> Path:
@@ -55,11 +82,7 @@ def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis
     if title:
         ax.set_title(title, fontsize=10)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: float = 8.0,
@@ -84,8 +107,6 @@ def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: 
 
     from tlsvox.render import colormap, render, voxel_mesh
 
-    from clsim.errors import InputError
-
     if result.traces is None:
         raise InputError("the result has no photon traces; run with trace=N")
     c = scene.centers()
@@ -97,14 +118,7 @@ def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: 
     top = hi[2] + approach_m
     pts, lines, colors = [], [], []
     palette = {1: (0.1, 0.6, 0.1), 2: (0.5, 0.3, 0.1), 3: (0.4, 0.4, 0.4), 0: (0.1, 0.2, 0.9)}
-    for tr in result.traces:
-        ok = tr[:, 3] > -9
-        p = tr[ok].astype(np.float64)
-        if len(p) < 2:
-            continue
-        d = p[1, :3] - p[0, :3]
-        if p[0, 2] > top and d[2] < 0:
-            p[0, :3] = p[1, :3] + d * (top - p[1, 2]) / d[2]
+    for p in trace_paths(result, top):
         base = len(pts)
         pts.extend(p[:, :3].tolist())
         for k in range(len(p) - 1):
@@ -120,3 +134,61 @@ def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: 
     span = float(max(hi[0] - lo[0], top - lo[2]))
     eye = centre + np.array([0.0, -1.6 * span, 0.25 * span])
     return render(items, path, eye=eye, center=centre, width=width, height=height)
+
+
+def plot_result(res, path) -> Path:
+    """Waveform (total and per order) as a PNG, written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(res.time_ns, res.waveform, "k", lw=1.5, label="total")
+    for k, row in enumerate(res.by_order):
+        ax.plot(res.time_ns, row, lw=0.8, label=f"order {k + 1}")
+    nz = np.nonzero(res.waveform > 1e-3 * res.waveform.max())[0] if res.waveform.max() > 0 else []
+    if len(nz):
+        ax.set_xlim(res.time_ns[nz[0]] - 5, res.time_ns[nz[-1]] + 5)
+    s = res.settings
+    ax.set_title(f"{s['sensor']['name']}: {s['mode']}/{s['detect']}, {s['photons']:,} photons")
+    ax.set_xlabel("time after emission (ns)")
+    ax.set_ylabel("received power (fraction of emitted energy / ns)")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
+    """Photon paths (``res.traces``) over the scene's voxels, 3-D, as a PNG (paper Fig. 8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if res.traces is None:
+        raise InputError("the result has no photon traces; run with trace=N")
+    fig = plt.figure(figsize=(6, 7))
+    ax = fig.add_subplot(projection="3d")
+    c = scene.centers()
+    if len(c):
+        pick = np.random.default_rng(0).choice(len(c), min(len(c), max_voxels), replace=False)
+        ax.scatter(*c[pick].T, s=1, c="green", alpha=0.15)
+    lo, hi = scene.extent
+    top = hi[2] + 0.5 * (hi[2] - lo[2])
+    colours = {1: "green", 2: "saddlebrown", 3: "grey", 0: "blue"}
+    for pts in trace_paths(res, top):
+        esc = pts[:, 3] == 0
+        pts[esc, :3] = np.clip(pts[esc, :3], lo - 1.0, [hi[0] + 1, hi[1] + 1, top])
+        ax.plot(*pts[:, :3].T, lw=0.6, color="red", alpha=0.6)
+        for typ, col in colours.items():
+            sel = pts[:, 3] == typ
+            if sel.any():
+                ax.scatter(*pts[sel, :3].T, s=4, color=col)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.set_title(f"{len(res.traces)} photon paths")
+    path = Path(path)
+    save_figure(fig, path)
+    plt.close(fig)
+    return path

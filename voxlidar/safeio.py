@@ -150,15 +150,7 @@ def save_figure(fig, path, *, dpi: int = 110) -> Path:
     path = Path(path)
     check_figure_path("picture", path)
     fmt = path.suffix.lower().lstrip(".")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        fig.savefig(tmp, dpi=dpi, format="jpeg" if fmt == "jpg" else fmt)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="jpeg" if fmt == "jpg" else fmt))
 
 
 def atomic_write(path: "str | os.PathLike", write) -> Path:

@@ -23,14 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
-from voxlidar.safeio import check_figure_path, check_outputs, save_figure
+from voxlidar.safeio import check_figure_path, check_outputs
 
 from clsim.errors import InputError
 from clsim.sensor import Sensor, list_presets
 from clsim.transport.simulator import Detect, Mode
 
 __all__ = ["register", "cmd_simulate", "cmd_devices", "cmd_bench", "device_benchmark",
-           "benchmark_scene", "plot_result", "plot_traces"]
+           "benchmark_scene"]
 
 
 def register(subparsers) -> None:
@@ -146,6 +146,8 @@ def cmd_simulate(args) -> int:
         kw["progress"] = not args.quiet
     res = sim.run(scene, sensor, **kw)
     res.save(args.output)
+    from clsim.figures import plot_result, plot_traces
+
     if args.plot:
         plot_result(res, args.plot)
     if args.trace_plot:
@@ -158,76 +160,6 @@ def cmd_simulate(args) -> int:
     for f in res.flags:
         print(f"note: {f}")
     return 0
-
-
-def plot_result(res, path) -> Path:
-    """Waveform (total and per order) as a PNG, written atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ax.plot(res.time_ns, res.waveform, "k", lw=1.5, label="total")
-    for k, row in enumerate(res.by_order):
-        ax.plot(res.time_ns, row, lw=0.8, label=f"order {k + 1}")
-    nz = np.nonzero(res.waveform > 1e-3 * res.waveform.max())[0] if res.waveform.max() > 0 else []
-    if len(nz):
-        ax.set_xlim(res.time_ns[nz[0]] - 5, res.time_ns[nz[-1]] + 5)
-    s = res.settings
-    ax.set_title(f"{s['sensor']['name']}: {s['mode']}/{s['detect']}, {s['photons']:,} photons")
-    ax.set_xlabel("time after emission (ns)")
-    ax.set_ylabel("received power (fraction of emitted energy / ns)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
-
-
-def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
-    """Photon paths (``res.traces``) over the scene's voxels, 3-D, as a PNG (paper Fig. 8)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if res.traces is None:
-        raise InputError("the result has no photon traces; run with trace=N")
-    fig = plt.figure(figsize=(6, 7))
-    ax = fig.add_subplot(projection="3d")
-    c = scene.centers()
-    if len(c):
-        pick = np.random.default_rng(0).choice(len(c), min(len(c), max_voxels), replace=False)
-        ax.scatter(*c[pick].T, s=1, c="green", alpha=0.15)
-    lo, hi = scene.extent
-    top = hi[2] + 0.5 * (hi[2] - lo[2])
-    colours = {1: "green", 2: "saddlebrown", 3: "grey", 0: "blue"}
-    for tr in res.traces:
-        ok = tr[:, 3] > -9
-        pts = tr[ok].astype(np.float64)
-        if len(pts) < 2:
-            continue
-        # clip the 360 m approach so the canopy stays visible
-        d = pts[1, :3] - pts[0, :3]
-        if pts[0, 2] > top and d[2] < 0:
-            pts[0, :3] = pts[1, :3] + d * (top - pts[1, 2]) / d[2]
-        esc = pts[:, 3] == 0
-        pts[esc, :3] = np.clip(pts[esc, :3], lo - 1.0, [hi[0] + 1, hi[1] + 1, top])
-        ax.plot(*pts[:, :3].T, lw=0.6, color="red", alpha=0.6)
-        for typ, col in colours.items():
-            sel = pts[:, 3] == typ
-            if sel.any():
-                ax.scatter(*pts[sel, :3].T, s=4, color=col)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
-    ax.set_title(f"{len(res.traces)} photon paths")
-    path = Path(path)
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
 
 
 def cmd_devices(args) -> int:

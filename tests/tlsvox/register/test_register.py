@@ -272,23 +272,14 @@ def _perturbed(scan, T, name):
 
 
 @pytest.mark.slow
-def test_synthetic_pair_with_targets(synthetic_pair):
+@pytest.mark.parametrize("method, max_rot_deg, max_trans_m", [("targets", 0.05, 0.005), ("fpfh", 0.5, 0.05)])
+def test_synthetic_pair(synthetic_pair, method, max_rot_deg, max_trans_m):
     A, B = synthetic_pair
     Bp = _perturbed(B, pose(2.0, -1.0, 0.3, 25.0, tilt_deg=0.2), "s1-perturbed")
-    r = register_pair(Bp, A, method="targets")
+    r = register_pair(Bp, A, method=method)
     rot, tr = pose_error(r.transform, true_relative_transform(Bp, A))
-    print(f"targets: {rot:.4f} deg, {tr * 1000:.2f} mm, fitness {r.fitness:.3f}")
-    assert rot < 0.05 and tr < 0.005
-
-
-@pytest.mark.slow
-def test_synthetic_pair_without_targets(synthetic_pair):
-    A, B = synthetic_pair
-    Bp = _perturbed(B, pose(2.0, -1.0, 0.3, 25.0, tilt_deg=0.2), "s1-perturbed")
-    r = register_pair(Bp, A, method="fpfh")
-    rot, tr = pose_error(r.transform, true_relative_transform(Bp, A))
-    print(f"fpfh+icp: {rot:.4f} deg, {tr * 1000:.1f} mm, groups {r.hypothesis_groups}")
-    assert rot < 0.5 and tr < 0.05
+    print(f"{method}: {rot:.4f} deg, {tr * 1000:.2f} mm, fitness {r.fitness:.3f}, groups {r.hypothesis_groups}")
+    assert rot < max_rot_deg and tr < max_trans_m
 
 
 @pytest.mark.slow
