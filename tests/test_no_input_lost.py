@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clsim.cli.main import main as clsim_main
-from tlsvox.cli.main import main as tlsvox_main
+from clsim.cli.app import main as clsim_main
+from tlsvox.cli.app import main as tlsvox_main
 
 
 def sha(path: Path) -> str:
@@ -126,7 +126,7 @@ def test_ctrl_c_is_one_line_and_exit_130(files, monkeypatch, capsys):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(cs, "cmd_simulate", interrupted)
-    from clsim.cli.main import build_parser
+    from clsim.cli.app import build_parser
 
     args = build_parser().parse_args(["simulate", str(files / "scene.npz"), "-o", str(files / "x.npz")])
     assert args.func is interrupted

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tlsvox.cli.main import main as tlsvox_main
+from tlsvox.cli.app import main as tlsvox_main
 
 
 @pytest.fixture(scope="module")

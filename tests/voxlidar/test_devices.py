@@ -140,7 +140,7 @@ def test_broken_runtime_beside_a_working_one(layer_file, tmp_path):
     `clsim devices` shows the broken ones with the reason from the build log."""
     if not {"PoCL", "Intel"} <= _runtimes():
         pytest.skip(f"needs PoCL and Intel's runtime; found {sorted(_runtimes())}")
-    out = _run(["clsim.cli.main", "devices"], BROKEN_POCL, tmp_path)
+    out = _run(["clsim.cli", "devices"], BROKEN_POCL, tmp_path)
     assert out.returncode == 0, out.stderr
     lines = out.stdout.splitlines()
     pocl = [ln for ln in lines if "PoCL" in ln]
@@ -149,7 +149,7 @@ def test_broken_runtime_beside_a_working_one(layer_file, tmp_path):
     assert [ln for ln in lines if ln.startswith("*") and "Intel" in ln and ln.endswith("works")]
     assert "Traceback" not in out.stderr
     wf = tmp_path / "wf.npz"
-    out = _run(["clsim.cli.main", "simulate", str(layer_file), "--photons", "3000", "-o", str(wf)], BROKEN_POCL, tmp_path)
+    out = _run(["clsim.cli", "simulate", str(layer_file), "--photons", "3000", "-o", str(wf)], BROKEN_POCL, tmp_path)
     assert out.returncode == 0, out.stderr
     assert "Intel" in json.loads(str(np.load(wf)["settings"]))["device"]
     code = "from tlsvox.voxel.trace import Tracer; print(Tracer().info.runtime)"
@@ -163,7 +163,7 @@ def test_asking_for_the_broken_runtime_is_one_clean_line(layer_file, tmp_path):
     if "PoCL" not in _runtimes():
         pytest.skip("needs PoCL")
     env = dict(BROKEN_POCL, VOXLIDAR_DEVICE="pocl")
-    out = _run(["clsim.cli.main", "simulate", str(layer_file), "--photons", "100", "-o", str(tmp_path / "w.npz")],
+    out = _run(["clsim.cli", "simulate", str(layer_file), "--photons", "100", "-o", str(tmp_path / "w.npz")],
                env, tmp_path)
     assert out.returncode == 1, (out.stdout, out.stderr)
     err = out.stderr.strip().splitlines()
@@ -186,7 +186,7 @@ def test_voxelize_on_a_broken_device_is_one_clean_line(tmp_path):
     scan.pose = scan.pose_true
     path = tmp_path / "box.laz"
     scan.write(path)
-    out = _run(["tlsvox.cli.main", "voxelize", str(path), "-o", str(tmp_path / "s.npz"), "--voxel-size", "0.5",
+    out = _run(["tlsvox.cli", "voxelize", str(path), "-o", str(tmp_path / "s.npz"), "--voxel-size", "0.5",
                 "--device", "pocl", "-q"], BROKEN_POCL, tmp_path)
     assert out.returncode == 1, out.stderr
     err = out.stderr.strip().splitlines()
@@ -199,16 +199,16 @@ def test_no_working_device_at_all(layer_file, tmp_path):
     empty = tmp_path / "no-vendors"
     empty.mkdir()
     env = dict(BROKEN_POCL, OCL_ICD_VENDORS=str(empty))  # hides the system's runtimes and Intel's
-    out = _run(["clsim.cli.main", "devices"], env, tmp_path)
+    out = _run(["clsim.cli", "devices"], env, tmp_path)
     assert out.returncode == 1
     err = out.stderr.strip().splitlines()
     assert len(err) == 1 and "fix:" in err[0] and "install a CPU OpenCL runtime" in err[0], out.stderr
-    out = _run(["clsim.cli.main", "simulate", str(layer_file), "--photons", "100", "-o", str(tmp_path / "w.npz")],
+    out = _run(["clsim.cli", "simulate", str(layer_file), "--photons", "100", "-o", str(tmp_path / "w.npz")],
                env, tmp_path)
     assert out.returncode == 1
     err = out.stderr.strip().splitlines()
     assert len(err) == 1 and "fix:" in err[0] and "ReferenceSimulator" in err[0], out.stderr
-    out = _run(["clsim.cli.main", "bench", "--photons", "1000", "--repeats", "1"], env, tmp_path)
+    out = _run(["clsim.cli", "bench", "--photons", "1000", "--repeats", "1"], env, tmp_path)
     assert out.returncode == 1 and len(out.stderr.strip().splitlines()) == 1, out.stderr
     demo = Path(__file__).resolve().parents[2] / "examples" / "demo.py"  # `make demo`, before any work
     out = subprocess.run([sys.executable, str(demo), "--out", str(tmp_path / "demo")], capture_output=True,

@@ -1,6 +1,6 @@
 """``tlsvox voxelize``: registered scans -> voxel scene (NPZ, optionally AMAPVox .vox).
 
-The lead wires :func:`register` into ``tlsvox/cli/main.py``; :func:`main` runs the
+The lead wires :func:`register` into ``tlsvox/cli/app.py``; :func:`main` runs the
 subcommand alone (in-process tests, ``python -m tlsvox.cli.voxelize``).
 """
 

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from clsim.cli.main import main
+from clsim.cli.app import main
 from tlsvox.register.georegister import rotation_error_deg, transform_points, yaw_matrix
 
 

@@ -198,7 +198,7 @@ def test_cli_simulate_devices_bench(parser, tmp_path, capsys):
     assert png.stat().st_size > 1000 and (tmp_path / "tr.png").stat().st_size > 1000
     assert "received energy" in capsys.readouterr().out
 
-    from clsim.cli.main import main
+    from clsim.cli.app import main
 
     assert main(["simulate", str(tmp_path / "missing.npz"), "-o", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err

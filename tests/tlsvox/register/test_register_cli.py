@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from tlsvox.cli.main import main
+from tlsvox.cli.app import main
 from tlsvox.register import pose_error, true_relative_transform
 from tlsvox.scan import Scan
 from test_register import P_A, P_B, pose, toy_scan  # noqa: E402 - test helpers

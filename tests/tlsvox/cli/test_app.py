@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from tlsvox.cli.main import build_parser, main
+from tlsvox.cli.app import build_parser, main
 from tlsvox.scan import Scan
 
 

@@ -1,0 +1,7 @@
+"""``python -m clsim.cli``: the ``clsim`` command."""
+
+import sys
+
+from clsim.cli.app import main
+
+sys.exit(main())

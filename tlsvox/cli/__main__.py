@@ -1,0 +1,7 @@
+"""``python -m tlsvox.cli``: the ``tlsvox`` command."""
+
+import sys
+
+from tlsvox.cli.app import main
+
+sys.exit(main())
