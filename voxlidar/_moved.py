@@ -43,6 +43,10 @@ MOVED = {
     "clsim.pointing": "clsim.waveforms.pointing",
     "clsim.metrics": "clsim.waveforms.metrics",
     "clsim.georegister": "tlsvox.register.georegister",
+    "clsim.cli_sim": "clsim.cli.simulate",
+    "clsim.cli_waveforms": "clsim.cli.waveforms",
+    "tlsvox.cli_register": "tlsvox.cli.register",
+    "tlsvox.cli_voxelize": "tlsvox.cli.voxelize",
 }
 
 

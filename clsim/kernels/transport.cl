@@ -25,6 +25,18 @@ typedef struct {
     __global const float *gtab;
 } scene_t;
 
+/* A leaf normal at x from the random numbers b.z, b.w (the scene's leaf angles and azimuths). */
+CLSIM_INLINE float3 scene_leaf_normal(const scene_t *S, float4 b, float3 x)
+{
+    return leaf_normal(S->ppf, b.z, b.w, x, S->P->crown_c[0], S->P->crown_c[1], S->P->outward);
+}
+
+/* The paper's interception probability of one step ds through LAD u with leaf normal nl. */
+CLSIM_INLINE float paper_leaf_prob(float u, float3 nl, float3 d, float ds)
+{
+    return fast_min(1.0f, u * fast_abs(fast_dot(nl, d)) * ds);
+}
+
 /* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]. */
 CLSIM_INLINE float g_of(__global const float *gtab, float mu)
 {
@@ -59,18 +71,25 @@ CLSIM_INLINE float ground_t(float3 o, float3 d, __global const params_t *P)
 typedef struct {
     float ds, t_end;
     int k;
+    float tk;  /* the current step point: distance, */
+    float3 x;  /* position */
+    float2 e;  /* and the voxel's LAD and wood extinction there */
 } stepper_t;
 
-CLSIM_INLINE void stepper_init(stepper_t *p, const walker_t *w, float ds)
+/* Clip [0, t_limit] to the grid; 0 when the ray misses it. */
+CLSIM_INLINE int stepper_init(stepper_t *p, float3 o, float3 d, float t_limit, __global const params_t *P)
 {
-    p->ds = ds;
-    p->t_end = w->t_end;
-    p->k = max(1, (int)ceil(w->t / ds));
+    walker_t w;
+    if (!walker_init(&w, o, d, 0.0f, t_limit, P))
+        return 0;
+    p->ds = P->ds;
+    p->t_end = w.t_end;
+    p->k = max(1, (int)ceil(w.t / p->ds));
+    return 1;
 }
 
-/* Next step point with non-zero extinction: distance *tk, position *x, value *e; 0 at the end. */
-CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d, float *tk, float3 *x,
-                              float2 *e, uint *steps)
+/* Next step point with non-zero extinction (p->tk, p->x, p->e); 0 at the end. */
+CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d, uint *steps)
 {
     while ((float)p->k * p->ds < p->t_end) {
         const float t = (float)p->k * p->ds;
@@ -84,13 +103,54 @@ CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d
         }
         ++p->k;
         if (v.x + v.y > 0.0f) {
-            *tk = t;
-            *x = xk;
-            *e = v;
+            p->tk = t;
+            p->x = xk;
+            p->e = v;
             return 1;
         }
     }
     return 0;
+}
+
+/* The null-collision walk shared by free flights (delta tracking) and the
+ * transmittance of outward-facing leaves (ratio tracking): tentative
+ * collisions at the majorant sigma = LAD + sigma_wood of each voxel, with
+ * an exponential optical depth tau that the caller redraws after each. */
+typedef struct {
+    walker_t w;
+    float ta, tb, tau; /* current voxel segment; optical depth left */
+    float2 e;          /* its LAD and wood extinction */
+    int live;          /* a segment is loaded */
+} tracker_t;
+
+CLSIM_INLINE int tracker_init(tracker_t *k, float3 o, float3 d, float t_limit, float tau,
+                              __global const params_t *P)
+{
+    k->tau = tau;
+    k->live = 0;
+    return walker_init(&k->w, o, d, 0.0f, t_limit, P);
+}
+
+/* Next tentative collision: its distance *tc (k->e holds the voxel's values); 0 at the end. */
+CLSIM_INLINE int tracker_next(tracker_t *k, const scene_t *S, float *tc, uint *steps)
+{
+    for (;;) {
+        if (!k->live) {
+            if (!walker_next(&k->w, S->P, S->index, S->pool, &k->ta, &k->tb, &k->e, steps))
+                return 0;
+            k->live = 1;
+        }
+        const float sig = k->e.x + k->e.y;
+        const float opt = sig * (k->tb - k->ta);
+        if (opt <= k->tau) {
+            k->tau -= opt;
+            k->live = 0;
+            continue;
+        }
+        *tc = k->ta + k->tau / sig;
+        k->ta = *tc;
+        return 1;
+    }
 }
 
 /* Next real interaction along (o, d).  Returns the event type, its distance
@@ -100,60 +160,45 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
 {
     __global const params_t *P = S->P;
     const float tg = ground_t(o, d, P);
-    walker_t w;
 #if MODE == 0
     float4 b = rng_next(rng);
-    float tau = neg_log_unit(b.x);
-    if (walker_init(&w, o, d, 0.0f, tg, P)) {
-        float ta, tb;
-        float2 e;
-        while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
-            const float sig = e.x + e.y;
-            for (;;) {
-                const float opt = sig * (tb - ta);
-                if (opt <= tau) {
-                    tau -= opt;
-                    break;
-                }
-                const float tc = ta + tau / sig;
-                const float3 x = o + d * tc;
-                if (b.y * sig >= e.x) { /* wood: randomly oriented, facing normal */
-                    *n = cosine_dir(-d, b.z, b.w);
-                    *t = tc;
-                    return EV_WOOD;
-                }
-                const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-                if (b.y * sig < e.x * fast_abs(fast_dot(nl, d))) {
-                    *n = nl;
-                    *t = tc;
-                    return EV_LEAF;
-                }
-                b = rng_next(rng); /* null collision */
-                tau = neg_log_unit(b.x);
-                ta = tc;
+    tracker_t k;
+    if (tracker_init(&k, o, d, tg, neg_log_unit(b.x), P)) {
+        float tc;
+        while (tracker_next(&k, S, &tc, steps)) {
+            const float sig = k.e.x + k.e.y;
+            const float3 x = o + d * tc;
+            if (b.y * sig >= k.e.x) { /* wood: randomly oriented, facing normal */
+                *n = cosine_dir(-d, b.z, b.w);
+                *t = tc;
+                return EV_WOOD;
             }
+            const float3 nl = scene_leaf_normal(S, b, x);
+            if (b.y * sig < k.e.x * fast_abs(fast_dot(nl, d))) {
+                *n = nl;
+                *t = tc;
+                return EV_LEAF;
+            }
+            b = rng_next(rng); /* null collision */
+            k.tau = neg_log_unit(b.x);
         }
     }
 #else
-    if (walker_init(&w, o, d, 0.0f, tg, P)) {
-        const float ds = P->ds;
-        stepper_t p;
-        stepper_init(&p, &w, ds);
-        float tk;
-        float3 x;
-        float2 e;
-        while (stepper_next(&p, S, o, d, &tk, &x, &e, steps)) {
+    stepper_t p;
+    if (stepper_init(&p, o, d, tg, P)) {
+        const float ds = p.ds;
+        while (stepper_next(&p, S, o, d, steps)) {
             const float4 b = rng_next(rng);
-            const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-            if (b.x < fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) {
+            const float3 nl = scene_leaf_normal(S, b, p.x);
+            if (b.x < paper_leaf_prob(p.e.x, nl, d, ds)) {
                 *n = nl;
-                *t = tk;
+                *t = p.tk;
                 return EV_LEAF;
             }
-            if (b.y < -expm1(-e.y * ds)) {
+            if (b.y < -expm1(-p.e.y * ds)) {
                 const float4 b2 = rng_next(rng);
                 *n = cosine_dir(-d, b2.z, b2.w);
-                *t = tk;
+                *t = p.tk;
                 return EV_WOOD;
             }
         }
@@ -176,9 +221,9 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
 CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t *rng, uint *steps)
 {
     __global const params_t *P = S->P;
-    walker_t w;
     float T = 1.0f;
 #if MODE == 0
+    walker_t w;
     float ta, tb;
     float2 e;
     if (!P->outward) {
@@ -194,45 +239,33 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
         return exp(-od);
     }
     float4 b = rng_next(rng);
-    float tau = neg_log_unit(b.x);
-    if (!walker_init(&w, o, d, 0.0f, r, P))
+    tracker_t k;
+    if (!tracker_init(&k, o, d, r, neg_log_unit(b.x), P))
         return T;
-    while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
-        const float sig = e.x + e.y;
-        for (;;) {
-            const float opt = sig * (tb - ta);
-            if (opt <= tau) {
-                tau -= opt;
-                break;
-            }
-            const float tc = ta + tau / sig;
-            const float3 x = o + d * tc;
-            const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-            T *= 1.0f - (e.x * fast_abs(fast_dot(nl, d)) + e.y) / sig;
-            if (T < RR_THRESHOLD) {
-                if (b.y * RR_SURVIVE < T)
-                    T = RR_SURVIVE;
-                else
-                    return 0.0f;
-            }
-            b = rng_next(rng);
-            tau = neg_log_unit(b.x);
-            ta = tc;
+    float tc;
+    while (tracker_next(&k, S, &tc, steps)) {
+        const float sig = k.e.x + k.e.y;
+        const float3 x = o + d * tc;
+        const float3 nl = scene_leaf_normal(S, b, x);
+        T *= 1.0f - (k.e.x * fast_abs(fast_dot(nl, d)) + k.e.y) / sig;
+        if (T < RR_THRESHOLD) {
+            if (b.y * RR_SURVIVE < T)
+                T = RR_SURVIVE;
+            else
+                return 0.0f;
         }
+        b = rng_next(rng);
+        k.tau = neg_log_unit(b.x);
     }
 #else
-    if (!walker_init(&w, o, d, 0.0f, r, P))
-        return T;
-    const float ds = P->ds;
     stepper_t p;
-    stepper_init(&p, &w, ds);
-    float tk;
-    float3 x;
-    float2 e;
-    while (stepper_next(&p, S, o, d, &tk, &x, &e, steps)) {
+    if (!stepper_init(&p, o, d, r, P))
+        return T;
+    const float ds = p.ds;
+    while (stepper_next(&p, S, o, d, steps)) {
         const float4 b = rng_next(rng);
-        const float3 nl = leaf_normal(S->ppf, b.z, b.w, x, P->crown_c[0], P->crown_c[1], P->outward);
-        T *= (1.0f - fast_min(1.0f, e.x * fast_abs(fast_dot(nl, d)) * ds)) * exp(-e.y * ds);
+        const float3 nl = scene_leaf_normal(S, b, p.x);
+        T *= (1.0f - paper_leaf_prob(p.e.x, nl, d, ds)) * exp(-p.e.y * ds);
         if (T < RR_THRESHOLD) {
             if (b.y * RR_SURVIVE < T)
                 T = RR_SURVIVE;
