@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 OUT ?= out
 
-.PHONY: setup demo test test-slow test-all bench clean
+.PHONY: setup demo test test-gpu test-slow test-all bench clean
 
 setup:
 	@bash scripts/setup.sh
@@ -12,6 +12,9 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest -m "not slow and not gpu"
+
+test-gpu: setup
+	$(PY) -m pytest -m "gpu"
 
 test-slow: setup
 	$(PY) -m pytest -m "slow"

@@ -133,7 +133,10 @@ def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: 
     centre[2] = 0.5 * (lo[2] + top)
     span = float(max(hi[0] - lo[0], top - lo[2]))
     eye = centre + np.array([0.0, -1.6 * span, 0.25 * span])
-    return render(items, path, eye=eye, center=centre, width=width, height=height)
+    n = sum(1 for _ in trace_paths(result, top))
+    return render(items, path, eye=eye, center=centre, width=width, height=height,
+                  title=f"{n} photon paths: first leg red, then leaf green, wood brown, ground grey, escape blue",
+                  colorbar=("Greens", -1.5, 1.0, "voxels: log10 LAD (m²/m³)"))
 
 
 def plot_result(res, path) -> Path:

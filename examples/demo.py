@@ -125,10 +125,12 @@ def stage_tree_and_scans(rep, args, out):
                         f"{mats['ground']:,} | {mats['target']:,} |")
     with rep.stage("figures: tree and scans"):
         c = tree.crown_center
-        render([tree.to_o3d()], out / "fig1_tree.png", eye=c + [0, -30, 1.0], center=c - [0, 0, 1.5])
+        render([tree.to_o3d()], out / "fig1_tree.png", eye=c + [0, -30, 1.0], center=c - [0, 0, 1.5],
+               title=f"Synthetic oak, seed {args.seed}: leaves green, bark brown")
         items = [(s.world_xyz(s.pose_true), reflectance_colors(s.reflectance_db)) for s in scans]
         render(items, out / "fig1_scans.png", eye=c + [-22, -26, 6.0], center=c - [0, 0, 1.5], point_size=1.5,
-               background=(0.05, 0.05, 0.08))
+               background=(0.05, 0.05, 0.08), title="The two simulated TLS scans in the world frame",
+               colorbar=("inferno", -20.0, 0.0, "apparent reflectance (dB)"))
         reflectance_histograms(scans, out / "fig1_reflectance_truth.png")
     rep.add(f"## 1. The synthetic oak and its two scans (paper Fig. 1)\n\n"
             f"Seed {args.seed}: {truth['n_leaves']:,} leaves holding {truth['leaf_area_m2']:.2f} m² "
@@ -195,11 +197,13 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
         col = colormap(np.log10(scene.lad[leafy]), vmin=-1.0, vmax=1.2, name="viridis")
         cc = np.r_[tree.crown_center[:2], 6.0]
         render([voxel_mesh(c[leafy], scene.voxel_size, col)], out / "fig6_lad_voxels.png",
-               eye=cc + [0, -30, 2.0], center=cc)
+               eye=cc + [0, -30, 2.0], center=cc, title=f"Leaf area density, {scene.voxel_size * 100:.0f} cm voxels",
+               colorbar=("viridis", -1.0, 1.2, "log10 LAD (m²/m³)"))
         woody = scene.wood > 0.05
         wcol = colormap(scene.wood[woody], vmin=0.0, vmax=1.0, name="copper_r")
         render([voxel_mesh(c[woody], scene.voxel_size, wcol)], out / "fig7_wood_voxels.png",
-               eye=cc + [0, -30, 2.0], center=cc)
+               eye=cc + [0, -30, 2.0], center=cc, title="Wood voxels",
+               colorbar=("copper_r", 0.0, 1.0, "wood probability"))
         import open3d as o3d
 
         ground = o3d.geometry.TriangleMesh.create_box(24.0, 24.0, 0.02)
@@ -208,7 +212,8 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
         both = np.where(woody[:, None], np.array([[0.45, 0.28, 0.12]]), np.array([[0.25, 0.6, 0.2]]))
         sel = leafy | woody
         render([ground, voxel_mesh(c[sel], scene.voxel_size, both[sel])], out / "fig7_scene.png",
-               eye=cc + [-18, -24, 10.0], center=cc - [0, 0, 2.0])
+               eye=cc + [-18, -24, 10.0], center=cc - [0, 0, 2.0],
+               title="The voxel scene: leaf voxels green, wood brown, over the ground plane")
     rep.add(f"## 3. The voxel model (paper Fig. 6 and 7)\n\n"
             f"{args.voxel_size * 100:.0f} cm voxels, estimator `bcmle` (Pimont et al. 2018), uniform leaf angles "
             f"(the tree's true distribution), {scene.n_voxels:,} non-empty voxels, "

@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from voxlidar.errors import InputError
 from voxlidar.safeio import save_figure
 
 from voxlidar.safeio import atomic_write
@@ -52,7 +53,7 @@ def _o3d_renderer():
 
 
 def render(items, path, *, eye, center, up=(0.0, 0.0, 1.0), fov_deg=45.0, width=1200, height=900,
-           point_size=2.0, background=(1.0, 1.0, 1.0), title=None, backend="auto") -> str:
+           point_size=2.0, background=(1.0, 1.0, 1.0), title=None, colorbar=None, backend="auto") -> str:
     """Render point clouds and meshes to a PNG.
 
     Parameters
@@ -64,6 +65,11 @@ def render(items, path, *, eye, center, up=(0.0, 0.0, 1.0), fov_deg=45.0, width=
         Output PNG (written atomically).
     eye, center, up : (3,) float
         Camera position, look-at point, up vector (world frame, metres).
+    title : str, optional
+        Drawn above the picture.
+    colorbar : (cmap name, vmin, vmax, label), optional
+        A colour scale beside the picture, for colours made with
+        :func:`colormap` (the label names the quantity and its unit).
     backend : {"auto", "open3d", "matplotlib"}
         ``auto`` tries Open3D and falls back to matplotlib.
 
@@ -73,19 +79,54 @@ def render(items, path, *, eye, center, up=(0.0, 0.0, 1.0), fov_deg=45.0, width=
         The backend that produced the picture.
     """
     path = Path(path)
+    if backend not in ("auto", "open3d", "matplotlib"):
+        raise InputError(f"backend={backend!r} is not known; choose one of: auto, open3d, matplotlib")
+    if not items:
+        raise InputError("nothing to render: items is empty")
     if backend in ("auto", "open3d") and os.environ.get("VOXLIDAR_NO_O3D_RENDER") != "1":
         try:
             _render_o3d_subprocess(items, path, eye, center, up, fov_deg, width, height, point_size,
                                    background)
+            _decorate(path, title, colorbar)
             return "open3d"
         except Exception:  # noqa: BLE001 - any renderer failure falls back to matplotlib
             if backend == "open3d":
                 raise
-    _render_mpl(items, path, eye, center, width, height, title)
+    _render_mpl(items, path, eye, center, width, height, None)
+    _decorate(path, title, colorbar)
     return "matplotlib"
 
 
 RENDER_TIMEOUT_S = 240
+
+
+def _decorate(path: Path, title, colorbar) -> None:
+    """Put a title above a rendered picture and a colour scale beside it."""
+    if not title and not colorbar:
+        return
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.image as mpimg
+    import matplotlib.pyplot as plt
+
+    img = mpimg.imread(path)
+    h, w = img.shape[:2]
+    top = 50.0 if title else 0.0
+    side = 110.0 if colorbar else 0.0
+    fig = plt.figure(figsize=((w + side) / 100.0, (h + top) / 100.0), dpi=100)
+    ax = fig.add_axes((0.0, 0.0, w / (w + side), h / (h + top)))
+    ax.imshow(img)
+    ax.set_axis_off()
+    if title:
+        fig.suptitle(title, fontsize=13, y=1.0 - 10.0 / (h + top), va="top")
+    if colorbar:
+        name, vmin, vmax, label = colorbar
+        cax = fig.add_axes(((w + 15.0) / (w + side), 0.15, 18.0 / (w + side), 0.7 * h / (h + top)))
+        sm = matplotlib.cm.ScalarMappable(cmap=name, norm=matplotlib.colors.Normalize(vmin, vmax))
+        fig.colorbar(sm, cax=cax).set_label(label)
+    save_figure(fig, path, dpi=100)
+    plt.close(fig)
 
 
 def _render_o3d_subprocess(items, path, eye, center, up, fov, width, height, point_size, background):

@@ -106,12 +106,19 @@ def _cmd_view(args) -> int:
                 raise TlsvoxError(f"{path} has no truth_material; use --color reflectance")
             palette = np.array([[0.5, 0.5, 0.5], [0.2, 0.6, 0.15], [0.5, 0.3, 0.1], [0.7, 0.7, 0.6], [1, 0, 1]])
             colors = palette[np.clip(scan.truth_material, 0, 4)]
+            legend = (f"{path.name}: {len(xyz):,} echoes, colour: material "
+                      "(green leaf, brown bark, beige ground, magenta target)", None)
         elif scan.reflectance_db is not None:
             colors = reflectance_colors(scan.reflectance_db)
+            legend = (f"{path.name}: {len(xyz):,} echoes", ("inferno", -20.0, 0.0, "apparent reflectance (dB)"))
         elif scan.intensity is not None:
             colors = colormap(scan.intensity, name="gray")
+            lo, hi = float(np.min(scan.intensity)), float(np.max(scan.intensity))
+            legend = (f"{path.name}: {len(xyz):,} echoes", ("gray", lo, hi, "intensity (counts)"))
         else:
             colors = colormap(xyz[:, 2])
+            legend = (f"{path.name}: {len(xyz):,} echoes",
+                      ("viridis", float(xyz[:, 2].min()), float(xyz[:, 2].max()), "height z (m)"))
         items = [(xyz, colors)]
         import open3d as o3d
 
@@ -130,12 +137,15 @@ def _cmd_view(args) -> int:
             raise TlsvoxError(f"{path}: Open3D read no points or triangles from it")
         items = geoms
         xyz = np.asarray(geoms[0].vertices if hasattr(geoms[0], "vertices") else geoms[0].points)
+        legend = (f"{path.name}: {len(xyz):,} {'vertices' if hasattr(geoms[0], 'vertices') else 'points'}", None)
     if args.screenshot:
         lo, hi = xyz.min(axis=0), xyz.max(axis=0)
         center = 0.5 * (lo + hi)
         radius = float(np.linalg.norm(hi - lo))
         eye = center + np.array([0.0, -1.1 * radius, 0.25 * radius])
-        used = render(items, args.screenshot, eye=eye, center=center, point_size=args.point_size)
+        title, colorbar = legend
+        used = render(items, args.screenshot, eye=eye, center=center, point_size=args.point_size, title=title,
+                      colorbar=colorbar)
         print(f"wrote {args.screenshot} ({used})")
         return 0
     import open3d as o3d
