@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import json_text
+from voxlidar.safeio import json_text, staged
 
 from tlsvox.errors import InputError, ScanFileError
 from voxlidar.safeio import atomic_write
@@ -250,23 +250,20 @@ class Scan:
             raise InputError(f"scan output {str(path)!r} must end in .las or .laz")
         las = las_data([self], self.xyz, classification=None if self.classification is None
                        else [self.classification])
-        atomic_write(path, lambda tmp: las.write(str(tmp)))
         pulses_path, pose_path = sidecar_paths(path)
-        if self.pulses is not None:
-            self.pulses.save(pulses_path)
-        elif pulses_path.exists():
-            pulses_path.unlink()  # an older scan's pulse table must not pair with these points
         pose_doc = {"name": self.name, "scan_id": int(self.scan_id), "frame": "scanner",
                     "meta": self.meta}
         if self.pose is not None:
             pose_doc["pose"] = self.pose.tolist()
         if self.pose_true is not None:
             pose_doc["pose_true"] = self.pose_true.tolist()
-
-        def write_json(tmp):
-            Path(tmp).write_text(json_text(pose_doc, indent=1))
-
-        atomic_write(pose_path, write_json)
+        with staged([path, pulses_path if self.pulses is not None else None, pose_path]) as tmp:
+            las.write(str(tmp[path]))  # the points and their sidecars: all or none (Ctrl-C included)
+            if self.pulses is not None:
+                self.pulses.save(tmp[pulses_path])
+            tmp[pose_path].write_text(json_text(pose_doc, indent=1))
+        if self.pulses is None and pulses_path.exists():
+            pulses_path.unlink()  # an older scan's pulse table must not pair with these points
         return path
 
     @classmethod

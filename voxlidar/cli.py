@@ -9,7 +9,9 @@ The convention both tools follow:
   1 for runtime failures (no working device, a registration that failed),
   130 after Ctrl-C;
 - one line on stderr for every error raised on purpose
-  (:class:`voxlidar.errors.VoxlidarError`), never a traceback;
+  (:class:`voxlidar.errors.VoxlidarError`) and for every usage error that
+  argparse finds, never a traceback (``--debug`` before the sub-command shows
+  one: ``tlsvox --debug voxelize ...``);
 - the same flag for the same thing in every command: ``-o/--output``,
   ``--plot PATH`` (a picture; the suffix picks the format), ``--voxel-size``,
   ``--seed``, ``--device``, ``-q/--quiet``.
@@ -18,11 +20,74 @@ The convention both tools follow:
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from voxlidar.errors import VoxlidarError, exit_code
 
-__all__ = ["run"]
+__all__ = ["Parser", "number", "run", "with_debug"]
+
+
+class Parser(argparse.ArgumentParser):
+    """``argparse`` with a one-line usage error (the sub-parsers it makes are Parsers too).
+
+    >>> p = Parser(prog="demo")
+    >>> _ = p.add_argument("--n", type=int)
+    >>> try:
+    ...     p.parse_args(["--n", "x"])
+    ... except SystemExit as stop:
+    ...     stop.code
+    2
+    """
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)  # a typo such as --photon must not pass for --photons
+        super().__init__(*args, **kwargs)
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def number(kind=float, *, lo=None, hi=None, lo_open=False, hi_open=False, unit: str = ""):
+    """An argparse ``type`` for a finite number within bounds, with the bounds in its error.
+
+    >>> fraction = number(float, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    >>> fraction("0.01")
+    0.01
+    >>> try:
+    ...     fraction("2")
+    ... except argparse.ArgumentTypeError as err:
+    ...     print(err)
+    must be a finite number > 0 and < 1, got '2'
+    """
+    what = "an integer" if kind is int else "a finite number"
+    limits = []
+    if lo is not None:
+        limits.append(f"{'>' if lo_open else '>='} {lo:g}")
+    if hi is not None:
+        limits.append(f"{'<' if hi_open else '<='} {hi:g}")
+    wanted = f"{what} {' and '.join(limits)}{' ' + unit if unit else ''}".strip()
+
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {wanted}, got {text!r}") from None
+        bad = not math.isfinite(value)
+        bad |= lo is not None and (value <= lo if lo_open else value < lo)
+        bad |= hi is not None and (value >= hi if hi_open else value > hi)
+        if bad:
+            raise argparse.ArgumentTypeError(f"must be {wanted}, got {text!r}")
+        return value
+
+    parse.__name__ = wanted
+    return parse
+
+
+def with_debug(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the ``--debug`` flag (show the traceback of an error) to a tool's parser."""
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
+    return parser
 
 
 def run(prog: str, parser: argparse.ArgumentParser, argv=None) -> int:
@@ -46,6 +111,8 @@ def run(prog: str, parser: argparse.ArgumentParser, argv=None) -> int:
     try:
         return int(fn(args) or 0)
     except VoxlidarError as err:
+        if getattr(args, "debug", False):
+            raise
         print(f"{prog} {args.command}: error: {err}", file=sys.stderr)
         return exit_code(err)
     except KeyboardInterrupt:

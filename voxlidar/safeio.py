@@ -23,13 +23,15 @@ True True
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
-from voxlidar.errors import VoxlidarError
+from voxlidar.errors import InputError, VoxlidarError
 
-__all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path", "check_outputs",
-           "json_text", "save_figure"]
+__all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path",
+           "check_inputs", "check_outputs",
+           "json_text", "save_figure", "staged"]
 
 
 class OutputConflictError(VoxlidarError, ValueError):
@@ -44,6 +46,24 @@ def _key(path: Path) -> tuple:
         return ("inode", st.st_dev, st.st_ino)
     except OSError:
         return ("path", str(real))
+
+
+def check_inputs(inputs) -> None:
+    """Refuse optional input files that are missing or are folders: one line that names the option.
+
+    Parameters
+    ----------
+    inputs : iterable of (label, path)
+        ``None`` paths (options not given) are skipped.
+    """
+    for label, path in inputs:
+        if path is None:
+            continue
+        path = Path(path)
+        if not path.exists():
+            raise InputError(f"{label} {path} does not exist; check the path")
+        if path.is_dir():
+            raise InputError(f"{label} {path} is a folder; give a file")
 
 
 def check_outputs(inputs, outputs) -> None:
@@ -168,3 +188,43 @@ def atomic_write(path: "str | os.PathLike", write) -> Path:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+@contextlib.contextmanager
+def staged(paths):
+    """Write several outputs all or none: yields ``{path: temporary path}``.
+
+    The caller writes each output to its temporary path (same folder, same
+    suffix, so format-by-suffix writers still work).  When the block ends
+    without error every temporary file is renamed onto its output; on an
+    error or Ctrl-C they are all removed and no output appears.  ``None``
+    paths are skipped (map to ``None``).
+
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> with staged([d / "a.txt", d / "b.txt", None]) as tmp:
+    ...     _ = tmp[d / "a.txt"].write_text("a")
+    ...     _ = tmp[d / "b.txt"].write_text("b")
+    >>> sorted(p.name for p in d.iterdir())
+    ['a.txt', 'b.txt']
+    """
+    tmp = {}
+    for p in paths:
+        if p is None:
+            continue
+        p = Path(p)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp[p] = p.with_name(f".{p.stem}.staged-{os.getpid()}{p.suffix}")
+    view = {**tmp, None: None}
+    view.update({str(k): v for k, v in tmp.items()})
+    try:
+        yield view
+        for final, t in tmp.items():
+            if not t.exists():
+                raise VoxlidarError(f"internal: {final} was not written")
+        for final, t in tmp.items():
+            os.replace(t, final)
+    finally:
+        for t in tmp.values():
+            if t.exists():
+                t.unlink()

@@ -15,13 +15,13 @@ import argparse
 import sys
 
 from clsim.cli import simulate, waveforms
-from voxlidar.cli import run
+from voxlidar.cli import Parser, run, with_debug
 
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="clsim", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = with_debug(Parser(prog="clsim", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter))
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     p = sub.add_parser("versions", help="print package versions and OpenCL devices (for bug reports)")
     p.set_defaults(func=_versions)

@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from voxlidar.safeio import check_figure_path, check_outputs
+from voxlidar.cli import number
+from voxlidar.safeio import staged, check_figure_path, check_outputs
 
 from clsim.errors import InputError
 from clsim.sensor import Sensor, list_presets
@@ -49,6 +50,8 @@ def register(subparsers) -> None:
     p.add_argument("--sensor", default="ahab-chiroptera-i",
                    help=f"preset name ({', '.join(list_presets())}) or a .toml file")
     p.add_argument("--photons", type=int, default=1_000_000, help="photons launched")
+    p.add_argument("--max-hours", type=number(lo=0, lo_open=True, unit="hours"), default=MAX_HOURS,
+                   help=f"refuse a run estimated (by a pilot run) to take longer ({MAX_HOURS:g})")
     p.add_argument("--seed", type=int, default=1, help="random seed (same seed, same device: same output)")
     p.add_argument("-o", "--output", required=True, help="output waveform file (.npz)")
     p.add_argument("--mode", choices=[m.value for m in Mode], default="exact",
@@ -91,8 +94,8 @@ def register(subparsers) -> None:
                                           "broken devices are skipped) and print a table (medians "
                                           "of --repeats runs).",
                               formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    b.add_argument("--photons", type=int, default=200_000)
-    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--photons", type=number(int, lo=1), default=200_000)
+    b.add_argument("--repeats", type=number(int, lo=1), default=3)
     b.set_defaults(func=cmd_bench)
 
 
@@ -110,14 +113,41 @@ def _parse_target(text):
     return values
 
 
+#: longest run `clsim simulate` starts without --max-hours
+MAX_HOURS = 2.0
+
+
+def _check_duration(sim, scene, sensor, kw, args) -> None:
+    """Time a pilot run of large requests; refuse one that would outlast --max-hours.
+
+    A run of 10^12 photons would otherwise start, silently, for days."""
+    n = kw["photons"]
+    if not isinstance(n, int) or n <= 20_000_000:
+        return
+    pilot = dict(kw, photons=200_000, progress=False, trace=0)
+    res = sim.run(scene, sensor, **pilot)
+    rate = 200_000 / max(res.elapsed_s, 1e-9)
+    hours = n / rate / 3600.0
+    if hours > args.max_hours:
+        raise InputError(f"--photons {n:,} would take about {hours:,.1f} h on {sim.device_name} "
+                         f"(a pilot run measured {rate:,.0f} photons/s); lower --photons or raise "
+                         f"--max-hours (now {args.max_hours:g})")
+    if not args.quiet:
+        print(f"{n:,} photons: about {hours * 60:,.0f} min on {sim.device_name}", file=sys.stderr)
+
+
 def cmd_simulate(args) -> int:
     """Handler of ``clsim simulate``."""
     from voxlidar.scene import Scene
 
+    if Path(args.output).suffix.lower() != ".npz":
+        raise InputError(f"-o {args.output} must end in .npz (the waveform file is NumPy NPZ)")
     check_outputs([("scene", args.scene)],
                   [("-o", args.output), ("--plot", args.plot), ("--trace-plot", args.trace_plot)])
     check_figure_path("--plot", args.plot)
     check_figure_path("--trace-plot", args.trace_plot)
+    if args.trace_plot and not args.trace:
+        raise InputError("--trace-plot needs --trace N (the number of photons to draw)")
     target = _parse_target(args.target)
     if Path(args.scene).suffix.lower() == ".vox":
         from tlsvox.voxel.amapvox import read_vox
@@ -144,16 +174,16 @@ def cmd_simulate(args) -> int:
               trace=args.trace, hotspot=args.hotspot, target=target)
     if not args.reference:
         kw["progress"] = not args.quiet
+        _check_duration(sim, scene, sensor, kw, args)
     res = sim.run(scene, sensor, **kw)
-    res.save(args.output)
     from clsim.figures import plot_result, plot_traces
 
-    if args.plot:
-        plot_result(res, args.plot)
-    if args.trace_plot:
-        if not args.trace:
-            raise InputError("--trace-plot needs --trace N (the number of photons to draw)")
-        plot_traces(res, scene, args.trace_plot)
+    with staged([args.output, args.plot, args.trace_plot]) as tmp:  # all three or none
+        res.save(tmp[args.output])
+        if args.plot:
+            plot_result(res, tmp[args.plot])
+        if args.trace_plot:
+            plot_traces(res, scene, tmp[args.trace_plot])
     e, se = res.energy()
     print(f"{args.photons:,} photons in {res.elapsed_s:.2f} s on {res.settings['device']}: "
           f"received energy {e:.4g} +- {se:.2g} of the emitted pulse; wrote {args.output}")

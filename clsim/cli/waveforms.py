@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import check_figure_path, check_outputs, save_figure
+from voxlidar.cli import number
+from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, save_figure
 
 from clsim.errors import InputError
 
@@ -47,18 +48,18 @@ def register(subparsers) -> None:
     dec.add_argument("file", type=Path)
     dec.add_argument("-o", "--output", type=Path, required=True, help="echo table (.csv)")
     dec.add_argument("--plot", type=Path, help="PNG of the first waveforms with their fits")
-    dec.add_argument("--plot-count", type=int, default=6, help="waveforms in the plot (6)")
-    dec.add_argument("--dt-ns", type=float, default=None,
+    dec.add_argument("--plot-count", type=number(int, lo=1), default=6, help="waveforms in the plot (6)")
+    dec.add_argument("--dt-ns", type=number(lo=0, lo_open=True, unit="ns"), default=None,
                      help="sample spacing for CSV input (default 1 ns)")
-    dec.add_argument("--min-amplitude", type=float, default=None,
+    dec.add_argument("--min-amplitude", type=number(lo=0), default=None,
                      help="amplitude detection threshold above baseline (selects "
                           "--detection amplitude; its default is 4 noise sigma)")
     dec.add_argument("--detection", choices=("matched", "amplitude"), default=None,
                      help="matched: matched filter with the system pulse, threshold from "
                           "--false-alarm (default); amplitude: the 4-sigma amplitude rule")
-    dec.add_argument("--false-alarm", type=float, default=0.01,
+    dec.add_argument("--false-alarm", type=number(lo=0, hi=1, lo_open=True, hi_open=True), default=0.01,
                      help="expected false echoes per noise-only waveform (matched; 0.01)")
-    dec.add_argument("--pulse-sigma-ns", type=float, default=None,
+    dec.add_argument("--pulse-sigma-ns", type=number(lo=0, lo_open=True, unit="ns"), default=None,
                      help="Gaussian system pulse width for the matched filter, ns (default: "
                           "from the strongest echoes)")
     dec.add_argument("--batch", action="store_true",
@@ -69,7 +70,7 @@ def register(subparsers) -> None:
                           "deconvolve before fitting")
     dec.add_argument("--geolocation", type=Path,
                      help="NEON-style geolocation CSV (bin0_x..bin0_dz) for CSV input")
-    dec.add_argument("--limit", type=int, default=None, help="only the first N waveforms")
+    dec.add_argument("--limit", type=number(int, lo=1), default=None, help="only the first N waveforms")
     dec.set_defaults(func=cmd_decompose)
 
     from tlsvox.cli.georegister import register as register_georegister
@@ -205,11 +206,19 @@ def cmd_decompose(args) -> int:
                    ("--geolocation", args.geolocation), ("--impulse", args.impulse)],
                   [("-o", args.output), ("--plot", args.plot)])
     check_figure_path("--plot", args.plot)
+    check_inputs([("--impulse", args.impulse), ("--geolocation", args.geolocation)])
+    if args.batch and (args.impulse is not None or args.min_amplitude is not None or args.detection == "amplitude"):
+        raise InputError("--batch uses matched-filter detection on the recorded samples; "
+                         "drop --impulse, --min-amplitude and --detection amplitude")
     wf = load_waveforms(args.file, dt_ns=args.dt_ns, geolocation=args.geolocation)
     impulse = None
     if args.impulse is not None:
-        impulse = _read_csv_rows(Path(args.impulse))
-        impulse = np.array([r[0] for r in impulse])
+        try:
+            impulse = np.array([r[0] for r in _read_csv_rows(Path(args.impulse))])
+        except InputError as err:
+            raise InputError(f"--impulse {err}") from None
+        if not (np.all(np.isfinite(impulse)) and impulse.sum() > 0):
+            raise InputError(f"--impulse {args.impulse}: the impulse response must be finite with a positive sum")
     n = len(wf.waves) if args.limit is None else min(len(wf.waves), int(args.limit))
     results = []
     iterator = range(n)

@@ -12,11 +12,13 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from pathlib import Path
 
-from voxlidar.cli import run
+from voxlidar.cli import Parser, number, run, with_debug
+from voxlidar.errors import InputError
 from voxlidar.safeio import check_figure_path, check_outputs
 
 from tlsvox.cli import georegister, register, voxelize
@@ -27,6 +29,9 @@ from voxlidar.versions import show_versions
 
 #: picture formats of ``tlsvox view --screenshot`` (Open3D renders a bitmap)
 SCREENSHOT_FORMATS = ("png", "jpg", "jpeg")
+#: what ``tlsvox view`` reads: scans, and the point clouds and meshes Open3D reads
+VIEW_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".obj", ".stl", ".off", ".gltf",
+                 ".glb")
 
 def _cmd_tree(args) -> int:
     from tlsvox.truth.synthetic import TreeParams, make_tree
@@ -34,6 +39,8 @@ def _cmd_tree(args) -> int:
     params = TreeParams(height=args.height, total_leaf_area=args.leaf_area, leaf_angle=args.leaf_angle,
                         leaf_azimuth=args.leaf_azimuth, crown_radius=args.crown_radius)
     out = Path(args.output)
+    if out.suffix.lower() != ".ply":
+        raise InputError(f"-o {out} must end in .ply (the mesh; its truth JSON is written beside it)")
     check_outputs([], [("-o", out), ("-o (truth JSON)", out.with_suffix(".json"))])
     tree = make_tree(params, seed=args.seed)
     ply, meta = tree.save(args.output)
@@ -53,6 +60,13 @@ def _cmd_scan(args) -> int:
     tree_json = Path(args.tree)
     tree_json = tree_json if tree_json.suffix.lower() == ".json" else tree_json.with_suffix(".json")
     out = Path(args.output)
+    if out.suffix.lower() not in (".las", ".laz"):
+        raise InputError(f"scan output {str(out)!r} must end in .las or .laz")
+    step = args.step if args.step is not None else 0.06
+    pulses = (360.0 / step) * (180.0 / step)
+    if pulses > 5e8:
+        raise InputError(f"--step {step:g} degrees would fire about {pulses:.2g} pulses per scan (the RIEGL VZ-400 "
+                         f"fires 1.8e7 at 0.06); use a step of at least {math.sqrt(360 * 180 / 5e8):.3f} degrees")
     stems = ([out.with_name(f"{out.stem}{i + 1}{out.suffix}") for i in range(2)] if args.paper_pair else [out])
     check_outputs([("tree", args.tree), ("tree", tree_json), ("tree", tree_json.with_suffix(".ply"))],
                   [("-o", p) for t in stems for p in (t, *sidecar_paths(t))])
@@ -95,6 +109,8 @@ def _cmd_view(args) -> int:
         raise TlsvoxError(f"no display to open a window on (DISPLAY is not set); fix: "
                           f"tlsvox view {path} --screenshot {path.with_suffix('').name}.png renders a picture "
                           "headless")
+    if path.suffix.lower() not in VIEW_SUFFIXES:
+        raise InputError(f"{path}: unknown file type {path.suffix!r}; view reads {', '.join(VIEW_SUFFIXES)}")
     if path.suffix.lower() in (".las", ".laz"):
         from tlsvox.scan import Scan
 
@@ -155,15 +171,15 @@ def _cmd_view(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tlsvox", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = with_debug(Parser(prog="tlsvox", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter))
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("tree", help="build the synthetic oak: mesh PLY + truth JSON",
                        description="Build the seeded procedural tree; write NAME.ply (mesh coloured by "
                                    "material) and NAME.json (parameters, seed and truth metadata).")
     p.add_argument("-o", "--output", required=True, help="output mesh, e.g. out/oak.ply")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument("--seed", type=number(int, lo=0), default=1, help="random seed (default 1)")
     p.add_argument("--height", type=float, default=13.6, help="tree height, m (default 13.6)")
     p.add_argument("--crown-radius", type=float, default=6.0, help="crown radius, m (default 6)")
     p.add_argument("--leaf-area", type=float, default=500.0, help="total one-sided leaf area, m2 (default 500)")
@@ -178,15 +194,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("tree", help="tree metadata JSON (or its PLY) written by `tlsvox tree`")
     p.add_argument("-o", "--output", required=True, help="output .las or .laz")
     p.add_argument("--preset", default="riegl-vz400", help="scanner preset name or TOML path")
-    p.add_argument("--position", type=float, nargs=3, default=(0.0, -20.0, 1.7), metavar=("X", "Y", "Z"))
-    p.add_argument("--yaw", type=float, default=0.0, help="scanner yaw, degrees")
-    p.add_argument("--pitch", type=float, default=0.0, help="scanner pitch (tilt), degrees")
-    p.add_argument("--roll", type=float, default=0.0, help="scanner roll (tilt), degrees")
-    p.add_argument("--step", type=float, default=None, help="angular step, degrees (overrides the preset)")
+    p.add_argument("--position", type=number(), nargs=3, default=(0.0, -20.0, 1.7), metavar=("X", "Y", "Z"))
+    p.add_argument("--yaw", type=number(), default=0.0, help="scanner yaw, degrees")
+    p.add_argument("--pitch", type=number(lo=-90, hi=90), default=0.0, help="scanner pitch (tilt), degrees")
+    p.add_argument("--roll", type=number(lo=-90, hi=90), default=0.0, help="scanner roll (tilt), degrees")
+    p.add_argument("--step", type=number(lo=0, lo_open=True, unit="degrees"), default=None,
+                   help="angular step, degrees (overrides the preset)")
     p.add_argument("--paper-pair", action="store_true",
                    help="scan from the paper's two positions; writes NAME1 and NAME2")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--scan-id", type=int, default=1)
+    p.add_argument("--seed", type=number(int, lo=0), default=1)
+    p.add_argument("--scan-id", type=number(int, lo=0, hi=65534), default=1,
+                   help="scan id (the LAS point source id), 0-65534")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_scan)
 
@@ -197,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--color", choices=["reflectance", "material"], default="reflectance")
     p.add_argument("--scanner-frame", action="store_true", help="do not apply the scan's pose")
     p.add_argument("--screenshot", help="write a picture (.png or .jpg) instead of opening a window")
-    p.add_argument("--point-size", type=float, default=2.0)
+    p.add_argument("--point-size", type=number(lo=0, lo_open=True, unit="pixels"), default=2.0)
     p.set_defaults(func=_cmd_view)
 
     p = sub.add_parser("versions", help="print package versions and OpenCL devices (for bug reports)")

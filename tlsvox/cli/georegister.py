@@ -7,11 +7,13 @@ is the same command (kept for old scripts).
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from tlsvox.errors import InputError
+from tlsvox.errors import InputError, RegistrationError
+from voxlidar.cli import number
 from voxlidar.safeio import check_outputs, json_text
 
 __all__ = ["cmd_georegister", "register"]
@@ -30,9 +32,17 @@ def register(subparsers) -> None:
     geo.add_argument("--init", default=None,
                      help="initial guess 'tx,ty,tz,yaw_deg' (source->target) or a JSON file "
                           "with a 'transform' 4x4; default: centroids and lowest points")
-    geo.add_argument("--yaw-range", type=float, default=30.0, help="+- degrees searched (30)")
-    geo.add_argument("--yaw-step", type=float, default=5.0, help="degrees between trials (5)")
-    geo.add_argument("--voxel-size", type=float, default=0.2, help="fine voxel size, m (0.2)")
+    geo.add_argument("--yaw-range", type=number(lo=0, hi=180, unit="degrees"), default=30.0,
+                     help="+- degrees searched (30)")
+    geo.add_argument("--yaw-step", type=number(lo=0, lo_open=True, unit="degrees"), default=5.0,
+                     help="degrees between trials (5)")
+    geo.add_argument("--voxel-size", type=number(lo=0, lo_open=True, unit="m"), default=0.2,
+                     help="fine voxel size, m (0.2)")
+    geo.add_argument("--min-fitness", type=number(lo=0, hi=1), default=0.3,
+                     help="least accepted fitness: the share of airborne points with a TLS point within the "
+                          "final distance (0.3); below it the command fails and writes nothing")
+    geo.add_argument("--strict", action="store_true",
+                     help="also fail when the best yaw lies at the edge of the searched range")
     geo.add_argument("--output-cloud", type=Path,
                      help="also write SOURCE transformed into the target frame (.ply/.npy/.xyz)")
     geo.set_defaults(func=cmd_georegister)
@@ -63,8 +73,17 @@ def _parse_init(value) -> np.ndarray | None:
     if value is None:
         return None
     p = Path(value)
-    if p.suffix.lower() == ".json" and p.is_file():
-        return np.asarray(json.loads(p.read_text())["transform"], dtype=np.float64)
+    if p.suffix.lower() == ".json":
+        if not p.is_file():
+            raise InputError(f"--init {p} does not exist; give 'tx,ty,tz,yaw_deg' or a JSON file with 'transform'")
+        try:
+            m = np.asarray(json.loads(p.read_text())["transform"], dtype=np.float64)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+            raise InputError(f"--init {p}: not a JSON file with a 4x4 'transform' ({type(err).__name__}: {err})") \
+                from None
+        if m.shape != (4, 4):
+            raise InputError(f"--init {p}: 'transform' must be 4x4, got shape {m.shape}")
+        return m
     try:
         tx, ty, tz, yaw = (float(v) for v in str(value).split(","))
     except ValueError as err:
@@ -84,10 +103,24 @@ def cmd_georegister(args) -> int:
 
     check_outputs([("source", args.source), ("target", args.target)],
                   [("-o", args.output), ("--output-cloud", args.output_cloud)])
+    if args.output_cloud is not None and args.output_cloud.suffix.lower() not in (".npy", ".ply", ".pcd", ".xyz"):
+        raise InputError(f"--output-cloud must be .npy, .ply, .pcd or .xyz; got {args.output_cloud.suffix!r}")
+    init = _parse_init(args.init)
     src = _read_cloud(args.source)
     tgt = _read_cloud(args.target)
-    res = georegister(src, tgt, init=_parse_init(args.init), yaw_range_deg=args.yaw_range,
+    res = georegister(src, tgt, init=init, yaw_range_deg=args.yaw_range,
                       yaw_step_deg=args.yaw_step, voxel_size=args.voxel_size)
+    if res.fitness < args.min_fitness:
+        raise RegistrationError(f"georegistration failed: fitness {res.fitness:.3f} is below --min-fitness "
+                                f"{args.min_fitness:g} (inlier RMSE {res.inlier_rmse:.3f} m, yaw offset "
+                                f"{res.yaw_offset_deg:+.1f} deg); nothing was written: check that the clouds "
+                                "overlap, give a closer --init, or widen --yaw-range")
+    if args.yaw_range > 0 and abs(abs(res.yaw_offset_deg) - args.yaw_range) < 0.5 * args.yaw_step:
+        msg = (f"the best yaw offset {res.yaw_offset_deg:+.1f} deg lies at the edge of the searched "
+               f"+-{args.yaw_range:g} deg: the true yaw may lie beyond it; widen --yaw-range")
+        if args.strict:
+            raise RegistrationError(f"{msg}; nothing was written (--strict)")
+        print(f"warning: {msg}", file=sys.stderr)
     doc = dict(transform=res.transform.tolist(), fitness=res.fitness,
                inlier_rmse_m=res.inlier_rmse, yaw_offset_deg=res.yaw_offset_deg,
                yaw_trials=res.trials, source=str(args.source), target=str(args.target))

@@ -8,12 +8,14 @@ returns an exit status (0 = success, 1 = a clear failure printed to stderr).
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 import numpy as np
+from voxlidar.cli import number
 from voxlidar.safeio import check_figure_path, check_outputs, json_text
 
-from tlsvox.errors import TlsvoxError
+from tlsvox.errors import InputError, TlsvoxError
 from tlsvox.scan import sidecar_paths
 
 __all__ = ["register", "cmd_register", "cmd_classify"]
@@ -59,7 +61,7 @@ def register(subparsers) -> None:
     p.add_argument("--transforms", default=None, help="JSON of poses and fit figures (default: OUTPUT with .transforms.json)")
     p.add_argument("--method", default="auto", choices=["auto", "targets", "fpfh"],
                    help="coarse alignment (default: auto = targets, else FPFH)")
-    p.add_argument("--min-fitness", type=float, default=0.25, help="least accepted fitness (default 0.25)")
+    p.add_argument("--min-fitness", type=number(lo=0, hi=1), default=0.25, help="least accepted fitness (default 0.25)")
     p.add_argument("--icp-after-targets", action="store_true", help="also refine a target fit by ICP")
     p.add_argument("--seed", type=int, default=0, help="first RANSAC seed (default 0)")
     p.set_defaults(func=cmd_register)
@@ -89,6 +91,9 @@ def cmd_register(args) -> int:
     from tlsvox.register import register_scans, write_registered
 
     out = Path(args.output)
+    if out.suffix.lower() not in (".las", ".laz"):
+        raise InputError(f"-o {out} must end in .las or .laz (the merged registered cloud)")
+    refuse_repeats(args.scans)
     check_outputs(_scan_inputs(args.scans),
                   [("-o", out), ("--transforms", Path(args.transforms) if args.transforms
                                  else out.with_suffix(".transforms.json"))])
@@ -148,6 +153,16 @@ def cmd_classify(args) -> int:
         plot_reflectance_histograms(results, args.plot)
     print(f"wrote {len(scans)} classified scan(s) to {out}")
     return 0
+
+
+def refuse_repeats(paths) -> None:
+    """One file given twice is a slip of the shell, not two scans."""
+    seen = {}
+    for p in paths:
+        key = os.path.realpath(p)
+        if key in seen:
+            raise InputError(f"{p} is given twice (also as {seen[key]}); give each scan once")
+        seen[key] = p
 
 
 def _scan_inputs(paths) -> list:

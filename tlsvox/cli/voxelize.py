@@ -14,7 +14,7 @@ import numpy as np
 from voxlidar.errors import VoxlidarError, exit_code
 from voxlidar.safeio import check_outputs, json_text
 
-from tlsvox.errors import TlsvoxError
+from tlsvox.errors import InputError, TlsvoxError
 
 DESCRIPTION = """\
 Estimate leaf area density per voxel from terrestrial laser scans (VoxLAD).
@@ -140,9 +140,18 @@ def run(args) -> int:
     from tlsvox.voxel.voxlad import voxelize
 
     try:
+        from tlsvox.cli.register import refuse_repeats
+
+        if args.bounds is not None and not np.all(np.reshape(args.bounds, (2, 3))[1] > np.reshape(args.bounds, (2, 3))[0]):
+            raise InputError(f"--bounds {args.bounds}: give xmin,ymin,zmin,xmax,ymax,zmax with each max above its min")
+        refuse_repeats(args.scans)
         check_outputs([("scan", p) for path in args.scans for p in (path, *sidecar_paths(path))]
                       + [("--transforms", args.transforms)],
                       [("-o", args.output), ("--vox", args.vox)])
+        if Path(args.output).suffix.lower() != ".npz":
+            raise InputError(f"-o {args.output} must end in .npz (the scene file); --vox PATH adds an AMAPVox .vox")
+        if args.vox is not None and Path(args.vox).suffix.lower() != ".vox":
+            raise InputError(f"--vox {args.vox} must end in .vox")
         scans = [Scan.read(path, scan_id=i) for i, path in enumerate(args.scans)]
         if args.transforms:
             apply_transforms(scans, args.transforms)

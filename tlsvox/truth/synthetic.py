@@ -25,13 +25,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import json_text
+from voxlidar.safeio import json_text, staged
 
 from tlsvox.errors import InputError
 from voxlidar.leafangle import LeafAngle, sample_leaf_normals
 from voxlidar.materials import Material
 from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
-from voxlidar.safeio import atomic_write
 
 __all__ = ["TreeParams", "SyntheticTree", "make_tree", "make_leaf_slab", "make_wall", "load_tree"]
 
@@ -302,9 +301,10 @@ class SyntheticTree:
 
         path = Path(path).with_suffix(".ply")
         mesh = self.to_o3d()
-        atomic_write(path, lambda tmp: o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False))
         meta = path.with_suffix(".json")
-        atomic_write(meta, lambda tmp: Path(tmp).write_text(json_text(self.truth_summary(), indent=1)))
+        with staged([path, meta]) as tmp:  # both or neither
+            o3d.io.write_triangle_mesh(str(tmp[path]), mesh, write_ascii=False)
+            tmp[meta].write_text(json_text(self.truth_summary(), indent=1))
         return path, meta
 
 
@@ -499,11 +499,20 @@ def load_tree(path: "str | os.PathLike") -> SyntheticTree:
     path = Path(path)
     meta = path.with_suffix(".json") if path.suffix.lower() != ".json" else path
     if not meta.exists():
-        raise InputError(f"tree metadata {str(meta)!r} not found; write it with `tlsvox tree -o NAME.ply`")
-    doc = json.loads(meta.read_text())
-    if not doc.get("params"):
-        raise InputError(f"{str(meta)!r} has no generator parameters; it cannot be rebuilt")
-    return make_tree(TreeParams(**doc["params"]), seed=int(doc["seed"]))
+        raise InputError(f"tree metadata {str(meta)!r} does not exist; write it with `tlsvox tree -o NAME.ply`")
+    try:
+        doc = json.loads(meta.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"{str(meta)!r} is not readable JSON ({err}); give the NAME.json that `tlsvox tree` "
+                         "wrote") from None
+    if not isinstance(doc, dict) or not doc.get("params") or "seed" not in doc:
+        raise InputError(f"{str(meta)!r} is not a tlsvox tree file (no generator parameters and seed); give the "
+                         "NAME.json that `tlsvox tree` wrote")
+    try:
+        params = TreeParams(**doc["params"])
+    except TypeError as err:
+        raise InputError(f"{str(meta)!r}: its tree parameters do not match this version ({err})") from None
+    return make_tree(params, seed=int(doc["seed"]))
 
 
 # --------------------------------------------------------------------------------------

@@ -206,11 +206,23 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         if plane is not None:
             lo[2] = max(lo[2], plane.z_center - voxel_size)
+        span = float(np.max(hi - lo))
+        if voxel_size > span:
+            raise InputError(f"voxel_size={voxel_size:g} m is larger than the vegetation the scans saw ({span:.3g} m "
+                             "across): one voxel would hold it all and its LAD would mean nothing; use a voxel size "
+                             "well below the crown size (the paper: 0.02-0.5 m)")
         grid = VoxelGrid.from_bounds(lo, hi, voxel_size=voxel_size, margin=margin)
     else:
         b = np.asarray(bounds, dtype=np.float64)
         if b.shape != (2, 3):
             raise InputError(f"bounds must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got shape {b.shape}")
+        veg = np.vstack([w[(k == EchoKind.LEAF) | (k == EchoKind.WOOD)] for w, k in zip(world, kinds)])
+        inside = np.all((veg >= b[0]) & (veg <= b[1]), axis=1) if len(veg) else np.zeros(0, bool)
+        if len(veg) and not inside.any():
+            raise InputError(f"bounds {b.tolist()} hold none of the {len(veg):,} leaf and wood echoes (they lie within "
+                             f"{veg.min(axis=0).round(2).tolist() if len(veg) else '-'} .. "
+                             f"{veg.max(axis=0).round(2).tolist() if len(veg) else '-'}); check the frame and the "
+                             "numbers")
         grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin)
     tracer = tracer or Tracer()
     grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,

@@ -407,6 +407,9 @@ def read_las_waveforms(path: "str | os.PathLike", *, wdp: "str | os.PathLike | N
                 f"{path.name}: waveform packets are {'external' if external else 'not internal'}"
                 f" but the .wdp file {str(path.with_suffix('.wdp'))!r} is missing; keep the "
                 ".wdp next to the LAS file with the same name, or pass wdp=")
+    if src.stat().st_size == 0:
+        raise InputError(f"{path.name}: its waveform packet file {src.name} is empty (0 bytes): the copy was "
+                         "cut short; copy the complete .wdp again")
     blob = np.memmap(src, dtype=np.uint8, mode="r")
     absolute = offs.astype(np.int64) + base
     end = absolute + sizes.astype(np.int64)

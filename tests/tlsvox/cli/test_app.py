@@ -43,7 +43,7 @@ def test_tree_scan_view(tmp_path, capsys):
 def test_errors_are_reported_not_raised(tmp_path, capsys):
     assert main(["scan", str(tmp_path / "missing.json"), "-o", str(tmp_path / "x.laz")]) == 2
     err = capsys.readouterr().err
-    assert "not found" in err and "tlsvox tree" in err
+    assert "does not exist" in err and "tlsvox tree" in err
     assert not (tmp_path / "x.laz").exists()
 
 

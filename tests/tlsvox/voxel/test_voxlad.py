@@ -152,8 +152,9 @@ def test_cli_takes_poses_from_register_transforms(box_scans, tmp_path, capsys):
     assert rc == 0
     assert Scene.load(tmp_path / "good.npz").total_leaf_area() == pytest.approx(LAD * 8.0, rel=0.1)
     rc = cli_main(paths + args + ["-o", str(tmp_path / "bad.npz")])
-    assert rc == 0  # the sidecars' wrong poses: the box is not where the echoes are
-    assert Scene.load(tmp_path / "bad.npz").total_leaf_area() < 0.7 * LAD * 8.0
+    # the sidecars' wrong poses put every echo outside the box: an error, not a scene of empty voxels
+    assert rc == 2 and "hold none of the" in capsys.readouterr().err
+    assert not (tmp_path / "bad.npz").exists()
     doc["scans"] = doc["scans"][:1]
     tr.write_text(json.dumps(doc))
     rc = cli_main(paths + args + ["--transforms", str(tr), "-o", str(tmp_path / "x.npz")])
