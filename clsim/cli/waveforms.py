@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.cli import number
-from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, save_figure
+from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, save_figure, staged
 
 from clsim.errors import InputError
 
@@ -83,12 +83,14 @@ def register(subparsers) -> None:
 class _Waveforms:
     """Waveforms of a file: samples, sample spacing, optional geometry per waveform."""
 
-    def __init__(self, kind, waves, dt_ns, geometry, meta):
+    def __init__(self, kind, waves, dt_ns, geometry, meta, pulse_id=None, gps_time=None):
         self.kind = kind
         self.waves = waves  # list of 1-D arrays
         self.dt_ns = dt_ns  # list of float
         self.geometry = geometry  # list of (origin, direction per ns) or None
         self.meta = meta
+        self.pulse_id = list(range(len(waves))) if pulse_id is None else pulse_id  # the file's pulse of each
+        self.gps_time = [float("nan")] * len(waves) if gps_time is None else gps_time  # s; NaN: none
 
 
 def _read_csv_rows(path: Path) -> list:
@@ -122,17 +124,19 @@ def load_waveforms(path: Path, *, dt_ns=None, geolocation=None) -> _Waveforms:
         first = np.full(w.n_packets, -1)
         valid = np.flatnonzero(w.packet >= 0)
         first[w.packet[valid][::-1]] = valid[::-1]
-        waves, dts, geo = [], [], []
+        waves, dts, geo, gps = [], [], [], []
         for p in range(w.n_packets):
             i = int(first[p])
             d = w.descriptor_of_point(i)
             waves.append(w.samples(i, volts=False).astype(np.float64))
             dts.append(d.spacing_ps / 1000.0)
             geo.append(w.waveform_origin(i))
+            gps.append(float(w.gps_time[i]))
         meta = dict(points=len(w), packets=w.n_packets,
                     descriptors={k: vars(v) for k, v in w.descriptors.items()},
                     multi_return_points=int(np.sum(w.number_of_returns > 1)))
-        return _Waveforms("LAS waveform packets", waves, dts, geo, meta)
+        return _Waveforms("LAS waveform packets", waves, dts, geo, meta, pulse_id=list(range(w.n_packets)),
+                          gps_time=gps)
     if suffix == ".pls":
         from clsim.waveforms.io import read_pulsewaves
 
@@ -145,7 +149,8 @@ def load_waveforms(path: Path, *, dt_ns=None, geolocation=None) -> _Waveforms:
                     outgoing=[len(s.samples) for s in pw.segments if s.kind == "outgoing"],
                     returning=[len(s.samples) for s in segs],
                     returning_pulse=[s.pulse for s in segs])
-        return _Waveforms("PulseWaves", waves, dts, geo, meta)
+        return _Waveforms("PulseWaves", waves, dts, geo, meta, pulse_id=[int(s.pulse) for s in segs],
+                          gps_time=[float(pw.gps_time[s.pulse]) for s in segs])
     if suffix == ".csv":
         rows = _read_csv_rows(path)
         waves = []
@@ -196,7 +201,6 @@ def cmd_info(args) -> int:
 
 
 def cmd_decompose(args) -> int:
-    from voxlidar.safeio import atomic_write
 
     from clsim.waveforms.decompose import decompose, echo_positions
 
@@ -241,7 +245,7 @@ def cmd_decompose(args) -> int:
                                  impulse=impulse, detection=args.detection,
                                  false_alarm=args.false_alarm,
                                  pulse_sigma_ns=args.pulse_sigma_ns))
-    header = ["waveform", "echo", "amplitude", "location_ns", "sigma_ns", "amplitude_se",
+    header = ["waveform", "pulse_id", "gps_time", "echo", "amplitude", "location_ns", "sigma_ns", "amplitude_se",
               "location_se_ns", "sigma_se_ns", "baseline", "x", "y", "z"]
 
     def write(tmp):
@@ -255,16 +259,18 @@ def cmd_decompose(args) -> int:
                 xyz = (echo_positions(c.location_ns, origin=geo[0], direction=geo[1])
                        if geo is not None else np.full((len(c), 3), np.nan))
                 for k in range(len(c)):
-                    w.writerow([i, k] + [f"{getattr(c, col)[k]:.6g}" for col in c.COLUMNS]
+                    t = wf.gps_time[i]
+                    w.writerow([i, wf.pulse_id[i], f"{t:.6f}" if np.isfinite(t) else "", k]
+                               + [f"{getattr(c, col)[k]:.6g}" for col in c.COLUMNS]
                                + [f"{c.baseline:.6g}"]
                                + [("" if not np.isfinite(v) else f"{v:.4f}") for v in xyz[k]])
 
-    atomic_write(args.output, write)
+    with staged([args.output, args.plot]) as tmp:  # the table and its picture: both or neither
+        write(tmp[args.output])
+        if args.plot is not None:
+            _plot(tmp[args.plot], wf, results, int(args.plot_count), Path(args.file).name)
     n_echo = sum(len(c) for c in results if c is not None)
-    print(f"{n} waveforms, {n_echo} echoes -> {args.output}")
-    if args.plot is not None:
-        _plot(args.plot, wf, results, int(args.plot_count))
-        print(f"plot -> {args.plot}")
+    print(f"{n} waveforms, {n_echo} echoes -> {args.output}" + (f"; plot -> {args.plot}" if args.plot else ""))
     return 0
 
 
@@ -285,7 +291,7 @@ def _decompose_batched(wf, n: int, args) -> list:
     return results
 
 
-def _plot(path: Path, wf, results, count: int) -> None:
+def _plot(path: Path, wf, results, count: int, source: str = "") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -306,9 +312,11 @@ def _plot(path: Path, wf, results, count: int) -> None:
             ax.plot(tf, c.baseline + gaussian_sum(tf, c.amplitude[k:k + 1],
                                                   c.location_ns[k:k + 1], c.sigma_ns[k:k + 1]),
                     "--", lw=0.8)
-        ax.set_ylabel(f"#{i}")
+        ax.set_ylabel(f"pulse {wf.pulse_id[i]}\n(counts)", fontsize=8)
+        ax.set_title(f"waveform {i}: {len(c)} echo{'es' if len(c) != 1 else ''}", fontsize=8, loc="left")
     axes[-1, 0].set_xlabel("time from first sample (ns)")
     axes[0, 0].legend(loc="upper right", fontsize=7)
+    fig.suptitle(f"Gaussian decomposition of {source or wf.kind}: samples, fit and its echoes", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)

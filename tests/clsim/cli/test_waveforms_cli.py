@@ -107,3 +107,23 @@ def test_georegister_cli(tmp_path):
     assert rotation_error_deg(res, truth) < 0.2
     assert np.linalg.norm(res[:3, 3] - truth[:3, 3]) < 0.05
     assert np.load(tmp_path / "moved.npy").shape == source.shape
+
+
+@pytest.mark.realdata
+def test_decompose_names_each_pulse_and_its_gps_time(shared_data, tmp_path):
+    """Every echo row carries its waveform packet and the GPS time of the pulse (the packet's first point)."""
+    from clsim.waveforms.io import read_las_waveforms
+
+    src = shared_data / "leica-fwf-las13" / "fwf.las"
+    out = tmp_path / "echoes.csv"
+    assert run(["decompose", str(src), "-o", str(out), "--limit", "20", "--plot", str(tmp_path / "fit.png")]) == 0
+    rows = list(csv.DictReader(io.StringIO(out.read_text())))
+    w = read_las_waveforms(src)
+    first = {}
+    for i, p in enumerate(w.packet):
+        if p >= 0 and int(p) not in first:
+            first[int(p)] = i
+    assert {int(r["pulse_id"]) for r in rows} <= set(range(20))
+    for r in rows:
+        assert float(r["gps_time"]) == pytest.approx(w.gps_time[first[int(r["pulse_id"])]], abs=1e-6)
+    assert (tmp_path / "fit.png").stat().st_size > 1000
