@@ -30,7 +30,7 @@ from voxlidar.versions import show_versions
 #: picture formats of ``tlsvox view --screenshot`` (Open3D renders a bitmap)
 SCREENSHOT_FORMATS = ("png", "jpg", "jpeg")
 #: what ``tlsvox view`` reads: scans, and the point clouds and meshes Open3D reads
-VIEW_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".obj", ".stl", ".off", ".gltf",
+VIEW_SUFFIXES = (".npz", ".vox", ".las", ".laz", ".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".obj", ".stl", ".off", ".gltf",
                  ".glb")
 
 def _cmd_tree(args) -> int:
@@ -93,6 +93,36 @@ def _cmd_scan(args) -> int:
     return 0
 
 
+def _scene_items(path: Path, color: str):
+    """Voxels of a scene file as a coloured mesh: LAD (log scale) or wood, with its colour scale."""
+    import numpy as np
+
+    from tlsvox.render import colormap, voxel_mesh
+
+    if path.suffix.lower() == ".vox":
+        from tlsvox.voxel.amapvox import read_vox
+
+        scene = read_vox(path)
+    else:
+        from voxlidar.scene import Scene
+
+        scene = Scene.load(path)
+    c = scene.centers()
+    if color == "wood":
+        sel = scene.wood > 0.05
+        cols = colormap(scene.wood[sel], vmin=0.0, vmax=1.0, name="copper_r")
+        bar = ("copper_r", 0.0, 1.0, "wood probability" if scene.wood_kind == "probability" else "wood")
+    else:
+        sel = scene.lad > 0
+        cols = colormap(np.log10(scene.lad[sel]), vmin=-1.0, vmax=1.2, name="viridis")
+        bar = ("viridis", -1.0, 1.2, "log10 LAD (m²/m³)")
+    if not sel.any():
+        raise InputError(f"{path}: no voxel has {'wood' if color == 'wood' else 'leaves'} to show")
+    title = (f"{path.name}: {int(sel.sum()):,} voxels of {scene.voxel_size * 100:g} cm, "
+             f"leaf area {scene.total_leaf_area():,.1f} m²")
+    return [voxel_mesh(c[sel], scene.voxel_size, cols)], c[sel], (title, bar)
+
+
 def _cmd_view(args) -> int:
     import numpy as np
 
@@ -111,12 +141,18 @@ def _cmd_view(args) -> int:
                           "headless")
     if path.suffix.lower() not in VIEW_SUFFIXES:
         raise InputError(f"{path}: unknown file type {path.suffix!r}; view reads {', '.join(VIEW_SUFFIXES)}")
-    if path.suffix.lower() in (".las", ".laz"):
+    if path.suffix.lower() in (".npz", ".vox"):
+        items, xyz, legend = _scene_items(path, args.color)
+        geoms = items
+    elif path.suffix.lower() in (".las", ".laz"):
         from tlsvox.scan import Scan
 
         scan = Scan.read(path)
         pose = scan.pose if scan.pose is not None else scan.pose_true
         xyz = scan.world_xyz(pose) if (pose is not None and not args.scanner_frame) else scan.xyz
+        if args.color in ("lad", "wood"):
+            raise InputError(f"--color {args.color} is for scene files (.npz, .vox); a scan takes reflectance or "
+                             "material")
         if args.color == "material":
             if scan.truth_material is None:
                 raise TlsvoxError(f"{path} has no truth_material; use --color reflectance")
@@ -208,11 +244,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_scan)
 
-    p = sub.add_parser("view", help="look at a scan or mesh (Open3D window or a PNG)",
-                       description="Open an Open3D window on a LAS/LAZ scan, PLY/PCD/XYZ cloud or mesh; "
-                                   "with --screenshot, render headless to a PNG instead.")
+    p = sub.add_parser("view", help="look at a scan, a mesh or a voxel scene (Open3D window or a picture)",
+                       description="Open an Open3D window on a LAS/LAZ scan, PLY/PCD/XYZ cloud or mesh, or a voxel "
+                                   "scene (.npz, .vox: voxels by LAD or wood); with --screenshot, render headless "
+                                   "to a picture with a title and a colour scale instead.")
     p.add_argument("file")
-    p.add_argument("--color", choices=["reflectance", "material"], default="reflectance")
+    p.add_argument("--color", choices=["reflectance", "material", "lad", "wood"], default=None,
+                   help="scans: reflectance (default) or material; scenes (.npz, .vox): lad (default) or wood")
     p.add_argument("--scanner-frame", action="store_true", help="do not apply the scan's pose")
     p.add_argument("--screenshot", help="write a picture (.png or .jpg) instead of opening a window")
     p.add_argument("--point-size", type=number(lo=0, lo_open=True, unit="pixels"), default=2.0)

@@ -56,3 +56,18 @@ def test_versions_lists_opencl_devices(capsys):
     assert main(["versions"]) == 0
     out = capsys.readouterr().out
     assert "open3d" in out and "OpenCL" in out and "numpy" in out
+
+
+def test_view_a_voxel_scene_headless(tmp_path, monkeypatch, capsys):
+    """A scene's voxels by LAD (and by wood), as a picture with a title and a colour scale."""
+    from clsim.validation.testscenes import homogeneous_layer
+
+    monkeypatch.setenv("VOXLIDAR_NO_O3D_RENDER", "1")  # the matplotlib renderer: quick, and the same decorations
+    scene = homogeneous_layer(width=2.0, voxel_size=0.5)
+    scene.save(tmp_path / "layer.npz")
+    assert main(["view", str(tmp_path / "layer.npz"), "--screenshot", str(tmp_path / "lad.png")]) == 0
+    assert (tmp_path / "lad.png").stat().st_size > 1000
+    assert main(["view", str(tmp_path / "layer.npz"), "--color", "wood", "--screenshot",
+                 str(tmp_path / "wood.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no voxel has wood" in err[0] and not (tmp_path / "wood.png").exists()
