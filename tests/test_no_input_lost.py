@@ -228,3 +228,23 @@ def test_pictures_follow_their_suffix(files, tmp_path, capsys):
     assert clsim_main(argv + [str(tmp_path / "b.npz"), "--plot", str(bad)]) == 2
     assert "unknown picture format '.tiff'" in capsys.readouterr().err and not bad.exists()
     assert not (tmp_path / "b.npz").exists()  # refused before any work
+
+
+def test_simulate_a_file_of_targets(files, tmp_path, capsys):
+    """One pulse per row of --targets: each equals the single-target run with the same seed, bit for bit."""
+    tg = tmp_path / "targets.csv"
+    tg.write_text("x,y\n0.5,-0.25\n-1,1\n")
+    out = tmp_path / "many.npz"
+    base = ["simulate", str(files / "scene.npz"), "--photons", "3000", "--seed", "4", "-q"]
+    assert clsim_main(base + ["--targets", str(tg), "-o", str(out), "--plot", str(tmp_path / "many.png")]) == 0
+    many = np.load(out)
+    assert many["waveform"].shape[0] == 2 and np.allclose(many["targets"][:, :2], [[0.5, -0.25], [-1.0, 1.0]])
+    for k, t in enumerate(("0.5,-0.25", "-1,1")):
+        one = tmp_path / f"one{k}.npz"
+        assert clsim_main(base + [f"--target={t}", "-o", str(one)]) == 0  # "=": argparse reads "-1,1" as an option
+        w = np.load(one)["waveform"]
+        assert np.array_equal(many["waveform"][k, :w.size], w)
+    assert (tmp_path / "many.png").stat().st_size > 1000
+    tg.write_text("x,y\n1,2\nthree,4\n")
+    assert clsim_main(base + ["--targets", str(tg), "-o", str(tmp_path / "bad.npz")]) == 2
+    assert "row 3" in capsys.readouterr().err and not (tmp_path / "bad.npz").exists()

@@ -46,7 +46,11 @@ def register(subparsers) -> None:
                                  ".vox (its PadBVTotal as LAD; no wood, no ground)")
     p.add_argument("--target", default=None, metavar="X,Y[,Z]",
                    help="where the beam axis meets the ground, metres in the scene's frame "
-                        "(default: the centre of the grid at ground level)")
+                        "(default: the centre of the grid at ground level); a negative X needs '=': "
+                        "--target=-1.5,2")
+    p.add_argument("--targets", default=None, metavar="CSV",
+                   help="a file of targets, one X,Y[,Z] per row (a header row allowed): one pulse each, "
+                        "all in one NPZ (arrays with a leading target axis)")
     p.add_argument("--sensor", default="ahab-chiroptera-i",
                    help=f"preset name ({', '.join(list_presets())}) or a .toml file")
     p.add_argument("--photons", type=int, default=1_000_000, help="photons launched")
@@ -136,19 +140,79 @@ def _check_duration(sim, scene, sensor, kw, args) -> None:
         print(f"{n:,} photons: about {hours * 60:,.0f} min on {sim.device_name}", file=sys.stderr)
 
 
+def read_targets(path) -> list:
+    """Targets from a CSV file: one ``X,Y`` or ``X,Y,Z`` (metres) per row; a header row is allowed."""
+    import csv
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"--targets {path} does not exist; give a CSV with one X,Y[,Z] per row")
+    out = []
+    with open(path, newline="") as fh:
+        for n, row in enumerate(csv.reader(fh), start=1):
+            cells = [c.strip() for c in row if c.strip()]
+            if not cells:
+                continue
+            try:
+                values = tuple(float(c) for c in cells)
+            except ValueError:
+                if n == 1:
+                    continue  # header
+                raise InputError(f"--targets {path.name}, row {n}: {row!r} is not X,Y[,Z] in metres") from None
+            if len(values) not in (2, 3) or not all(np.isfinite(values)):
+                raise InputError(f"--targets {path.name}, row {n}: {row!r} is not X,Y[,Z] in metres")
+            out.append(values)
+    if not out:
+        raise InputError(f"--targets {path.name} holds no target; one X,Y[,Z] per row")
+    return out
+
+
+def _save_many(results, targets, path) -> None:
+    """One NPZ of several pulses: each array gains a leading target axis (waveforms padded with NaN)."""
+    from voxlidar.safeio import atomic_write, json_text
+
+    nb = max(r.time_ns.size for r in results)
+
+    def pad(a):
+        a = np.asarray(a, dtype=np.float64)
+        out = np.full(a.shape[:-1] + (nb,), np.nan)
+        out[..., :a.shape[-1]] = a
+        return out
+
+    tg = np.full((len(targets), 3), np.nan)
+    for k, t in enumerate(targets):
+        tg[k, :len(t)] = t
+    arrays = dict(targets=tg, time_ns=np.stack([pad(r.time_ns) for r in results]),
+                  waveform=np.stack([pad(r.waveform) for r in results]),
+                  by_order=np.stack([pad(r.by_order) for r in results]),
+                  energy=np.array([r.energy() for r in results]),
+                  settings=np.str_(json_text([r.settings for r in results])))
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+    atomic_write(path, write)
+
+
 def cmd_simulate(args) -> int:
     """Handler of ``clsim simulate``."""
     from voxlidar.scene import Scene
 
     if Path(args.output).suffix.lower() != ".npz":
         raise InputError(f"-o {args.output} must end in .npz (the waveform file is NumPy NPZ)")
-    check_outputs([("scene", args.scene)],
+    check_outputs([("scene", args.scene), ("--targets", args.targets)],
                   [("-o", args.output), ("--plot", args.plot), ("--trace-plot", args.trace_plot)])
     check_figure_path("--plot", args.plot)
     check_figure_path("--trace-plot", args.trace_plot)
     if args.trace_plot and not args.trace:
         raise InputError("--trace-plot needs --trace N (the number of photons to draw)")
     target = _parse_target(args.target)
+    targets = None
+    if args.targets is not None:
+        if args.target is not None or args.trace_plot:
+            raise InputError("--targets runs one pulse per row: drop --target and --trace-plot")
+        targets = read_targets(args.targets)
     if Path(args.scene).suffix.lower() == ".vox":
         from tlsvox.voxel.amapvox import read_vox
 
@@ -172,6 +236,8 @@ def cmd_simulate(args) -> int:
     kw = dict(photons=args.photons, seed=args.seed, mode=args.mode, detect=args.detect,
               max_order=args.max_order, leaf_off=args.leaf_off, batches=args.batches,
               trace=args.trace, hotspot=args.hotspot, target=target)
+    if targets is not None:
+        return _simulate_targets(sim, scene, sensor, kw, targets, args)
     if not args.reference:
         kw["progress"] = not args.quiet
         _check_duration(sim, scene, sensor, kw, args)
@@ -189,6 +255,25 @@ def cmd_simulate(args) -> int:
           f"received energy {e:.4g} +- {se:.2g} of the emitted pulse; wrote {args.output}")
     for f in res.flags:
         print(f"note: {f}")
+    return 0
+
+
+def _simulate_targets(sim, scene, sensor, kw, targets, args) -> int:
+    """One pulse per target, the same photons and seed for each; one NPZ (and one picture)."""
+    from tqdm.auto import tqdm
+
+    from clsim.figures import plot_waveforms
+
+    results = []
+    for t in tqdm(targets, desc="targets", unit="pulse", disable=args.quiet or len(targets) < 2):
+        results.append(sim.run(scene, sensor, **dict(kw, target=t)))
+    with staged([args.output, args.plot]) as tmp:
+        _save_many(results, targets, tmp[args.output])
+        if args.plot:
+            curves = [(",".join(f"{v:g}" for v in t), r) for t, r in zip(targets, results)][:12]
+            plot_waveforms(curves, tmp[args.plot], height_axis=False,
+                           title=f"{len(targets)} pulses, {args.photons:,} photons each (legend: target X,Y m)")
+    print(f"{len(targets)} pulses of {args.photons:,} photons on {results[0].settings['device']}; wrote {args.output}")
     return 0
 
 
