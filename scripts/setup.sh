@@ -15,6 +15,9 @@ SYS_LIBS="libusb-1.0-0 libgl1 libegl1 libgomp1 libegl-mesa0 libgl1-mesa-dri libv
 # PyPI's PoCL (LLVM 14) cannot compile for CPUs newer than its LLVM (recent
 # AMD EPYC/Zen 4); voxlidar's device layer then skips it and says why.
 OPENCL_PKGS="pocl-opencl-icd"
+# A virtual X server for the Open3D window sessions' tests (`clsim pick` under
+# xvfb-run); optional: without it those tests skip and say why.
+OPTIONAL_PKGS="xvfb xauth"
 
 missing_of() {
   local out=""
@@ -30,12 +33,21 @@ missing_of() {
 
 missing=$(missing_of $SYS_LIBS)
 missing_cl=$(missing_of $OPENCL_PKGS)
-if [ -n "$missing$missing_cl" ]; then
+missing_opt=$(missing_of $OPTIONAL_PKGS)
+if [ -n "$missing_opt" ] && [ "$(id -u)" != "0" ]; then
+  echo "setup: optional (window-session tests under a virtual display):  sudo apt-get install -y$missing_opt" >&2
+  missing_opt=""
+fi
+if [ -n "$missing$missing_cl$missing_opt" ]; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
-    echo "setup: installing system packages:$missing$missing_cl"
+    echo "setup: installing system packages:$missing$missing_cl$missing_opt"
     export DEBIAN_FRONTEND=noninteractive
     apt-get update -qq
     apt-get install -y -qq --no-install-recommends $missing $missing_cl >/dev/null
+    if [ -n "$missing_opt" ]; then
+      apt-get install -y -qq --no-install-recommends $missing_opt >/dev/null \
+        || echo "setup: could not install$missing_opt (optional; the window-session tests will skip)" >&2
+    fi
   else
     if [ -n "$missing_cl" ]; then
       echo "setup: no system OpenCL CPU runtime (Debian's PoCL); install it with:  sudo apt-get install -y$missing_cl" >&2

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from clsim.cli import simulate, waveforms
+from clsim.cli import pick, simulate, waveforms
 from voxlidar.cli import Parser, run, with_debug
 
 
@@ -27,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_versions)
     simulate.register(sub)
     waveforms.register(sub)
+    pick.register(sub)
     return parser
 
 
