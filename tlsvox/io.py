@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from voxlidar.safeio import describe_kind, file_kind
 from tlsvox.errors import InputError, ScanFileError
 from tlsvox.scan import Scan
 
@@ -155,7 +156,16 @@ def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" 
     import open3d as o3d
 
     path = Path(path)
-    fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
+    kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
+    if kind == "las":
+        fmt = ScanFormat.LAS
+    elif kind == "ply":
+        fmt = ScanFormat.PLY
+    else:
+        fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
+        if kind is not None and kind != "empty" and fmt in (ScanFormat.LAS, ScanFormat.LAZ):
+            raise InputError(f"{path} is not a LAS/LAZ file: it is {describe_kind(kind)} (a LAS file starts with "
+                             "'LASF'); check the file, or give it the suffix of what it holds")
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         raise InputError(f"format={fmt.value!r}: read LAS/LAZ with Scan.read or read_any")
     if not path.exists():
@@ -222,7 +232,16 @@ def read_any(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = N
         points, or no reflectance when ``require_reflectance``.
     """
     path = Path(path)
-    fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
+    kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
+    if kind == "las":
+        fmt = ScanFormat.LAS
+    elif kind == "ply":
+        fmt = ScanFormat.PLY
+    else:
+        fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
+        if kind is not None and kind != "empty" and fmt in (ScanFormat.LAS, ScanFormat.LAZ):
+            raise InputError(f"{path} is not a LAS/LAZ file: it is {describe_kind(kind)} (a LAS file starts with "
+                             "'LASF'); check the file, or give it the suffix of what it holds")
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         scan = Scan.read(path, scan_id=scan_id)
     else:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import json_text, staged
+from voxlidar.safeio import describe_kind, file_kind, json_text, staged
 
 from tlsvox.errors import InputError, ScanFileError
 from voxlidar.safeio import atomic_write
@@ -281,6 +281,10 @@ class Scan:
             raise ScanFileError(f"scan file {str(path)!r} does not exist")
         if path.stat().st_size == 0:
             raise InputError(f"scan file {str(path)!r} is empty (0 bytes); re-export the scan")
+        kind = file_kind(path)
+        if kind != "las":
+            raise InputError(f"{str(path)!r} is not a LAS/LAZ file: it is {describe_kind(kind)} (a LAS file starts "
+                             "with 'LASF')")
         try:
             las = laspy.read(str(path))
         except Exception as err:  # noqa: BLE001 - re-raised with the file named

@@ -30,7 +30,7 @@ from pathlib import Path
 from voxlidar.errors import InputError, VoxlidarError
 
 __all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path",
-           "check_inputs", "check_outputs",
+           "check_inputs", "check_outputs", "describe_kind", "file_kind",
            "json_text", "save_figure", "staged"]
 
 
@@ -46,6 +46,43 @@ def _key(path: Path) -> tuple:
         return ("inode", st.st_dev, st.st_ino)
     except OSError:
         return ("path", str(real))
+
+
+#: magic bytes of the file kinds voxlidar reads, and what each is
+MAGIC = ((b"LASF", "las", "a LAS/LAZ file"), (b"PK\x03\x04", "npz", "a NumPy NPZ (zip) file"),
+         (b"VOXEL SPACE", "vox", "an AMAPVox .vox file"), (b"ply", "ply", "a PLY file"),
+         (b"PulseWavesPulse", "pls", "a PulseWaves .pls file"), (b"\x93NUMPY", "npy", "a NumPy .npy file"))
+
+
+def file_kind(path) -> str:
+    """What a file is by its first bytes, not its name: ``las``, ``npz``, ``vox``, ``ply``,
+    ``pls``, ``npy``, ``empty``, ``text`` or ``unknown``.
+
+    >>> import tempfile
+    >>> p = Path(tempfile.mkdtemp()) / "scan.txt"
+    >>> _ = p.write_bytes(b"LASF" + bytes(400))
+    >>> file_kind(p)
+    'las'
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(64)
+    if not head:
+        return "empty"
+    for magic, kind, _ in MAGIC:
+        if head.startswith(magic):
+            return kind
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "unknown"
+    return "text"
+
+
+def describe_kind(kind: str) -> str:
+    """Words for a :func:`file_kind` result, for error messages."""
+    names = {k: words for _, k, words in MAGIC}
+    return names.get(kind, {"empty": "empty (0 bytes)", "text": "a text file",
+                            "unknown": "of an unknown kind"}.get(kind, kind))
 
 
 def check_inputs(inputs) -> None:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import atomic_write, json_text
+from voxlidar.safeio import atomic_write, describe_kind, file_kind, json_text
 
 from voxlidar.errors import InputError
 from voxlidar.leafangle import LeafAngle
@@ -237,6 +237,12 @@ class Scene:
         path = Path(path)
         if not path.exists():
             raise InputError(f"scene file {str(path)!r} does not exist")
+        if path.is_dir():
+            raise InputError(f"scene file {str(path)!r} is a folder; give the .npz that tlsvox voxelize wrote")
+        kind = file_kind(path)
+        if kind != "npz":
+            hint = " (read it with tlsvox.voxel.amapvox.read_vox)" if kind == "vox" else ""
+            raise InputError(f"{str(path)!r} is not a readable NPZ scene file: it is {describe_kind(kind)}{hint}")
         try:
             z = np.load(path, allow_pickle=False)
         except Exception as err:  # noqa: BLE001 - re-raised with the file named

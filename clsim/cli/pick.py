@@ -52,7 +52,9 @@ def register(subparsers) -> None:
 
 
 def _load_scene(path: Path):
-    if path.suffix.lower() == ".vox":
+    from voxlidar.safeio import file_kind
+
+    if path.suffix.lower() == ".vox" or file_kind(path) == "vox":
         from tlsvox.voxel.amapvox import read_vox
 
         return read_vox(path)

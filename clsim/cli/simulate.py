@@ -213,7 +213,10 @@ def cmd_simulate(args) -> int:
         if args.target is not None or args.trace_plot:
             raise InputError("--targets runs one pulse per row: drop --target and --trace-plot")
         targets = read_targets(args.targets)
-    if Path(args.scene).suffix.lower() == ".vox":
+    from voxlidar.safeio import file_kind
+
+    scene_path = Path(args.scene)
+    if scene_path.suffix.lower() == ".vox" or (scene_path.is_file() and file_kind(scene_path) == "vox"):
         from tlsvox.voxel.amapvox import read_vox
 
         scene = read_vox(args.scene)

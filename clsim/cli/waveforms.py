@@ -117,6 +117,16 @@ def load_waveforms(path: Path, *, dt_ns=None, geolocation=None) -> _Waveforms:
     suffix = path.suffix.lower()
     if not path.is_file():
         raise InputError(f"input file {str(path)!r} does not exist")
+    from voxlidar.safeio import describe_kind, file_kind
+
+    kind = file_kind(path)  # the content decides, not the name
+    if kind == "las":
+        suffix = ".las" if suffix not in (".las", ".laz") else suffix
+    elif kind == "pls":
+        suffix = ".pls"
+    elif suffix in (".las", ".laz", ".pls"):
+        raise InputError(f"{path.name} is not a {'LAS/LAZ' if suffix != '.pls' else 'PulseWaves'} file: it is "
+                         f"{describe_kind(kind)}; check the file")
     if suffix in (".las", ".laz"):
         from clsim.waveforms.io import read_las_waveforms
 

@@ -120,3 +120,38 @@ def test_unknown_format_and_missing_file(tmp_path):
         ScanFormat.parse("e57")
     with pytest.raises(ScanFileError):
         read_any(tmp_path / "missing.ply")
+
+
+def test_files_are_read_by_content_not_by_name(tmp_path):
+    """A LAS scan saved under another suffix is still read; a text file named .las is refused in one line."""
+    import shutil
+
+    from tlsvox.io import read_any
+    from tlsvox.scan import Scan
+    from voxlidar.errors import InputError
+    from voxlidar.safeio import file_kind
+
+    rng = np.random.default_rng(0)
+    Scan(xyz=rng.normal(size=(300, 3)), reflectance_db=rng.uniform(-20, 0, 300).astype(np.float32),
+         name="s").write(tmp_path / "s.las")
+    shutil.copy(tmp_path / "s.las", tmp_path / "s.dat")
+    assert file_kind(tmp_path / "s.dat") == "las"
+    a, b = read_any(tmp_path / "s.las"), read_any(tmp_path / "s.dat")
+    assert np.array_equal(a.xyz, b.xyz)
+    (tmp_path / "t.las").write_text("x y z\n1 2 3\n")
+    with pytest.raises(InputError, match="is not a LAS/LAZ file: it is a text file"):
+        read_any(tmp_path / "t.las")
+
+
+def test_a_scene_is_read_by_content(tmp_path):
+    from clsim.validation.testscenes import homogeneous_layer
+    from voxlidar.errors import InputError
+    from voxlidar.scene import Scene
+
+    scene = homogeneous_layer(width=2.0, voxel_size=0.5)
+    scene.save(tmp_path / "s.npz")
+    (tmp_path / "s.npz").rename(tmp_path / "scene.data")
+    assert Scene.load(tmp_path / "scene.data").n_voxels == scene.n_voxels
+    (tmp_path / "v.npz").write_text("VOXEL SPACE\n")
+    with pytest.raises(InputError, match="AMAPVox .vox file"):
+        Scene.load(tmp_path / "v.npz")
