@@ -130,6 +130,21 @@ def check_scan(scan: Scan, *, min_points: int = 2, require_reflectance: bool = F
     return scan
 
 
+def scan_format(path: Path, format=None) -> ScanFormat:
+    """The format of a point-cloud file: ``format`` when given, else its content
+    (LAS/LAZ and PLY by their first bytes), else its suffix."""
+    kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
+    if kind == "las":
+        return ScanFormat.LAS
+    if kind == "ply":
+        return ScanFormat.PLY
+    fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
+    if kind is not None and kind != "empty" and fmt in (ScanFormat.LAS, ScanFormat.LAZ):
+        raise InputError(f"{path} is not a LAS/LAZ file: it is {describe_kind(kind)} (a LAS file starts with "
+                         "'LASF'); check the file, or give it the suffix of what it holds")
+    return fmt
+
+
 def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = None,
                 scan_id: int = 0, name: str | None = None) -> Scan:
     """Read a PLY, PCD, XYZ, XYZI or PTS file with Open3D into a :class:`Scan`.
@@ -156,16 +171,7 @@ def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" 
     import open3d as o3d
 
     path = Path(path)
-    kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
-    if kind == "las":
-        fmt = ScanFormat.LAS
-    elif kind == "ply":
-        fmt = ScanFormat.PLY
-    else:
-        fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
-        if kind is not None and kind != "empty" and fmt in (ScanFormat.LAS, ScanFormat.LAZ):
-            raise InputError(f"{path} is not a LAS/LAZ file: it is {describe_kind(kind)} (a LAS file starts with "
-                             "'LASF'); check the file, or give it the suffix of what it holds")
+    fmt = scan_format(path, format)
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         raise InputError(f"format={fmt.value!r}: read LAS/LAZ with Scan.read or read_any")
     if not path.exists():
@@ -232,16 +238,7 @@ def read_any(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = N
         points, or no reflectance when ``require_reflectance``.
     """
     path = Path(path)
-    kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
-    if kind == "las":
-        fmt = ScanFormat.LAS
-    elif kind == "ply":
-        fmt = ScanFormat.PLY
-    else:
-        fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
-        if kind is not None and kind != "empty" and fmt in (ScanFormat.LAS, ScanFormat.LAZ):
-            raise InputError(f"{path} is not a LAS/LAZ file: it is {describe_kind(kind)} (a LAS file starts with "
-                             "'LASF'); check the file, or give it the suffix of what it holds")
+    fmt = scan_format(path, format)
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         scan = Scan.read(path, scan_id=scan_id)
     else:
