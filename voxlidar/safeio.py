@@ -30,7 +30,7 @@ from pathlib import Path
 from voxlidar.errors import InputError, VoxlidarError
 
 __all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path",
-           "check_inputs", "check_outputs", "describe_kind", "file_kind",
+           "check_distinct", "check_inputs", "check_outputs", "describe_kind", "file_kind",
            "json_text", "save_figure", "staged"]
 
 
@@ -101,6 +101,16 @@ def check_inputs(inputs) -> None:
             raise InputError(f"{label} {path} does not exist; check the path")
         if path.is_dir():
             raise InputError(f"{label} {path} is a folder; give a file")
+
+
+def check_distinct(label: str, paths) -> None:
+    """Refuse one file given twice (symlinks and ``..`` resolved): a slip of the shell, not two inputs."""
+    seen = {}
+    for p in paths:
+        key = _key(Path(p))
+        if key in seen:
+            raise InputError(f"{p} is given twice (also as {seen[key]}); give each {label} once")
+        seen[key] = p
 
 
 def check_outputs(inputs, outputs) -> None:

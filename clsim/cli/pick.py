@@ -94,7 +94,7 @@ def cmd_pick(args) -> int:
     """Handler of ``clsim pick``."""
     from tlsvox.render import colormap
 
-    from clsim.cli.simulate import _save_many
+    from clsim.transport.result import save_results
     from clsim.sensor import Sensor
 
     scene_path = Path(args.scene)
@@ -136,7 +136,7 @@ def cmd_pick(args) -> int:
     with staged([args.plot, args.output]) as tmp:
         _picture(tmp[args.plot], scene, centres, colors, chosen, results, sensor, args)
         if args.output:
-            _save_many(results, targets, tmp[args.output])
+            save_results(results, targets, tmp[args.output])
     for i, t, r in zip(chosen, targets, results):
         e, se = r.energy()
         print(f"voxel {i} at x={t[0]:.2f} m, y={t[1]:.2f} m: received energy {e:.4g} +- {se:.2g}")

@@ -167,34 +167,6 @@ def read_targets(path) -> list:
     return out
 
 
-def _save_many(results, targets, path) -> None:
-    """One NPZ of several pulses: each array gains a leading target axis (waveforms padded with NaN)."""
-    from voxlidar.safeio import atomic_write, json_text
-
-    nb = max(r.time_ns.size for r in results)
-
-    def pad(a):
-        a = np.asarray(a, dtype=np.float64)
-        out = np.full(a.shape[:-1] + (nb,), np.nan)
-        out[..., :a.shape[-1]] = a
-        return out
-
-    tg = np.full((len(targets), 3), np.nan)
-    for k, t in enumerate(targets):
-        tg[k, :len(t)] = t
-    arrays = dict(targets=tg, time_ns=np.stack([pad(r.time_ns) for r in results]),
-                  waveform=np.stack([pad(r.waveform) for r in results]),
-                  by_order=np.stack([pad(r.by_order) for r in results]),
-                  energy=np.array([r.energy() for r in results]),
-                  settings=np.str_(json_text([r.settings for r in results])))
-
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-
-    atomic_write(path, write)
-
-
 def cmd_simulate(args) -> int:
     """Handler of ``clsim simulate``."""
     from voxlidar.scene import Scene
@@ -266,12 +238,13 @@ def _simulate_targets(sim, scene, sensor, kw, targets, args) -> int:
     from tqdm.auto import tqdm
 
     from clsim.figures import plot_waveforms
+    from clsim.transport.result import save_results
 
     results = []
     for t in tqdm(targets, desc="targets", unit="pulse", disable=args.quiet or len(targets) < 2):
         results.append(sim.run(scene, sensor, **dict(kw, target=t)))
     with staged([args.output, args.plot]) as tmp:
-        _save_many(results, targets, tmp[args.output])
+        save_results(results, targets, tmp[args.output])
         if args.plot:
             curves = [(",".join(f"{v:g}" for v in t), r) for t, r in zip(targets, results)][:12]
             plot_waveforms(curves, tmp[args.plot], height_axis=False,

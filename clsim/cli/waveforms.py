@@ -241,9 +241,6 @@ def cmd_decompose(args) -> int:
 
         iterator = tqdm(iterator, desc="decompose", unit="waveform")
     if args.batch:
-        if impulse is not None or args.min_amplitude is not None or args.detection == "amplitude":
-            raise InputError("--batch uses matched-filter detection on the recorded samples; "
-                             "drop --impulse, --min-amplitude and --detection amplitude")
         results = _decompose_batched(wf, n, args)
         iterator = ()
     for i in iterator:

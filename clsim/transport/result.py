@@ -160,3 +160,31 @@ def assemble_result(setup: RunSetup, hist, stats, traces, elapsed: float, device
     if total == 0.0:
         flags.append("no energy reached the receiver")
     return res
+
+
+def save_results(results, targets, path) -> Path:
+    """One NPZ of several pulses (``clsim simulate --targets``, ``clsim pick``): ``targets`` (T, 3; NaN
+    where no Z was given), and ``time_ns``, ``waveform``, ``by_order``, ``energy`` and ``settings`` with a
+    leading target axis (waveforms padded with NaN to the longest)."""
+    nb = max(r.time_ns.size for r in results)
+
+    def pad(a):
+        a = np.asarray(a, dtype=np.float64)
+        out = np.full(a.shape[:-1] + (nb,), np.nan)
+        out[..., :a.shape[-1]] = a
+        return out
+
+    tg = np.full((len(targets), 3), np.nan)
+    for k, t in enumerate(targets):
+        tg[k, :len(t)] = t
+    arrays = dict(targets=tg, time_ns=np.stack([pad(r.time_ns) for r in results]),
+                  waveform=np.stack([pad(r.waveform) for r in results]),
+                  by_order=np.stack([pad(r.by_order) for r in results]),
+                  energy=np.array([r.energy() for r in results]),
+                  settings=np.str_(json_text([r.settings for r in results])))
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+    return atomic_write(path, write)

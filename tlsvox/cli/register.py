@@ -8,12 +8,11 @@ returns an exit status (0 = success, 1 = a clear failure printed to stderr).
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import numpy as np
 from voxlidar.cli import number
-from voxlidar.safeio import check_figure_path, check_outputs, json_text
+from voxlidar.safeio import check_distinct, check_figure_path, check_outputs, json_text
 
 from tlsvox.errors import InputError, TlsvoxError
 from tlsvox.scan import sidecar_paths
@@ -93,7 +92,7 @@ def cmd_register(args) -> int:
     out = Path(args.output)
     if out.suffix.lower() not in (".las", ".laz"):
         raise InputError(f"-o {out} must end in .las or .laz (the merged registered cloud)")
-    refuse_repeats(args.scans)
+    check_distinct("scan", args.scans)
     check_outputs(_scan_inputs(args.scans),
                   [("-o", out), ("--transforms", Path(args.transforms) if args.transforms
                                  else out.with_suffix(".transforms.json"))])
@@ -153,16 +152,6 @@ def cmd_classify(args) -> int:
         plot_reflectance_histograms(results, args.plot)
     print(f"wrote {len(scans)} classified scan(s) to {out}")
     return 0
-
-
-def refuse_repeats(paths) -> None:
-    """One file given twice is a slip of the shell, not two scans."""
-    seen = {}
-    for p in paths:
-        key = os.path.realpath(p)
-        if key in seen:
-            raise InputError(f"{p} is given twice (also as {seen[key]}); give each scan once")
-        seen[key] = p
 
 
 def _scan_inputs(paths) -> list:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.errors import VoxlidarError, exit_code
-from voxlidar.safeio import check_outputs, json_text
+from voxlidar.safeio import check_distinct, check_outputs, json_text
 
 from tlsvox.errors import InputError, TlsvoxError
 
@@ -140,11 +140,9 @@ def run(args) -> int:
     from tlsvox.voxel.voxlad import voxelize
 
     try:
-        from tlsvox.cli.register import refuse_repeats
-
         if args.bounds is not None and not np.all(np.reshape(args.bounds, (2, 3))[1] > np.reshape(args.bounds, (2, 3))[0]):
             raise InputError(f"--bounds {args.bounds}: give xmin,ymin,zmin,xmax,ymax,zmax with each max above its min")
-        refuse_repeats(args.scans)
+        check_distinct("scan", args.scans)
         check_outputs([("scan", p) for path in args.scans for p in (path, *sidecar_paths(path))]
                       + [("--transforms", args.transforms)],
                       [("-o", args.output), ("--vox", args.vox)])
