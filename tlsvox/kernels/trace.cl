@@ -21,8 +21,19 @@
  *  12..14 dir_w    entering weight * direction
  *  15 leaf_w_g     leaf echo weight / g
  *
+ * Sparse layout (-DSPARSE): full rows only for the voxels that hold an echo
+ * ("rows", listed by the host), found through bricks of BRICK^3 voxels:
+ * brick_start[b] .. brick_start[b + 1] are the rows of brick b, their
+ * in-brick indices brick_key[] sorted ascending (binary search).  Every
+ * brick keeps NB coarse sums of its own, per beam crossing it:
+ *   0 count (beams crossing), 1 visits (voxels entered: the dense count summed),
+ *   2 n_w (weight entering), 3 path_w (free path), 4 chord_w, 5 path_wg
+ * (the last three: the sums of the dense fields over the voxels crossed)
+ * which tell the occlusion of the voxels that hold no echo.
+ *
  * Compile-time options:
  *   -DNF=16
+ *   -DSPARSE        the sparse layout above (dense: one row per grid voxel)
  *   -DUSE_ATOMICS   one shared accumulator of 64-bit fixed-point integers
  *                   (value x fx_scale, chosen by the host so that no sum can
  *                   overflow), native atomic adds (GPU): integer sums are exact,
@@ -43,6 +54,10 @@
 #define NF 16
 #endif
 
+#define BRICK_BITS 3
+#define BRICK (1 << BRICK_BITS)
+#define NB 6
+
 #define KIND_LEAF 1
 #define KIND_WOOD 2
 
@@ -61,7 +76,8 @@ inline void trace_one(
     __global const double *gval,
     const double lx, const double ly, const double lz, const double h,
     const int nx, const int ny, const int nz, const double fx_scale,
-    __global double *acc, __global ulong *steps)
+    __global const int *brick_start, __global const ushort *brick_key,
+    __global double *acc, __global double *bacc, __global ulong *steps)
 {
     const double ox = origin[3 * b], oy = origin[3 * b + 1], oz = origin[3 * b + 2];
     const double dx = direction[3 * b], dy = direction[3 * b + 1], dz = direction[3 * b + 2];
@@ -125,6 +141,11 @@ inline void trace_one(
 
     double t = t0;
     ulong nsteps = 0;
+#ifdef SPARSE
+    const int bny = (ny + BRICK - 1) >> BRICK_BITS, bnz = (nz + BRICK - 1) >> BRICK_BITS;
+    long brick = -1;
+    double b_w = 0.0, b_path = 0.0, b_chord = 0.0, b_visits = 0.0;
+#endif
     while (t < t1 && w > 1e-12) {
         int a = 0;
         if (tnext[1] < tnext[a]) a = 1;
@@ -132,8 +153,32 @@ inline void trace_one(
         double tex = fmin(tnext[a], t1);
         double chord = tex - t;
         if (chord > 1e-12 * h) {
+#ifdef SPARSE
+            const long vb = ((long)(ijk[0] >> BRICK_BITS) * bny + (ijk[1] >> BRICK_BITS)) * bnz
+                            + (ijk[2] >> BRICK_BITS);
+            if (vb != brick) {
+                if (brick >= 0) {
+                    __global double *brow = bacc + brick * NB;
+                    ADD(brow + 0, 1.0); ADD(brow + 1, b_visits); ADD(brow + 2, b_w); ADD(brow + 3, b_path);
+                    ADD(brow + 4, b_chord); ADD(brow + 5, g * b_path);
+                }
+                brick = vb;
+                b_w = w; b_path = 0.0; b_chord = 0.0; b_visits = 0.0;
+            }
+            /* this voxel's row, if it holds an echo: binary search in its brick */
+            const ushort key = (ushort)((((ijk[0] & (BRICK - 1)) << BRICK_BITS | (ijk[1] & (BRICK - 1)))
+                                         << BRICK_BITS) | (ijk[2] & (BRICK - 1)));
+            int lo_r = brick_start[vb], hi_r = brick_start[vb + 1];
+            while (lo_r < hi_r) {
+                const int mid = (lo_r + hi_r) >> 1;
+                if (brick_key[mid] < key) lo_r = mid + 1; else hi_r = mid;
+            }
+            __global double *row = (lo_r < brick_start[vb + 1] && brick_key[lo_r] == key)
+                                   ? acc + (long)lo_r * NF : 0;
+#else
             const long v = ((long)ijk[0] * ny + ijk[1]) * nz + ijk[2];
             __global double *row = acc + v * NF;
+#endif
             const double w_in = w;
             double tp = t, path = 0.0, lz_ = 0.0, wz_ = 0.0, lw = 0.0, ww = 0.0, ow = 0.0;
             /* echoes in [t, tex); the last segment also takes an echo at t1 */
@@ -151,6 +196,14 @@ inline void trace_one(
             }
             if (w < 1e-12) w = 0.0;
             path += w * (tex - tp);
+#ifdef SPARSE
+            b_path += path;
+            b_chord += w_in * chord;
+            b_visits += 1.0;
+            if (row) {
+#else
+            {
+#endif
             ADD(row + 0, 1.0);
             ADD(row + 1, w_in);
             if (lw > 0.0) { ADD(row + 2, lw); ADD(row + 7, lz_); ADD(row + 8, g * lz_); ADD(row + 15, lw / g); }
@@ -163,6 +216,7 @@ inline void trace_one(
             ADD(row + 12, w_in * dx);
             ADD(row + 13, w_in * dy);
             ADD(row + 14, w_in * dz);
+            }
             ++nsteps;
         }
         t = tnext[a];
@@ -170,6 +224,13 @@ inline void trace_one(
         if (ijk[a] < 0 || ijk[a] >= (int)n[a]) break;
         tnext[a] += tdelta[a];
     }
+#ifdef SPARSE
+    if (brick >= 0) {
+        __global double *brow = bacc + brick * NB;
+        ADD(brow + 0, 1.0); ADD(brow + 1, b_visits); ADD(brow + 2, b_w); ADD(brow + 3, b_path);
+        ADD(brow + 4, b_chord); ADD(brow + 5, g * b_path);
+    }
+#endif
 #ifdef USE_ATOMICS
     atom_add(steps, nsteps);
 #else
@@ -186,20 +247,25 @@ __kernel void trace_beams(
     __global const double *gval,
     const double lx, const double ly, const double lz, const double h,
     const int nx, const int ny, const int nz, const double fx_scale,
-    __global double *acc, __global ulong *steps)
+    const long n_rows, const long n_bricks,
+    __global const int *brick_start, __global const ushort *brick_key,
+    __global double *acc, __global double *bacc, __global ulong *steps)
 {
 #ifdef USE_ATOMICS
     const long b = b_begin + get_global_id(0);
     if (b >= b_end) return;
     trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
-              max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, acc, steps);
+              max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key,
+              acc, bacc, steps);
 #else
     const long c = get_global_id(0);
     const long nc = get_global_size(0);
-    const long nvox = (long)nx * ny * nz;
-    __global double *mine = acc + c * nvox * NF;
+    /* n_rows: the grid's voxels (dense) or the listed rows (sparse) */
+    __global double *mine = acc + c * n_rows * NF;
+    __global double *bmine = bacc + c * n_bricks * NB;
     for (long b = b_begin + c; b < b_end; b += nc)
         trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
-                  max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, mine, steps + c);
+                  max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key,
+                  mine, bmine, steps + c);
 #endif
 }

@@ -42,6 +42,14 @@ Flags (:class:`Flag`, a bit mask per voxel; never NaN or inf in the values):
   where the turbid-medium assumption behind all four estimators fails;
 - ``FILLED``: an occluded voxel given its height layer's mean (Béland 2014).
 
+A sparse trace (:mod:`tlsvox.voxel.bricks`) gives every estimate per row
+voxel (those holding echoes), as 1-D arrays in row order; the voxels without
+echoes have LAD 0 and are judged seen or occluded by their brick's sums
+(:func:`brick_occlusion`), and the layer fill works on bricks: the crown
+hull is the hull of the bricks holding leaf echoes, each brick layer's seen
+crown gives a pooled estimate, and an occluded brick inside the crown gives
+its echo-free voxels that value (``extra_ijk``, ``extra_lad``).
+
 References
 ----------
 Pimont, F., Allard, D., Soma, M., Dupuy, J.-L. (2018). Estimators and
@@ -77,7 +85,8 @@ from tlsvox.errors import InputError
 from voxlidar.choices import Choice
 from tlsvox.voxel.trace import VoxelStats
 
-__all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "estimate_lad", "fill_layers", "hull_mask"]
+__all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "brick_occlusion", "estimate_lad", "fill_layers",
+           "hull_mask"]
 
 _TINY = 1e-12
 
@@ -125,6 +134,7 @@ class LadEstimate:
 
     Attributes
     ----------
+    (Sparse traces: every array is (n_rows,) in row order, see ``rows``.)
     lad : float64, m2/m3
         The estimate, 0 in occluded voxels unless filled, times
         ``small_voxel_factor``.  Always finite and >= 0.
@@ -145,6 +155,10 @@ class LadEstimate:
     g_eff: np.ndarray
     estimator: Estimator
     options: dict = field(default_factory=dict)
+    rows: object = None  #: the Bricks of a sparse trace (None: dense arrays of the grid's shape)
+    brick_occluded: np.ndarray | None = None  #: sparse: bricks whose echo-free voxels are occluded
+    extra_ijk: np.ndarray | None = None  #: sparse fill: echo-free voxels given their layer's mean, (K, 3)
+    extra_lad: np.ndarray | None = None  #: their LAD, (K,), m2/m3
 
     @property
     def occluded(self) -> np.ndarray:
@@ -265,7 +279,17 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     occluded = (flags & int(OCCLUDED)) != 0
     out = np.where(occluded, 0.0, lad_raw)
     std = np.where(occluded, 0.0, std)
-    if fill is FillMode.LAYER:
+    sparse = {}
+    if stats.sparse:
+        sparse = dict(rows=stats.rows, brick_occluded=brick_occlusion(stats, n_min=n_min, min_explored=min_explored))
+        if fill is FillMode.LAYER:
+            if fill_mask is not None:
+                raise InputError("fill_mask is for dense traces; a sparse trace fills inside the hull of its "
+                                 "leaf bricks")
+            out, filled, sparse["extra_ijk"], sparse["extra_lad"] = _fill_bricks(
+                out, occluded, hits > _TINY, stats, sparse["brick_occluded"], hits, small_voxel_factor)
+            flags[filled] |= np.uint8(Flag.FILLED)
+    elif fill is FillMode.LAYER:
         mask = hull_mask(hits > _TINY, stats.grid) if fill_mask is None else np.asarray(fill_mask, bool)
         if mask.shape != out.shape:
             raise InputError(f"fill_mask must have the grid's shape {out.shape}, got {mask.shape}")
@@ -277,7 +301,60 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
                    large_leaf_ratio=float(large_leaf_ratio), small_voxel_factor=float(small_voxel_factor),
                    fill=fill.value)
     return LadEstimate(lad=out, lad_std=std, lad_raw=lad_raw, flags=flags, g_eff=g_eff,
-                       estimator=est, options=options)
+                       estimator=est, options=options, **sparse)
+
+
+def brick_occlusion(stats: VoxelStats, *, n_min: int = 5, min_explored: float = 0.05) -> np.ndarray:
+    """Sparse traces: (bx, by, bz) bool, the bricks whose echo-free voxels count as occluded.
+
+    The rule of the voxel flags, on the brick's sums: fewer than ``n_min``
+    beams entered its voxels on average (visits over the brick's voxels
+    inside the grid), or they explored less than ``min_explored`` of the
+    voxels they crossed (free path over potential chord).
+    """
+    per_voxel = stats.brick_field("visits") / stats.rows.voxels_in_grid()
+    explored = safe_divide(stats.brick_field("path_w"), stats.brick_field("chord_w"))
+    return (per_voxel < n_min) | (explored < min_explored)
+
+
+def _fill_bricks(lad, occluded, seed, stats, brick_occluded, hits, small_voxel_factor):
+    """The layer fill on a sparse trace, by bricks.
+
+    The crown is the hull of the bricks holding leaf echoes.  Each brick layer
+    (8 voxel layers) gets the pooled estimate of its seen crown bricks,
+    ``sum(leaf hits) / sum(G x free path)`` (the maximum-likelihood LAD of
+    those bricks taken as one medium); it fills the layer's occluded rows in
+    the crown and the echo-free voxels of its occluded crown bricks.  (The
+    dense fill averages per-voxel estimates instead: with the voxels'
+    own visibility unknown, pooling is what the brick sums support.)
+
+    Returns the rows' LAD, which rows were filled, and the filled echo-free
+    voxels with their LAD (already times ``small_voxel_factor``).
+    """
+    from tlsvox.voxel.bricks import BRICK
+
+    rows = stats.rows
+    row_brick = rows.brick_of_rows()
+    occ = brick_occluded.reshape(-1)
+    seed_bricks = np.zeros(rows.n_bricks, bool)
+    seed_bricks[row_brick[seed]] = True
+    crown = hull_mask(seed_bricks.reshape(rows.shape), None).reshape(-1)
+    bz = np.unravel_index(np.arange(rows.n_bricks), rows.shape)[2]
+    seen = crown & ~occ
+    n_layers = rows.shape[2]
+    hits_per_brick = np.bincount(row_brick, weights=hits, minlength=rows.n_bricks)
+    mean = safe_divide(np.bincount(bz[seen], weights=hits_per_brick[seen], minlength=n_layers),
+                       np.bincount(bz[seen], weights=stats.brick_field("path_wg").reshape(-1)[seen], minlength=n_layers))
+    has_mean = np.bincount(bz[seen], minlength=n_layers) > 0
+    row_layer = bz[row_brick]
+    filled = occluded & crown[row_brick] & has_mean[row_layer]
+    lad = np.where(filled, mean[row_layer], lad)
+    ijk = rows.brick_voxels(np.flatnonzero(crown & occ))
+    if len(ijk):
+        ijk = ijk[~np.isin(rows.grid.flat(ijk), rows.grid.flat(rows.ijk))]
+    value = mean[ijk[:, 2] // BRICK] * float(small_voxel_factor) if len(ijk) else np.zeros(0)
+    keep = value > 0
+    return lad, filled, ijk[keep], value[keep]
 
 
 def fill_layers(lad, occluded, mask):

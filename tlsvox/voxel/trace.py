@@ -27,6 +27,12 @@ Per voxel the tracer accumulates (:data:`FIELDS`, pooled over all beams given):
 ``leaf_w_g``   leaf echo weight / G(theta)
 =============  ==============================================================
 
+With ``rows`` (a :class:`~tlsvox.voxel.bricks.Bricks`), the trace is
+*sparse*: full rows only for the listed voxels (those holding echoes) and
+six coarse sums per brick of 8^3 voxels (:mod:`tlsvox.voxel.bricks`), so
+memory follows the echoes rather than the grid; the listed voxels' sums are
+the dense trace's, bit for bit.
+
 On a CPU device each work-item owns a private copy of the accumulators and
 strides over the beams: no atomics, and the sums come out bit-identical from
 run to run.  On a GPU the beams run one per work-item with atomic adds.
@@ -69,9 +75,10 @@ from voxlidar.devices import build_program, choose_device, describe, open_queue,
 from voxlidar.errors import DeviceError as AnyDeviceError
 
 from tlsvox.errors import DeviceError, InputError
+from tlsvox.voxel.bricks import BRICK, BRICK_FIELDS, Bricks
 from tlsvox.voxel.grid import VoxelGrid, format_bytes
 
-__all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "trace", "trace_reference"]
+__all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "echo_rows", "trace", "trace_reference"]
 
 FIELDS = ("count", "n_w", "leaf_w", "wood_w", "other_w", "path_w", "path_wg", "leaf_zw",
           "leaf_zwg", "wood_zw", "chord_w", "chord2_w", "dir_x", "dir_y", "dir_z", "leaf_w_g")
@@ -256,8 +263,13 @@ class VoxelStats:
     Attributes
     ----------
     grid : VoxelGrid
-    acc : (n_voxels, NF) float64
-        One row per voxel in flat C order, one column per field.
+    acc : (n_rows, NF) float64
+        One row per voxel in flat C order (dense), or per row voxel of
+        ``rows`` (sparse); one column per field.
+    rows : Bricks or None
+        The row voxels of a sparse trace (None: dense).
+    bricks : (n_bricks, 4) float64 or None
+        Sparse: the coarse sums per brick (:data:`tlsvox.voxel.bricks.BRICK_FIELDS`).
     n_beams : int
     n_steps : int
         Voxel visits (segments of beams inside voxels).
@@ -271,18 +283,36 @@ class VoxelStats:
     n_steps: int = 0
     seconds: float = 0.0
     device: str = ""
+    rows: Bricks | None = None
+    bricks: np.ndarray | None = None
+
+    @property
+    def sparse(self) -> bool:
+        return self.rows is not None
 
     def field(self, name: str) -> np.ndarray:
-        """(nx, ny, nz) view of one field."""
+        """One field: an (nx, ny, nz) view (dense), or (n_rows,) in row order (sparse)."""
         if name not in _INDEX:
             raise InputError(f"field={name!r} is not a tracer field; choose one of {', '.join(FIELDS)}")
-        return self.acc[:, _INDEX[name]].reshape(self.grid.shape)
+        column = self.acc[:, _INDEX[name]]
+        return column if self.sparse else column.reshape(self.grid.shape)
+
+    def brick_field(self, name: str) -> np.ndarray:
+        """Sparse traces: one coarse field per brick, shape :attr:`Bricks.shape`."""
+        if not self.sparse:
+            raise InputError("brick_field: this trace is dense; every voxel has its own sums (field)")
+        if name not in BRICK_FIELDS:
+            raise InputError(f"field={name!r} is not a brick field; choose one of {', '.join(BRICK_FIELDS)}")
+        return self.bricks[:, BRICK_FIELDS.index(name)].reshape(self.rows.shape)
 
     def __add__(self, other: "VoxelStats") -> "VoxelStats":
-        if other.grid != self.grid:
-            raise InputError("cannot add VoxelStats of different grids")
+        if other.grid != self.grid or (self.rows is None) != (other.rows is None) or (
+                self.sparse and not (np.array_equal(self.rows.start, other.rows.start)
+                                     and np.array_equal(self.rows.key, other.rows.key))):
+            raise InputError("cannot add VoxelStats of different grids or rows")
         return VoxelStats(self.grid, self.acc + other.acc, self.n_beams + other.n_beams,
-                          self.n_steps + other.n_steps, self.seconds + other.seconds, self.device)
+                          self.n_steps + other.n_steps, self.seconds + other.seconds, self.device,
+                          self.rows, None if self.bricks is None else self.bricks + other.bricks)
 
     @property
     def beams_per_second(self) -> float:
@@ -303,7 +333,7 @@ def probe_build(device) -> str | None:
     return None
 
 
-def fixed_point_scale(beams: "Beams", voxel_size: float) -> float:
+def fixed_point_scale(beams: "Beams", voxel_size: float, *, sparse: bool = False) -> float:
     """Scale of the 64-bit fixed-point sums of the atomic (GPU) tracer.
 
     A beam crosses a voxel once and adds to each field at most its weight W
@@ -312,10 +342,12 @@ def fixed_point_scale(beams: "Beams", voxel_size: float) -> float:
     ``count`` adds 1.  The scale is the largest power of two that keeps the sum
     of these bounds over all beams below 2^62, so no field can overflow.  A
     million unit-weight beams in 0.2 m voxels give 2^42 (resolution 2e-13).
+    A sparse trace's brick sums add up chords across a brick: d is then the
+    brick's diagonal.
     """
     if not len(beams):
         return 2.0**40
-    d = float(voxel_size) * 3**0.5
+    d = float(voxel_size) * 3**0.5 * (BRICK if sparse else 1)
     w = beams.tail.copy()
     if beams.n_echoes:
         starts = beams.echo_start[:-1]
@@ -332,8 +364,8 @@ def private_copies(requested: int, per_copy_bytes: int, max_alloc_bytes: int) ->
     return max(1, min(int(requested), int(max_alloc_bytes) // max(int(per_copy_bytes), 1)))
 
 
-def _build_options(*, atomics: bool) -> list[str]:
-    return [f"-DNF={NF}"] + (["-DUSE_ATOMICS"] if atomics else [])
+def _build_options(*, atomics: bool, sparse: bool = False) -> list[str]:
+    return [f"-DNF={NF}"] + (["-DUSE_ATOMICS"] if atomics else []) + (["-DSPARSE"] if sparse else [])
 
 
 class Tracer:
@@ -370,13 +402,22 @@ class Tracer:
             raise DeviceError(f"OpenCL device {self.info.label!r} has no 64-bit atomics "
                               "(cl_khr_int64_base_atomics); fix: Tracer(atomics=False)")
         self.copies = 1 if self.atomics else int(copies or self.device.max_compute_units)
-        src = (resources.files("tlsvox") / "kernels" / "trace.cl").read_text()
-        try:
-            self.program = build_program(self.context, src, _build_options(atomics=self.atomics))
-        except cl.Error as err:
-            raise DeviceError(f"the tracer kernel does not build on {self.info.label}: {short_reason(err)}; "
-                              "fix: choose another device (clsim devices)") from err
-        self.kernel = cl.Kernel(self.program, "trace_beams")
+        self._kernels = {}
+        self.kernel = self._kernel(sparse=False)
+
+    def _kernel(self, *, sparse: bool):
+        """The tracing kernel of one layout, built on first use."""
+        import pyopencl as cl
+
+        if sparse not in self._kernels:
+            src = (resources.files("tlsvox") / "kernels" / "trace.cl").read_text()
+            try:
+                program = build_program(self.context, src, _build_options(atomics=self.atomics, sparse=sparse))
+            except cl.Error as err:
+                raise DeviceError(f"the tracer kernel does not build on {self.info.label}: {short_reason(err)}; "
+                                  "fix: choose another device (clsim devices)") from err
+            self._kernels[sparse] = cl.Kernel(program, "trace_beams")
+        return self._kernels[sparse]
 
     @property
     def name(self) -> str:
@@ -384,17 +425,25 @@ class Tracer:
         return f"{self.device.name.strip()} ({mode})"
 
     def bytes_per_voxel(self) -> int:
-        """Device accumulators plus the host result, bytes per voxel."""
+        """Device accumulators plus the host result, bytes per voxel (dense) or per row (sparse)."""
         return NF * 8 * (self.copies + 1)
 
-    def trace(self, grid: VoxelGrid, beams: Beams, *, chunk: int = 262144, progress: bool = False,
-              max_bytes: int | None = None) -> VoxelStats:
+    def bytes_per_brick(self) -> int:
+        """Sparse traces: the coarse sums of one brick, with the host result, plus its row offset."""
+        return len(BRICK_FIELDS) * 8 * (self.copies + 1) + 4
+
+    def trace(self, grid: VoxelGrid, beams: Beams, *, rows: Bricks | None = None, chunk: int = 262144,
+              progress: bool = False, max_bytes: int | None = None) -> VoxelStats:
         """Trace ``beams`` through ``grid``; see the module docstring.
 
         Parameters
         ----------
         grid : VoxelGrid
         beams : Beams
+        rows : Bricks, optional
+            Trace sparsely: full sums for these voxels only, coarse sums per
+            brick (see the module docstring).  Every voxel holding a leaf or
+            wood echo must be listed (:func:`echo_rows` makes such a list).
         chunk : int
             Beams per kernel launch (the progress bar advances per chunk).
         progress : bool
@@ -408,10 +457,17 @@ class Tracer:
             raise InputError(f"grid must be a VoxelGrid, got {type(grid).__name__}")
         if not isinstance(beams, Beams):
             raise InputError(f"beams must be a Beams, got {type(beams).__name__}")
+        if rows is not None and (not isinstance(rows, Bricks) or rows.grid != grid):
+            raise InputError("rows must be the Bricks of this grid (tlsvox.voxel.trace.echo_rows(grid, beams))")
         limit = self.device.max_mem_alloc_size
-        per_copy = grid.n_voxels * NF * 8
+        n_rows = grid.n_voxels if rows is None else rows.n_rows
+        per_copy = n_rows * NF * 8
         copies = 1 if self.atomics else private_copies(self.copies, per_copy, limit)
-        grid.check_memory(NF * 8 * (copies + 1), max_bytes=max_bytes, what="tracer accumulators")
+        if rows is None:
+            grid.check_memory(NF * 8 * (copies + 1), max_bytes=max_bytes, what="tracer accumulators")
+        else:
+            check_bytes(rows.n_rows * NF * 8 * (copies + 1) + rows.n_bricks * self.bytes_per_brick(),
+                        max_bytes, f"the sparse tracer ({rows.n_rows:,} rows, {rows.n_bricks:,} bricks)")
         acc_bytes = per_copy * copies
         if acc_bytes > limit:
             raise InputError(
@@ -419,19 +475,19 @@ class Tracer:
                 f"device {self.device.name.strip()!r} allows at most {format_bytes(limit)}; "
                 "use a larger voxel_size or a smaller region"
             )
-        fx_scale = fixed_point_scale(beams, grid.voxel_size) if self.atomics else 1.0
+        fx_scale = fixed_point_scale(beams, grid.voxel_size, sparse=rows is not None) if self.atomics else 1.0
         if self.atomics and fx_scale < 2.0**20:
             raise InputError(f"the atomic tracer's fixed-point sums would keep only 2^{np.log2(fx_scale):.0f} "
                              "steps per unit for these beams (weights or 1/G very large); "
                              "fix: Tracer(atomics=False), which sums in float64")
         try:
-            return self._trace(grid, beams, copies=copies, acc_bytes=per_copy * copies, fx_scale=fx_scale,
+            return self._trace(grid, beams, rows, copies=copies, n_rows=n_rows, fx_scale=fx_scale,
                                chunk=chunk, progress=progress)
         except cl.Error as err:
             raise DeviceError(f"the tracer failed on {self.info.label}: {short_reason(err)}; fix: a larger "
                               "voxel_size or a smaller region, or another device (clsim devices)") from err
 
-    def _trace(self, grid, beams, *, copies, acc_bytes, fx_scale, chunk, progress) -> VoxelStats:
+    def _trace(self, grid, beams, rows, *, copies, n_rows, fx_scale, chunk, progress) -> VoxelStats:
         import pyopencl as cl
 
         mf = cl.mem_flags
@@ -442,24 +498,36 @@ class Tracer:
             a = np.ascontiguousarray(a)
             if a.nbytes == 0:
                 a = np.zeros(1, dtype=a.dtype)
-            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
+            # a CPU device reads the host arrays where they are (no second copy of the beams)
+            where = mf.COPY_HOST_PTR if self.atomics else mf.USE_HOST_PTR
+            return cl.Buffer(ctx, mf.READ_ONLY | where, hostbuf=a)
 
         bufs = [buf(beams.origin), buf(beams.direction), buf(beams.echo_start), buf(beams.echo_range),
                 buf(beams.echo_weight), buf(beams.echo_kind), buf(beams.tail), buf(beams.max_range),
                 buf(beams.g)]
-        host_acc = None
-        if self.atomics:
-            acc_dev = cl.Buffer(ctx, mf.READ_WRITE, size=max(acc_bytes, 8))
-            cl.enqueue_fill_buffer(q, acc_dev, np.float64(0.0), 0, max(acc_bytes, 8))
-        else:
-            # CPU device: the kernel works in host memory directly (no copies)
-            host_acc = np.zeros((copies, grid.n_voxels, NF), dtype=np.float64)
-            acc_dev = cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=host_acc)
+        sparse = rows is not None
+        n_bricks = rows.n_bricks if sparse else 1
+        layout = [buf(rows.start if sparse else np.zeros(2, np.int32)),
+                  buf(rows.key if sparse else np.zeros(1, np.uint16))]
+
+        def accumulators(shape):
+            """Zeroed sums: on the device (atomics), or host memory the CPU kernel writes in place."""
+            if self.atomics:
+                nbytes = max(int(np.prod(shape[1:])) * 8, 8)
+                dev = cl.Buffer(ctx, mf.READ_WRITE, size=nbytes)
+                cl.enqueue_fill_buffer(q, dev, np.float64(0.0), 0, nbytes)
+                return dev, None
+            host = np.zeros(shape, dtype=np.float64)
+            return cl.Buffer(ctx, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=host), host
+
+        acc_dev, host_acc = accumulators((copies, n_rows, NF))
+        bacc_dev, host_bacc = accumulators((copies, n_bricks, len(BRICK_FIELDS)))
         steps_dev = cl.Buffer(ctx, mf.READ_WRITE, size=8 * copies)
         cl.enqueue_fill_buffer(q, steps_dev, np.uint64(0), 0, 8 * copies)
         lo = grid.lower
         nx, ny, nz = grid.shape
         n = len(beams)
+        kernel = self._kernel(sparse=sparse)
         bar = None
         if progress:
             from tqdm.auto import tqdm
@@ -470,10 +538,11 @@ class Tracer:
                 b1 = min(n, b0 + chunk)
                 gsize = (copies,) if not self.atomics else (b1 - b0,)
                 lsize = (1,) if not self.atomics else None
-                self.kernel(q, gsize, lsize, np.int64(b0), np.int64(b1), *bufs,
-                            np.float64(lo[0]), np.float64(lo[1]), np.float64(lo[2]),
-                            np.float64(grid.voxel_size), np.int32(nx), np.int32(ny), np.int32(nz),
-                            np.float64(fx_scale), acc_dev, steps_dev)
+                kernel(q, gsize, lsize, np.int64(b0), np.int64(b1), *bufs,
+                       np.float64(lo[0]), np.float64(lo[1]), np.float64(lo[2]),
+                       np.float64(grid.voxel_size), np.int32(nx), np.int32(ny), np.int32(nz),
+                       np.float64(fx_scale), np.int64(n_rows), np.int64(n_bricks), *layout,
+                       acc_dev, bacc_dev, steps_dev)
                 q.finish()
                 if bar is not None:
                     bar.update(b1 - b0)
@@ -482,22 +551,58 @@ class Tracer:
                 bar.close()
         steps = np.empty(copies, dtype=np.uint64)
         cl.enqueue_copy(q, steps, steps_dev)
-        if self.atomics:
-            fixed = np.empty((grid.n_voxels, NF), dtype=np.int64)
-            cl.enqueue_copy(q, fixed, acc_dev)
-            total = fixed.astype(np.float64) / fx_scale
-            q.finish()
-        else:
-            mapped, _ = cl.enqueue_map_buffer(q, acc_dev, cl.map_flags.READ, 0, host_acc.shape,
-                                              host_acc.dtype, is_blocking=True)
-            total = np.array(mapped[0])
-            for c in range(1, copies):
-                total += mapped[c]
-            del mapped
-        acc_dev.release()
+
+        def collect(dev, host, shape):
+            """The sums as float64: fixed point scaled back (atomics), or the private copies added."""
+            if self.atomics:
+                fixed = np.empty(shape, dtype=np.int64)
+                cl.enqueue_copy(q, fixed, dev)
+                q.finish()
+                total = fixed.astype(np.float64) / fx_scale
+            else:
+                mapped, _ = cl.enqueue_map_buffer(q, dev, cl.map_flags.READ, 0, host.shape, host.dtype,
+                                                  is_blocking=True)
+                total = np.array(mapped[0])
+                for c in range(1, copies):
+                    total += mapped[c]
+                del mapped
+            dev.release()
+            return total
+
+        total = collect(acc_dev, host_acc, (n_rows, NF))
+        bricks = collect(bacc_dev, host_bacc, (n_bricks, len(BRICK_FIELDS)))
         seconds = time.perf_counter() - t_start
         return VoxelStats(grid, total, n_beams=n, n_steps=int(steps.sum()), seconds=seconds,
-                          device=self.name)
+                          device=self.name, rows=rows, bricks=bricks if sparse else None)
+
+
+def check_bytes(need: int, max_bytes: int | None, what: str, *, fraction: float = 0.8) -> int:
+    """Raise before allocating ``need`` bytes beyond ``max_bytes`` (default: ``fraction`` of what is available)."""
+    from tlsvox.voxel.grid import available_memory_bytes
+
+    limit = int(max_bytes) if max_bytes is not None else int(fraction * available_memory_bytes())
+    if need > limit:
+        raise InputError(f"{what} needs {format_bytes(need)} but only {format_bytes(limit)} is available; "
+                         "use a larger voxel_size or a smaller region (bounds=...)")
+    return need
+
+
+def echo_positions(beams: Beams, kinds=(EchoKind.LEAF, EchoKind.WOOD), *, nudge: float = 0.0) -> np.ndarray:
+    """(E, 3) world positions of the beams' echoes of ``kinds``, each moved ``nudge`` metres along its beam."""
+    sel = np.isin(beams.echo_kind, np.asarray(kinds, dtype=np.uint8))
+    b = np.repeat(np.arange(len(beams)), np.diff(beams.echo_start))[sel]
+    return beams.origin[b] + beams.direction[b] * (beams.echo_range[sel] + nudge)[:, None]
+
+
+def echo_rows(grid: VoxelGrid, beams: Beams) -> Bricks:
+    """The voxels a sparse trace must list: those holding a leaf or wood echo of ``beams``.
+
+    An echo on a voxel face may be counted by the kernel on either side, so
+    the voxels just before and just after it along its beam are both listed.
+    """
+    eps = 1e-6 * grid.voxel_size
+    ijk = np.vstack([grid.index_of(echo_positions(beams, nudge=s)) for s in (-eps, eps)])
+    return Bricks.from_ijk(grid, ijk[grid.contains_index(ijk)])
 
 
 @functools.lru_cache(maxsize=2)

@@ -37,13 +37,79 @@ from voxlidar.leafangle import LeafAngle
 from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass
 from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
-from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats
+from tlsvox.voxel.grid import format_bytes
+from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, check_bytes, echo_rows
+from voxlidar.choices import Choice
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
 
-__all__ = ["VoxelizeResult", "voxelize", "score_lad"]
+__all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "voxelize", "score_lad"]
 
-#: estimator work arrays, bytes per voxel, on top of the tracer's
+#: estimator work arrays, bytes per voxel (dense) or row (sparse), on top of the tracer's
 _ESTIMATE_BYTES = 24 * 8
+#: ``layout="auto"`` traces densely up to this many bytes (small grids: every voxel's own sums)
+DENSE_AUTO_MAX = 1024**3
+
+
+class Layout(str, Choice):
+    """How the tracer keeps its sums (see :mod:`tlsvox.voxel.bricks`)."""
+
+    AUTO = "auto"  #: dense when it takes at most DENSE_AUTO_MAX bytes, else sparse
+    DENSE = "dense"  #: every voxel of the grid
+    SPARSE = "sparse"  #: voxels holding echoes, plus coarse sums per brick of 8^3 voxels
+
+
+@dataclass
+class MemoryPlan:
+    """What tracing and estimating a grid will take, before it runs (bytes)."""
+
+    grid: VoxelGrid
+    dense: int  #: bytes of the dense layout
+    sparse: int  #: bytes of the sparse layout
+    beams: int  #: bytes of the beams themselves
+    rows: int  #: voxels holding echoes (the sparse layout's rows)
+    limit: int  #: bytes allowed
+    layout: Layout  #: the layout chosen
+
+    @property
+    def need(self) -> int:
+        return self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse)
+
+    def describe(self) -> str:
+        nx, ny, nz = self.grid.shape
+        return (f"grid {nx} x {ny} x {nz} = {self.grid.n_voxels:,} voxels of {self.grid.voxel_size:g} m; "
+                f"{self.rows:,} hold echoes; dense layout {format_bytes(self.dense)}, sparse "
+                f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}; the {self.layout.value} layout "
+                f"needs {format_bytes(self.need)} of the {format_bytes(self.limit)} available")
+
+
+def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", rows=None,
+                max_bytes: int | None = None) -> MemoryPlan:
+    """The bytes each layout would take for ``beams`` on ``grid``, and the layout to use.
+
+    Raises :class:`InputError` (with the sizes and the fix) when the chosen
+    layout does not fit ``max_bytes`` (default: 80 % of the available memory).
+    """
+    from tlsvox.voxel.grid import available_memory_bytes
+
+    layout = Layout.parse(layout, "layout")
+    limit = int(max_bytes) if max_bytes is not None else int(0.8 * available_memory_bytes())
+    rows = echo_rows(grid, beams) if rows is None else rows
+    per_row = tracer.bytes_per_voxel() + _ESTIMATE_BYTES
+    dense = grid.n_voxels * per_row
+    sparse = rows.n_rows * (per_row + 24) + rows.n_bricks * (tracer.bytes_per_brick() + 8) + rows.nbytes()
+    beam_bytes = sum(np.asarray(getattr(beams, k)).nbytes for k in
+                     ("origin", "direction", "echo_start", "echo_range", "echo_weight", "echo_kind", "tail",
+                      "max_range", "g"))
+    if layout is Layout.AUTO:
+        layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes) else Layout.SPARSE
+    plan = MemoryPlan(grid, dense, sparse, beam_bytes, rows.n_rows, limit, layout)
+    if plan.need > limit:
+        fix = ("layout='sparse' (CLI --layout sparse), " if layout is Layout.DENSE and sparse + beam_bytes <= limit
+               else "")
+        factor = (plan.need / max(limit, 1)) ** (1 / 3)
+        raise InputError(f"{plan.describe().replace(' of the ', ' but only ').replace(' available', ' is available')}; use {fix}a voxel_size of at least "
+                         f"{grid.voxel_size * factor:.3g} m, or a smaller region (bounds=...)")
+    return plan
 
 
 @dataclass
@@ -85,7 +151,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
              min_explored: float = 0.05, leaf_size: float | None = 0.05, small_voxel_factor: float = 1.0,
              fill="none", max_range: float | None = None, angular_grid: AngularGrid | None = None,
              socs_rotation=None, scanner_frame: bool = False, crown_center=None,
-             tracer: Tracer | None = None, max_bytes: int | None = None, progress: bool = True) -> VoxelizeResult:
+             layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
+             progress: bool = True) -> VoxelizeResult:
     """Build the voxel scene from registered scans.
 
     Parameters
@@ -123,10 +190,17 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         Allow a single scan without a pose: the world is its own frame.
     crown_center : (2,) float, optional
         Default: the LAD-weighted centroid.
+    layout : {"auto", "dense", "sparse"}
+        How the tracer keeps its sums (:class:`Layout`): ``sparse`` keeps
+        full sums only for voxels holding echoes and judges the others' occlusion
+        per brick of 8^3 voxels; its scene then stores no echo-free occluded
+        voxel (``meta["occluded_bricks"]`` counts them).  ``auto``: dense up to
+        1 GiB.
     tracer : Tracer, optional
         OpenCL tracer to reuse (default: a new one).
     max_bytes : int, optional
-        Memory limit for the grid (default: what the system has available).
+        Memory limit (default: 80 % of what the system has available); the
+        plan (:func:`memory_plan`) is checked before tracing.
     progress : bool
         tqdm progress bars.
 
@@ -224,9 +298,11 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                              f"{veg.max(axis=0).round(2).tolist() if len(veg) else '-'}); check the frame and the "
                              "numbers")
         grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin)
+    layout = Layout.parse(layout, "layout")
     tracer = tracer or Tracer()
-    grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,
-                      what="tracing and estimation")
+    if layout is Layout.DENSE:  # before the beams, when the answer is already known
+        grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,
+                          what="tracing and estimation")
 
     # beams
     t1 = time.perf_counter()
@@ -242,46 +318,71 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         parts.append(b)
         infos.append(info)
     beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
+    del parts  # the per-scan copies
     timings["pulses"] = time.perf_counter() - t1
 
+    plan = memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes)
+    rows = echo_rows(grid, beams) if plan.layout is Layout.SPARSE else None
+
     t2 = time.perf_counter()
-    stats = tracer.trace(grid, beams, progress=progress, max_bytes=max_bytes)
+    stats = tracer.trace(grid, beams, rows=rows, progress=progress,
+                         max_bytes=None if max_bytes is None else max_bytes - plan.beams)
     timings["trace"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
     lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
                        small_voxel_factor=small_voxel_factor, fill=fill)
     wood_est = estimate_wood(stats, method=wood_m, percentile=wood_percentile, n_min=n_min)
-    values = lad.lad.copy()
-    occluded = lad.occluded.copy()
-    if plane is not None:
-        top = grid.lower[2] + (np.arange(grid.shape[2]) + 1) * grid.voxel_size
-        below = top <= plane.z_center
-        values[:, :, below] = 0.0
-        occluded[:, :, below] = False
-    keep = (values > 0) | (wood_est.value > 0) | occluded
-    ijk = np.argwhere(keep)
-    sel = tuple(ijk.T)
+    voxels = _stored_voxels(grid, lad, wood_est, plane)
+    ijk, lad_v, wood_v, occ_v, std_v = voxels
     if crown_center is None:
-        w = values[sel]
-        cc = (grid.centers(ijk)[:, :2] * w[:, None]).sum(axis=0) / w.sum() if w.sum() > 0 else np.zeros(2)
+        cc = (grid.centers(ijk)[:, :2] * lad_v[:, None]).sum(axis=0) / lad_v.sum() if lad_v.sum() > 0 else np.zeros(2)
     else:
         cc = np.asarray(crown_center, dtype=np.float64).reshape(2)
     timings["estimate"] = time.perf_counter() - t3
     timings["total"] = time.perf_counter() - t0
-    warnings = quality_warnings(values[sel], occluded[sel], infos)
+    warnings = quality_warnings(lad_v, occ_v, infos)
     meta = {
         "estimator": est.value, "options": lad.options, "flags": lad.counts(), "wood_method": wood_m.value,
         "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,
         "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
+        "leaf_angle": la.to_dict(), "layout": plan.layout.value, "memory_plan": plan.describe(),
         "ground": None if plane is None else {"coefficients": list(plane.coefficients),
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
     }
-    scene = Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=values[sel],
-                  wood=wood_est.value[sel], wood_kind=wood_est.kind, occluded=occluded[sel],
-                  lad_std=lad.lad_std[sel], leaf_angle=la, leaf_azimuth=leaf_azimuth, crown_center=cc,
+    if stats.sparse:
+        meta["occluded_bricks"] = {"brick_voxels": 8, "occluded": int(lad.brick_occluded.sum()),
+                                   "total": int(lad.brick_occluded.size)}
+    scene = Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=lad_v,
+                  wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la, leaf_azimuth=leaf_azimuth, crown_center=cc,
                   ground_z=None if plane is None else plane.z_center, meta=meta)
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
+
+
+def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):
+    """The voxels a scene stores (LAD, wood or occluded), nothing below the ground plane.
+
+    Returns ijk (K, 3), lad, wood, occluded, lad_std (K,).
+    """
+    if lad.rows is None:
+        ijk = np.argwhere((lad.lad > 0) | (wood.value > 0) | lad.occluded)
+        sel = tuple(ijk.T)
+        values, wood_v, occluded, std = lad.lad[sel], wood.value[sel], lad.occluded[sel], lad.lad_std[sel]
+    else:  # sparse: the rows, then the echo-free voxels the fill gave a value
+        extra = lad.extra_ijk if lad.extra_ijk is not None else np.zeros((0, 3), np.int64)
+        ijk = np.vstack([lad.rows.ijk, extra])
+        pad = np.zeros(len(extra))
+        values = np.concatenate([lad.lad, pad if lad.extra_lad is None else lad.extra_lad])
+        wood_v = np.concatenate([wood.value, pad])
+        occluded = np.concatenate([lad.occluded, np.ones(len(extra), bool)])
+        std = np.concatenate([lad.lad_std, pad])
+    if plane is not None:
+        top = grid.lower[2] + (ijk[:, 2] + 1) * grid.voxel_size
+        below = top <= plane.z_center
+        values = np.where(below, 0.0, values)
+        occluded = occluded & ~below
+    keep = (values > 0) | (wood_v > 0) | occluded
+    return ijk[keep], values[keep], wood_v[keep], occluded[keep], std[keep]
 
 
 #: Quality gates (``tlsvox voxelize`` warns; with ``--strict`` it fails).

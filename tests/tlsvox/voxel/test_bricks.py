@@ -1,0 +1,132 @@
+"""The sparse layout (tlsvox.voxel.bricks): the listed voxels' sums equal the dense
+trace's bit for bit, the brick sums equal the dense sums gathered per brick, and
+voxelize gives the same LAD either way while its memory follows the echoes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlsvox.errors import InputError
+from tlsvox.voxel.bricks import BRICK, Bricks
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.trace import FIELDS, Beams, EchoKind, Tracer, echo_rows
+from tlsvox.voxel.voxlad import Layout, memory_plan, voxelize
+
+from tests.tlsvox.voxel.test_voxlad import box_scans  # noqa: F401  (fixture)
+
+
+def _beams(rng, n=6000):
+    """Rays from one side of the grid with 0-3 echoes of every kind, a tail on some."""
+    o = rng.uniform(-1, 0, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d[:, 0] = np.abs(d[:, 0]) + 0.3
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    k = rng.integers(0, 4, n)
+    start = np.concatenate([[0], np.cumsum(k)])
+    ranges = np.concatenate([np.sort(rng.uniform(0.5, 4.0, m)) for m in k])
+    weight = np.concatenate([np.full(m, 0.8 / max(m, 1)) for m in k])
+    kind = rng.choice([EchoKind.LEAF, EchoKind.WOOD, EchoKind.OTHER], len(ranges)).astype(np.uint8)
+    tail = np.where(k == 0, 1.0, 0.2)
+    return Beams(o, d, start, ranges, weight, kind, tail, np.full(n, 6.0))
+
+
+@pytest.fixture(scope="module")
+def traced(tracer):
+    grid = VoxelGrid((-0.3, -0.4, -0.5), 0.1, (37, 21, 19))  # bricks stick out of the grid on every axis
+    beams = _beams(np.random.default_rng(7))
+    rows = echo_rows(grid, beams)
+    return grid, beams, rows, tracer.trace(grid, beams), tracer.trace(grid, beams, rows=rows)
+
+
+def test_rows_equal_the_dense_trace(traced):
+    grid, _, rows, dense, sparse = traced
+    assert sparse.sparse and not dense.sparse
+    flat = grid.flat(rows.ijk)
+    np.testing.assert_array_equal(sparse.acc, dense.acc[flat])
+    assert sparse.n_steps == dense.n_steps
+    others = np.ones(grid.n_voxels, bool)
+    others[flat] = False
+    for name in ("leaf_w", "wood_w"):  # every leaf and wood echo landed in a listed voxel
+        assert dense.acc[others, FIELDS.index(name)].sum() == 0.0
+    assert sparse.field("leaf_w").shape == (rows.n_rows,)
+
+
+def test_brick_sums_gather_the_dense_sums(traced):
+    grid, _, rows, dense, sparse = traced
+    brick = tuple((grid.unflat(np.arange(grid.n_voxels)) // BRICK).T)
+    for name in ("path_w", "chord_w"):
+        gathered = np.zeros(rows.shape)
+        np.add.at(gathered, brick, dense.field(name).ravel())
+        np.testing.assert_allclose(sparse.brick_field(name), gathered, rtol=1e-12, atol=1e-12)
+    # beams crossing a brick: at least as many as enter its busiest voxel, at most the visits
+    busiest = np.zeros(rows.shape)
+    np.maximum.at(busiest, brick, dense.field("count").ravel())
+    visits = np.zeros(rows.shape)
+    np.add.at(visits, brick, dense.field("count").ravel())
+    count = sparse.brick_field("count")
+    assert np.all(count >= busiest) and np.all(count <= visits) and count.sum() > 0
+
+
+def test_atomic_sparse_trace_matches(traced, tracer):
+    if not tracer.info.int64_atomics:
+        pytest.skip("this OpenCL device has no 64-bit atomics")
+    grid, beams, rows, _, sparse = traced
+    got = Tracer(tracer.info, atomics=True).trace(grid, beams, rows=rows)
+    np.testing.assert_allclose(got.acc, sparse.acc, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(got.bricks, sparse.bricks, rtol=1e-9, atol=1e-9)
+
+
+def test_bricks_index_rows_by_brick():
+    g = VoxelGrid((0, 0, 0), 1.0, (20, 9, 3))
+    ijk = np.array([[19, 8, 2], [0, 0, 0], [8, 0, 0], [7, 7, 2], [0, 0, 0]])
+    rows = Bricks.from_ijk(g, ijk)
+    assert rows.shape == (3, 2, 1) and rows.n_rows == 4
+    assert rows.ijk.tolist() == [[0, 0, 0], [7, 7, 2], [8, 0, 0], [19, 8, 2]]
+    assert rows.start.tolist() == [0, 2, 2, 3, 3, 3, 4]
+    assert rows.voxels_in_grid().sum() == g.n_voxels
+    assert len(rows.brick_voxels([5])) == 4 * 1 * 3
+    with pytest.raises(InputError, match="inside the grid"):
+        Bricks.from_ijk(g, [[20, 0, 0]])
+
+
+def test_voxelize_sparse_gives_the_dense_lad(box_scans):  # noqa: F811
+    kw = dict(voxel_size=0.25, leaf_angle="spherical", ground=None, progress=False)
+    dense = voxelize(box_scans, layout="dense", **kw)
+    sparse = voxelize(box_scans, layout="sparse", **kw)
+    assert dense.scene.meta["layout"] == "dense" and sparse.scene.meta["layout"] == "sparse"
+    flat = dense.grid.flat(sparse.lad.rows.ijk)
+    np.testing.assert_array_equal(sparse.lad.lad, dense.lad.lad.reshape(-1)[flat])
+    np.testing.assert_array_equal(sparse.lad.flags, dense.lad.flags.reshape(-1)[flat])
+    # every voxel with leaves is a row, so the scenes hold the same leaf area
+    assert sparse.scene.lad.sum() == pytest.approx(dense.scene.lad.sum(), rel=1e-12)
+    assert "occluded_bricks" in sparse.scene.meta
+
+
+def test_sparse_layer_fill_recovers_the_box(box_scans):  # noqa: F811
+    # 0.1 m voxels and n_min = 12 leave about half the box's voxels occluded; both fills must
+    # bring the leaf area back to the truth (LAD 0.8 x 8 m3) within 10 % (the unfilled
+    # estimate's Monte Carlo error is ~2 %, the layer fill's model error the rest)
+    kw = dict(voxel_size=0.1, leaf_angle="spherical", ground=None, progress=False, fill="layer", n_min=12)
+    truth = 0.8 * 8.0
+    for layout in ("dense", "sparse"):
+        res = voxelize(box_scans, layout=layout, **kw)
+        assert res.scene.occluded.mean() > 0.3
+        assert res.scene.lad.sum() * 0.1**3 == pytest.approx(truth, rel=0.1), layout
+
+
+def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
+    from tlsvox.voxel.pulses import beams_from_scan
+
+    grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)  # the box and much air around it
+
+    beams = Beams.concat([beams_from_scan(s)[0] for s in box_scans])
+    plan = memory_plan(grid, beams, tracer)
+    assert plan.layout is Layout.DENSE and plan.sparse < plan.dense
+    assert "hold echoes" in plan.describe()
+    roomy = plan.beams + plan.sparse + 1024
+    assert memory_plan(grid, beams, tracer, max_bytes=roomy).layout is Layout.SPARSE
+    with pytest.raises(InputError, match=r"dense layout needs .* but only .* is available; use layout='sparse'"):
+        memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
+    with pytest.raises(InputError, match="voxel_size of at least"):
+        memory_plan(grid, beams, tracer, max_bytes=1024)
