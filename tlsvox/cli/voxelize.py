@@ -61,8 +61,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="scene file to write (.npz)")
     p.add_argument("--vox", help="also write an AMAPVox .vox file")
     p.add_argument("--voxel-size", type=float, default=0.2, help="voxel edge in metres (default 0.2)")
-    p.add_argument("--leaf-angle", default="uniform", choices=[k.value for k in LeafAngleKind],
-                   help="leaf inclination distribution for G(theta) (default uniform, the paper)")
+    p.add_argument("--leaf-angle", default=None, choices=[k.value for k in LeafAngleKind],
+                   help="leaf inclination distribution for G(theta) (default uniform, the paper; the "
+                        "summary and the scene say which was used)")
     p.add_argument("--estimator", default="bcmle", choices=[e.value for e in Estimator],
                    help="LAD estimator (default bcmle, Pimont et al. 2018)")
     p.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
@@ -78,7 +79,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ground", default="ransac",
                    help="'ransac' (fit the lowest echoes), 'none', or a ground height in metres")
     p.add_argument("--bounds", type=lambda t: _floats(t, 6, "--bounds"),
-                   help="xmin,ymin,zmin,xmax,ymax,zmax of the region (default: the vegetation's box)")
+                   help="xmin,ymin,zmin,xmax,ymax,zmax of the region (default: the vegetation's box); the "
+                        "grid starts exactly at the minimum corner")
+    p.add_argument("--snap", action="store_true",
+                   help="snap --bounds outwards to multiples of the voxel size (grids of runs line up)")
+    p.add_argument("--layout", default="auto", choices=["auto", "dense", "sparse"],
+                   help="tracer memory: sums for every voxel (dense), or only for voxels holding echoes "
+                        "plus coarse sums per 8^3 brick (sparse; small voxels); default auto: dense up to 1 GiB")
+    p.add_argument("--plan", action="store_true",
+                   help="print what the grid will cost in memory for each layout, and exit (writes nothing)")
     p.add_argument("--transforms", metavar="JSON",
                    help="poses from 'tlsvox register' (its .transforms.json); they replace the "
                         ".pose.json sidecars, matched by scan name")
@@ -167,7 +176,14 @@ def run(args) -> int:
             grid = AngularGrid(z0, dz, int(nz), a0, da, int(na))
         rot = rotation_from_rpy(*args.scanner_rpy) if args.scanner_rpy else None
         bounds = None if args.bounds is None else np.reshape(args.bounds, (2, 3))
-        res = voxelize(scans, voxel_size=args.voxel_size, leaf_angle=args.leaf_angle, estimator=args.estimator,
+        if args.plan:
+            print(voxelize(scans, voxel_size=args.voxel_size, ground=ground, bounds=bounds, snap=args.snap,
+                           scanner_frame=args.scanner_frame, angular_grid=grid, socs_rotation=rot,
+                           max_range=args.max_range, progress=not args.quiet, layout=args.layout,
+                           tracer=Tracer(args.device) if args.device else None, plan_only=True).describe())
+            return 0
+        res = voxelize(scans, voxel_size=args.voxel_size, leaf_angle=args.leaf_angle or "uniform",
+                       estimator=args.estimator, snap=args.snap, layout=args.layout,
                        wood=args.wood, fill=args.fill, n_min=args.n_min, min_explored=args.min_explored,
                        leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
                        bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
@@ -188,6 +204,9 @@ def run(args) -> int:
         s = res.scene
         summary = {"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,
                    "voxels_stored": s.n_voxels, "leaf_area_m2": round(s.total_leaf_area(), 3),
+                   "leaf_angle": s.leaf_angle.to_dict() | ({} if args.leaf_angle else {"note": "the default; "
+                                                                            "set it with --leaf-angle"}),
+                   "layout": s.meta["layout"], "grid_origin": [round(v, 6) for v in res.grid.origin],
                    "estimator": s.meta["estimator"], "flags": s.meta["flags"], "beams": s.meta["beams"],
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))

@@ -102,7 +102,8 @@ class Bricks:
         local = ((ijk[:, 0] & 7) * BRICK + (ijk[:, 1] & 7)) * BRICK + (ijk[:, 2] & 7)
         code = np.unique(brick * BRICK**3 + local)
         brick, local = np.divmod(code, BRICK**3)
-        start = np.searchsorted(brick, np.arange(n_bricks + 1)).astype(np.int32)
+        start = np.zeros(n_bricks + 1, np.int32)
+        np.cumsum(np.bincount(brick, minlength=n_bricks), out=start[1:])
         b = np.stack(np.unravel_index(brick, shape), axis=1) * BRICK
         li, rest = np.divmod(local, BRICK * BRICK)
         lj, lk = np.divmod(rest, BRICK)
@@ -125,5 +126,7 @@ class Bricks:
         ijk = (b[:, None, :] + offs[None]).reshape(-1, 3)
         return ijk[self.grid.contains_index(ijk)]
 
-    def nbytes(self) -> int:
-        return self.start.nbytes + self.key.nbytes + self.ijk.nbytes
+    @staticmethod
+    def bytes_for(n_rows: int, n_bricks: int) -> int:
+        """Bytes of a Bricks of this size, with the temporaries of building it."""
+        return int(n_rows) * (2 + 24 + 16) + int(n_bricks) * (4 + 8)

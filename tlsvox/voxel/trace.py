@@ -78,7 +78,7 @@ from tlsvox.errors import DeviceError, InputError
 from tlsvox.voxel.bricks import BRICK, BRICK_FIELDS, Bricks
 from tlsvox.voxel.grid import VoxelGrid, format_bytes
 
-__all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "echo_rows", "trace", "trace_reference"]
+__all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "echo_rows", "echo_voxels", "trace", "trace_reference"]
 
 FIELDS = ("count", "n_w", "leaf_w", "wood_w", "other_w", "path_w", "path_wg", "leaf_zw",
           "leaf_zwg", "wood_zw", "chord_w", "chord2_w", "dir_x", "dir_y", "dir_z", "leaf_w_g")
@@ -594,15 +594,21 @@ def echo_positions(beams: Beams, kinds=(EchoKind.LEAF, EchoKind.WOOD), *, nudge:
     return beams.origin[b] + beams.direction[b] * (beams.echo_range[sel] + nudge)[:, None]
 
 
-def echo_rows(grid: VoxelGrid, beams: Beams) -> Bricks:
-    """The voxels a sparse trace must list: those holding a leaf or wood echo of ``beams``.
+def echo_voxels(grid: VoxelGrid, beams: Beams) -> np.ndarray:
+    """(K, 3) the distinct voxels of ``grid`` holding a leaf or wood echo of ``beams``.
 
     An echo on a voxel face may be counted by the kernel on either side, so
-    the voxels just before and just after it along its beam are both listed.
+    the voxels just before and just after it along its beam are both taken.
     """
     eps = 1e-6 * grid.voxel_size
     ijk = np.vstack([grid.index_of(echo_positions(beams, nudge=s)) for s in (-eps, eps)])
-    return Bricks.from_ijk(grid, ijk[grid.contains_index(ijk)])
+    ijk = ijk[grid.contains_index(ijk)]
+    return grid.unflat(np.unique(grid.flat(ijk)))
+
+
+def echo_rows(grid: VoxelGrid, beams: Beams) -> Bricks:
+    """The rows a sparse trace must list: the voxels holding a leaf or wood echo (:func:`echo_voxels`)."""
+    return Bricks.from_ijk(grid, echo_voxels(grid, beams))
 
 
 @functools.lru_cache(maxsize=2)

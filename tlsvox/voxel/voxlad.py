@@ -38,7 +38,8 @@ from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from
 from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
 from tlsvox.voxel.grid import format_bytes
-from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, check_bytes, echo_rows
+from tlsvox.voxel.bricks import Bricks
+from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from voxlidar.choices import Choice
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
 
@@ -82,28 +83,30 @@ class MemoryPlan:
                 f"needs {format_bytes(self.need)} of the {format_bytes(self.limit)} available")
 
 
-def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", rows=None,
-                max_bytes: int | None = None) -> MemoryPlan:
+def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
+                max_bytes: int | None = None, check: bool = True) -> MemoryPlan:
     """The bytes each layout would take for ``beams`` on ``grid``, and the layout to use.
 
-    Raises :class:`InputError` (with the sizes and the fix) when the chosen
-    layout does not fit ``max_bytes`` (default: 80 % of the available memory).
+    With ``check``, raises :class:`InputError` (with the sizes and the fix)
+    when the chosen layout does not fit ``max_bytes`` (default: 80 % of the
+    available memory).
     """
     from tlsvox.voxel.grid import available_memory_bytes
 
     layout = Layout.parse(layout, "layout")
     limit = int(max_bytes) if max_bytes is not None else int(0.8 * available_memory_bytes())
-    rows = echo_rows(grid, beams) if rows is None else rows
+    n_rows = len(echo_voxels(grid, beams) if voxels is None else voxels)
+    n_bricks = int(np.prod(Bricks.shape_of(grid)))
     per_row = tracer.bytes_per_voxel() + _ESTIMATE_BYTES
     dense = grid.n_voxels * per_row
-    sparse = rows.n_rows * (per_row + 24) + rows.n_bricks * (tracer.bytes_per_brick() + 8) + rows.nbytes()
+    sparse = n_rows * per_row + n_bricks * (tracer.bytes_per_brick() + 8) + Bricks.bytes_for(n_rows, n_bricks)
     beam_bytes = sum(np.asarray(getattr(beams, k)).nbytes for k in
                      ("origin", "direction", "echo_start", "echo_range", "echo_weight", "echo_kind", "tail",
                       "max_range", "g"))
     if layout is Layout.AUTO:
         layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes) else Layout.SPARSE
-    plan = MemoryPlan(grid, dense, sparse, beam_bytes, rows.n_rows, limit, layout)
-    if plan.need > limit:
+    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout)
+    if check and plan.need > limit:
         fix = ("layout='sparse' (CLI --layout sparse), " if layout is Layout.DENSE and sparse + beam_bytes <= limit
                else "")
         factor = (plan.need / max(limit, 1)) ** (1 / 3)
@@ -147,12 +150,12 @@ def _kinds_for(scan: Scan, classes, class_codes: str) -> np.ndarray:
 def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str = "pointclass",
              leaf_angle="uniform", leaf_azimuth: str = "uniform", estimator="bcmle",
              wood="count_stretch", wood_percentile: float = 90.0, ground="ransac",
-             ground_tolerance: float = 0.15, bounds=None, margin: float = 0.0, n_min: int = 5,
+             ground_tolerance: float = 0.15, bounds=None, snap: bool = False, margin: float = 0.0, n_min: int = 5,
              min_explored: float = 0.05, leaf_size: float | None = 0.05, small_voxel_factor: float = 1.0,
              fill="none", max_range: float | None = None, angular_grid: AngularGrid | None = None,
              socs_rotation=None, scanner_frame: bool = False, crown_center=None,
              layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
-             progress: bool = True) -> VoxelizeResult:
+             progress: bool = True, plan_only: bool = False) -> VoxelizeResult:
     """Build the voxel scene from registered scans.
 
     Parameters
@@ -180,7 +183,13 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     ground_tolerance : float, metres
         Echoes within this height above the plane stop beams as ground, not leaves.
     bounds : (2, 3) float, metres, optional
-        Region to voxelise; default the echoes' bounding box (+ ``margin``).
+        Region to voxelise; default the vegetation echoes' bounding box (+
+        ``margin``), snapped to multiples of ``voxel_size``.  Given bounds are
+        taken as they are: the grid starts at ``bounds[0]`` (less ``margin``)
+        and ends at the first voxel face at or past ``bounds[1]``.
+    snap : bool
+        Snap given ``bounds`` outwards to multiples of ``voxel_size`` (so the
+        grids of several runs line up).
     n_min, min_explored, leaf_size, small_voxel_factor, fill
         See :func:`tlsvox.voxel.estimators.estimate_lad`.
     max_range, angular_grid, socs_rotation
@@ -203,10 +212,12 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         plan (:func:`memory_plan`) is checked before tracing.
     progress : bool
         tqdm progress bars.
+    plan_only : bool
+        Stop after the beams and return the :class:`MemoryPlan` (nothing traced).
 
     Returns
     -------
-    VoxelizeResult
+    VoxelizeResult (or MemoryPlan with ``plan_only``)
     """
     timings = {}
     t0 = time.perf_counter()
@@ -297,10 +308,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                              f"{veg.min(axis=0).round(2).tolist() if len(veg) else '-'} .. "
                              f"{veg.max(axis=0).round(2).tolist() if len(veg) else '-'}); check the frame and the "
                              "numbers")
-        grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin)
+        grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin, snap=bool(snap))
     layout = Layout.parse(layout, "layout")
     tracer = tracer or Tracer()
-    if layout is Layout.DENSE:  # before the beams, when the answer is already known
+    if layout is Layout.DENSE and not plan_only:  # before the beams, when the answer is already known
         grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,
                           what="tracing and estimation")
 
@@ -321,8 +332,12 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     del parts  # the per-scan copies
     timings["pulses"] = time.perf_counter() - t1
 
-    plan = memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes)
-    rows = echo_rows(grid, beams) if plan.layout is Layout.SPARSE else None
+    if plan_only:
+        return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False)
+    voxels = echo_voxels(grid, beams)
+    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes)
+    rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
+    del voxels
 
     t2 = time.perf_counter()
     stats = tracer.trace(grid, beams, rows=rows, progress=progress,

@@ -183,3 +183,32 @@ def test_synthetic_oak_two_scans_20cm():
     assert abs(visible["area_error"]) < 0.05, visible
     per_voxel = score_lad(res.lad.lad, truth, mask=~occ)
     assert abs(per_voxel["bias"]) < 0.05 * truth[~occ & (truth > 0)].mean()
+
+
+def test_bounds_are_taken_as_given(box_scans):
+    # a 1 m box at -0.3..0.7 is 2 x 2 x 2 voxels of 0.5 m starting at -0.3; snapped, it starts at -0.5
+    bounds = [[-0.3, -0.3, 1.5], [0.7, 0.7, 2.5]]
+    res = voxelize(box_scans, voxel_size=0.5, ground=None, bounds=bounds, progress=False)
+    assert res.grid.origin == (-0.3, -0.3, 1.5) and res.grid.shape == (2, 2, 2)
+    snapped = voxelize(box_scans, voxel_size=0.5, ground=None, bounds=bounds, snap=True, progress=False)
+    assert snapped.grid.origin == (-0.5, -0.5, 1.5) and snapped.grid.shape == (3, 3, 2)
+    # every output names the leaf angle model
+    assert res.scene.meta["leaf_angle"] == {"name": "uniform"} == res.scene.leaf_angle.to_dict()
+
+
+def test_cli_plan_layout_and_leaf_angle_note(box_scans, tmp_path, capsys):
+    paths = []
+    for s in box_scans:
+        p = tmp_path / f"{s.name}.laz"
+        s.write(p)
+        paths.append(str(p))
+    out = tmp_path / "scene.npz"
+    rc = cli_main(paths + ["--voxel-size", "0.1", "--ground", "none", "--plan", "-o", str(out), "-q"])
+    text = capsys.readouterr().out
+    assert rc == 0 and not out.exists()
+    assert "hold echoes; dense layout" in text and "the dense layout needs" in text
+    rc = cli_main(paths + ["--voxel-size", "0.25", "--ground", "none", "--layout", "sparse", "-o", str(out)])
+    summary = capsys.readouterr().out
+    assert rc == 0 and '"layout": "sparse"' in summary
+    assert '"note": "the default; set it with --leaf-angle"' in summary and '"name": "uniform"' in summary
+    assert Scene.load(out).meta["layout"] == "sparse"
