@@ -30,6 +30,14 @@ Echo classes: the scan's truth_material when present (simulated scans),
 otherwise every echo counts as plant material (the result is then plant area
 density) except ground echoes near the fitted ground plane.
 
+Echo weights (--echo-weights): how much of its pulse each echo stops. 'auto'
+(default) uses the share of the beam the echo intercepted when the scan has a
+beam_fraction column (simulated scans), else 1/n ('uniform'); 'fraction'
+takes the share from the column or else from apparent reflectance over the
+nominal reflectance of a full hit; 'threshold' is the paper's rule (drop
+returns under half the nominal leaf reflectance, then 1/n). The summary
+states the rule used per scan (docs/voxelize.md compares them).
+
 Output: the scene NPZ (docs/formats.md) and, with --vox, an AMAPVox .vox file.
 """
 
@@ -55,6 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of the voxelize subcommand."""
     from tlsvox.voxel.estimators import Estimator, FillMode
     from voxlidar.leafangle import LeafAngleKind
+    from tlsvox.voxel.weights import EchoWeights
     from tlsvox.voxel.wood import WoodMethod
 
     p.add_argument("scans", nargs="+", metavar="SCAN", help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars)")
@@ -69,6 +78,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="wood model (default count_stretch, the paper)")
     p.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
                    help="occluded voxels: leave at 0 or fill with their height layer's mean")
+    p.add_argument("--echo-weights", default="auto", choices=[w.value for w in EchoWeights],
+                   help="how echoes share their pulse: auto (default: fraction with a beam_fraction column, "
+                        "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper)")
+    p.add_argument("--leaf-reflectance", type=float,
+                   help="nominal leaf reflectance of a full hit (fraction from reflectance, threshold); "
+                        "default the leaf optics at the scanner's wavelength")
+    p.add_argument("--wood-reflectance", type=float, help="nominal bark reflectance of a full hit (fraction)")
     p.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
     p.add_argument("--min-explored", type=float, default=0.05,
                    help="explored depth fraction a voxel needs (else occluded; default 0.05)")
@@ -172,6 +188,8 @@ def run(args) -> int:
                        leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
                        bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
                        socs_rotation=rot, max_range=args.max_range, progress=not args.quiet,
+                       echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
+                       wood_reflectance=args.wood_reflectance,
                        tracer=Tracer(args.device) if args.device else None)
         for w in res.scene.meta["warnings"]:
             print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
@@ -188,7 +206,8 @@ def run(args) -> int:
         s = res.scene
         summary = {"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,
                    "voxels_stored": s.n_voxels, "leaf_area_m2": round(s.total_leaf_area(), 3),
-                   "estimator": s.meta["estimator"], "flags": s.meta["flags"], "beams": s.meta["beams"],
+                   "estimator": s.meta["estimator"], "echo_weights": s.meta["echo_weights"],
+                   "flags": s.meta["flags"], "beams": s.meta["beams"],
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
     return 0
