@@ -32,7 +32,7 @@ from voxlidar.safeio import describe_kind, file_kind, json_text, staged
 from tlsvox.errors import InputError, ScanFileError
 from voxlidar.safeio import atomic_write
 
-__all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "sidecar_paths"]
+__all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "read_pose_sidecar", "sidecar_paths"]
 
 
 #: ``meta["classes"]`` of a scan whose LAS classification holds tlsvox.classify's PointClass codes
@@ -287,6 +287,11 @@ class Scan:
         Reflectance comes from the ``reflectance_db`` extra dimension (tlsvox
         and RIEGL exports; RIEGL's ``Reflectance`` is accepted too); without
         one, ``intensity`` is kept when the file has non-zero intensities.
+        Echoes belong to pulses by the ``pulse_id`` extra dimension; without
+        one, by GPS time when the times group them (each time's echoes agree
+        on their return count and have distinct return numbers:
+        ``meta["pulse_grouping"] = "gps_time"``), else they are grouped
+        later by ray (:func:`tlsvox.voxel.pulses.group_pulses`).
         """
         import laspy
 
@@ -321,17 +326,22 @@ class Scan:
         fraction = np.asarray(las["beam_fraction"], dtype=np.float32) if "beam_fraction" in dims else None
         pulses_path, pose_path = sidecar_paths(path)
         pulses = PulseTable.load(pulses_path) if pulses_path.exists() else None
-        pose = pose_true = None
-        name, sid, meta = path.stem, 0, {}
+        doc = read_pose_sidecar(path)
+        pose, pose_true = doc.get("pose"), doc.get("pose_true")
+        name, meta = doc.get("name", path.stem), dict(doc.get("meta") or {})
         if pose_path.exists():
-            doc = json.loads(pose_path.read_text())
-            pose = doc.get("pose")
-            pose_true = doc.get("pose_true")
-            name = doc.get("name", name)
             sid = int(doc.get("scan_id", 0))
-            meta = doc.get("meta") or {}
-        elif len(las.points):
-            sid = int(np.asarray(las.point_source_id)[0])
+        else:
+            sid = int(np.asarray(las.point_source_id)[0]) if len(las.points) else 0
+        if pulse_id is None and "gps_time" in dims and len(las.points):
+            # pulses grouped by GPS time (other tools' multi-return exports); not when the times do not group
+            from tlsvox.multireturn import pulse_ids_from_time
+
+            try:
+                pulse_id = pulse_ids_from_time(las.gps_time, las.return_number, las.number_of_returns)
+                meta["pulse_grouping"] = "gps_time"
+            except InputError:
+                pulse_id = None
         return cls(
             xyz=xyz,
             reflectance_db=refl,
@@ -350,6 +360,17 @@ class Scan:
             name=name,
             meta=meta,
         )
+
+
+def read_pose_sidecar(path: "str | os.PathLike") -> dict:
+    """The ``NAME.pose.json`` beside a scan file as a dict (empty when there is none)."""
+    pose_path = sidecar_paths(path)[1]
+    if not pose_path.exists():
+        return {}
+    try:
+        return json.loads(pose_path.read_text())
+    except (ValueError, OSError) as err:
+        raise InputError(f"{pose_path} is not a readable pose JSON ({err}); fix or remove it") from None
 
 
 def las_data(scans: "list[Scan]", xyz: np.ndarray, *, classification=None):

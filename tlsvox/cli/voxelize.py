@@ -66,7 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from tlsvox.voxel.weights import EchoWeights
     from tlsvox.voxel.wood import WoodMethod
 
-    p.add_argument("scans", nargs="+", metavar="SCAN", help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars)")
+    p.add_argument("scans", nargs="+", metavar="SCAN",
+                   help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars), or pulse-grouped text exports "
+                        "(x y z time return_index return_count, miss rows for empty pulses: .txt/.csv/.asc)")
     p.add_argument("-o", "--output", required=True, help="scene file to write (.npz)")
     p.add_argument("--vox", help="also write an AMAPVox .vox file")
     p.add_argument("--voxel-size", type=float, default=0.2, help="voxel edge in metres (default 0.2)")
@@ -105,6 +107,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scanner-rpy", type=lambda t: _floats(t, 3, "--scanner-rpy"),
                    help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
     p.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
+    p.add_argument("--scan-origin", type=lambda t: _floats(t, 3, "--scan-origin"),
+                   help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
                    "device; `clsim devices` lists them)")
@@ -147,11 +151,29 @@ def apply_transforms(scans, path) -> None:
         s.pose = pose
 
 
+def read_scan(path, scan_id: int, origin=None):
+    """One scan file: LAS/LAZ with its sidecars, or a pulse-grouped text export (``origin`` = the scanner there)."""
+    from tlsvox.io import ScanFormat, read_any, scan_format
+    from tlsvox.scan import Scan
+
+    path = Path(path)
+    fmt = scan_format(path) if path.is_file() else ScanFormat.LAS
+    if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
+        if origin is not None:
+            raise InputError(f"--scan-origin is for pulse-grouped text files; {path} is LAS/LAZ (its pulses start at "
+                             "the scanner frame's origin)")
+        return Scan.read(path, scan_id=scan_id)
+    if fmt is not ScanFormat.PULSES:
+        raise InputError(f"{path}: voxelize needs pulses (LAS/LAZ with a pulse table or return numbers, or "
+                         f"pulse-grouped text), not a bare {fmt.value.upper()} point cloud")
+    return read_any(path, scan_id=scan_id, origin=origin, min_points=1)
+
+
 def run(args) -> int:
     """Handler: voxelise ``args.scans`` and write ``args.output``; returns the exit code."""
     from tlsvox.voxel.amapvox import write_vox
     from tlsvox.voxel.pulses import rotation_from_rpy
-    from tlsvox.scan import AngularGrid, Scan, sidecar_paths
+    from tlsvox.scan import AngularGrid, sidecar_paths
     from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import voxelize
 
@@ -166,7 +188,7 @@ def run(args) -> int:
             raise InputError(f"-o {args.output} must end in .npz (the scene file); --vox PATH adds an AMAPVox .vox")
         if args.vox is not None and Path(args.vox).suffix.lower() != ".vox":
             raise InputError(f"--vox {args.vox} must end in .vox")
-        scans = [Scan.read(path, scan_id=i) for i, path in enumerate(args.scans)]
+        scans = [read_scan(path, i, args.scan_origin) for i, path in enumerate(args.scans)]
         if args.transforms:
             apply_transforms(scans, args.transforms)
         ground = args.ground
