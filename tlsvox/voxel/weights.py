@@ -110,6 +110,8 @@ class NominalReflectance:
         optics = optics_for(wl or DEFAULT_WAVELENGTH_NM)
         if leaf is not None and wood is not None:
             src = "given"
+        elif leaf is not None or wood is not None:
+            src = f"{'leaf' if leaf is not None else 'wood'} given, the other from {src}"
         return cls(optics[Material.LEAF].reflectance if leaf is None else float(leaf),
                    optics[Material.BARK].reflectance if wood is None else float(wood), src)
 
