@@ -282,6 +282,17 @@ CASES = {
     "voxelize: transforms equal -o": T(VOX + " -o {d}/out/v.npz --transforms {d}/out/v.npz", "nothing was written"),
     "voxelize: the same scan twice": T("voxelize {d}/s1.laz {d}/s1.laz -o {d}/out/v.npz", "twice"),
     "voxelize: no scans": T("voxelize -o {d}/out/v.npz", "required"),
+    "voxelize: echo weights unknown": T(VOX + " -o {d}/out/v.npz --echo-weights half", "--echo-weights"),
+    "voxelize: leaf reflectance 0": T(VOX + " -o {d}/out/v.npz --echo-weights threshold --leaf-reflectance 0",
+                                      "leaf reflectance"),
+    "voxelize: scan origin with a LAS": T(VOX + " -o {d}/out/v.npz --scan-origin 0,0,0", "--scan-origin"),
+    "voxelize: scan origin of two": T("voxelize {d}/pulses.txt -o {d}/out/v.npz --scan-origin 1,2", "--scan-origin"),
+    "voxelize: bare xyz cloud": T("voxelize {d}/cloud.xyz --scanner-frame -o {d}/out/v.npz", "bare xyz"),
+    "voxelize: pulse text, miss rows without direction": T("voxelize {d}/nanmiss.txt --scanner-frame -o {d}/out/v.npz",
+                                                           "direction is unknown"),
+    "voxelize: pulse text, counts disagree": T("voxelize {d}/badcount.txt --scanner-frame -o {d}/out/v.npz",
+                                               "disagree on the return count"),
+    "voxelize: pulse text, ragged rows": T("voxelize {d}/ragged.txt --scanner-frame -o {d}/out/v.npz", "columns"),
     # ---- tlsvox georegister
     "georegister: source missing": T("georegister {d}/nope.npy {d}/als.npy -o {d}/out/t.json", "does not exist"),
     "georegister: target missing": T("georegister {d}/tls.npy {d}/nope.npy -o {d}/out/t.json", "does not exist"),
@@ -357,6 +368,11 @@ def ws(tmp_path_factory):
                        ("impulse.csv", "0.1\n0.5\n1.0\n0.5\n0.1\n"), ("broken.json", "{\"scans\": [\n"),
                        ("other.json", json.dumps({"hello": "world"})), ("empty.ply", "")):
         (d / name).write_text(text)
+    (d / "pulses.txt").write_text("3 0 0 0.1 1 2\n5 0 0 0.1 2 2\n0 9e6 0 0.2 0 0\n4 1 0 0.3 1 1\n")
+    (d / "nanmiss.txt").write_text("3 0 0 0.1 1 1\nnan nan nan 0.2 0 0\n")
+    (d / "badcount.txt").write_text("3 0 0 0.1 1 2\n5 0 0 0.1 2 3\n")
+    (d / "ragged.txt").write_text("3 0 0 0.1 1 1\n5 0 0 0.2 1\n")
+    (d / "cloud.xyz").write_text("1 2 3\n2 3 4\n3 4 5\n")
     (d / "othertransforms.json").write_text(json.dumps({"scans": [{"name": "elsewhere", "pose": np.eye(4).tolist()}]}))
     rng = np.random.default_rng(1)
     t = np.linspace(0, 60, 120)

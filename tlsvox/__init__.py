@@ -15,6 +15,7 @@ from voxlidar.materials import Material, Optics
 from voxlidar.scene import Scene
 from voxlidar.versions import show_versions
 from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.weights import EchoWeights
 
 __version__ = "0.1.0"
 
@@ -26,6 +27,7 @@ __all__ = [
     "register_pair",
     "register_scans",
     "Estimator",
+    "EchoWeights",
     "VoxelGrid",
     "voxelize",
     "InputError",

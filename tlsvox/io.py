@@ -3,7 +3,10 @@
 LAS/LAZ go through :meth:`Scan.read` (laspy + lazrs, extra bytes and sidecar
 files); PLY, PCD and the text formats XYZ / XYZI / PTS go through Open3D's
 tensor I/O, which keeps per-point attributes such as ``intensity`` or
-``reflectance``.  Every reader ends in :func:`check_scan`, so a caller gets
+``reflectance``.  Pulse-grouped text exports (``x y z time return_index
+return_count`` with miss rows: ``.txt``, ``.csv``, ``.asc``, or an ``.xyz``
+that reads as one) go through :func:`tlsvox.multireturn.read_pulse_text`, so
+their miss rows become pulses without echo, never echoes.  Every reader ends in :func:`check_scan`, so a caller gets
 one clear error for the cases that make a scan useless: no points, a single
 point, NaN coordinates, or no reflectance/intensity when one is needed.
 
@@ -42,6 +45,7 @@ class ScanFormat(enum.Enum):
     XYZ = "xyz"
     XYZI = "xyzi"
     PTS = "pts"
+    PULSES = "pulses"  #: pulse-grouped text (tlsvox.multireturn); suffixes .txt, .csv, .asc
 
     @classmethod
     def parse(cls, value: "str | ScanFormat") -> "ScanFormat":
@@ -49,6 +53,7 @@ class ScanFormat(enum.Enum):
         if isinstance(value, cls):
             return value
         key = str(value).lower().lstrip(".")
+        key = _PULSE_SUFFIXES.get(key, key)
         try:
             return cls(key)
         except ValueError as err:
@@ -69,6 +74,8 @@ class ScanFormat(enum.Enum):
             )
         return cls.parse(suffix)
 
+
+_PULSE_SUFFIXES = {"txt": "pulses", "csv": "pulses", "asc": "pulses"}
 
 # per-point attribute names found in PLY/PCD exports (CloudCompare prefixes
 # scalar fields with "scalar_") -> Scan field
@@ -132,13 +139,20 @@ def check_scan(scan: Scan, *, min_points: int = 2, require_reflectance: bool = F
 
 def scan_format(path: Path, format=None) -> ScanFormat:
     """The format of a point-cloud file: ``format`` when given, else its content
-    (LAS/LAZ and PLY by their first bytes), else its suffix."""
+    (LAS/LAZ and PLY by their first bytes; an ``.xyz`` whose rows read as
+    pulse-grouped, see :func:`tlsvox.multireturn.looks_pulse_grouped`), else
+    its suffix."""
     kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
     if kind == "las":
         return ScanFormat.LAS
     if kind == "ply":
         return ScanFormat.PLY
     fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
+    if fmt is ScanFormat.XYZ and kind == "text" and format is None:
+        from tlsvox.multireturn import looks_pulse_grouped
+
+        if looks_pulse_grouped(path):  # x y z time return_index return_count: its miss rows must not be echoes
+            return ScanFormat.PULSES
     if kind is not None and kind != "empty" and fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         raise InputError(f"{path} is not a LAS/LAZ file: it is {describe_kind(kind)} (a LAS file starts with "
                          "'LASF'); check the file, or give it the suffix of what it holds")
@@ -172,8 +186,8 @@ def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" 
 
     path = Path(path)
     fmt = scan_format(path, format)
-    if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
-        raise InputError(f"format={fmt.value!r}: read LAS/LAZ with Scan.read or read_any")
+    if fmt in (ScanFormat.LAS, ScanFormat.LAZ, ScanFormat.PULSES):
+        raise InputError(f"format={fmt.value!r}: read it with read_any")
     if not path.exists():
         raise ScanFileError(f"scan file {str(path)!r} does not exist")
     if path.stat().st_size == 0:
@@ -209,8 +223,8 @@ def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" 
 
 def read_any(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = None,
              require_reflectance: bool = False, min_points: int = 2,
-             scan_id: int | None = None) -> Scan:
-    """Read a scan from LAS, LAZ, PLY, PCD, XYZ, XYZI or PTS.
+             scan_id: int | None = None, origin=None) -> Scan:
+    """Read a scan from LAS, LAZ, PLY, PCD, XYZ, XYZI, PTS or pulse-grouped text.
 
     Parameters
     ----------
@@ -223,6 +237,9 @@ def read_any(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = N
         Fewest points accepted (see :func:`check_scan`).
     scan_id : int, optional
         Overrides the scan id stored in the file.
+    origin : (3,) float, metres, optional
+        Pulse-grouped text only: the scanner's position in the file's
+        coordinates (default 0, 0, 0).
 
     Returns
     -------
@@ -239,8 +256,18 @@ def read_any(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = N
     """
     path = Path(path)
     fmt = scan_format(path, format)
+    if origin is not None and fmt is not ScanFormat.PULSES:
+        raise InputError(f"origin= is for pulse-grouped text files; {path} is {fmt.value.upper()} (its pulses "
+                         "start at the scanner frame's origin)")
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         scan = Scan.read(path, scan_id=scan_id)
+    elif fmt is ScanFormat.PULSES:
+        from tlsvox.multireturn import read_pulse_text
+
+        scan = read_pulse_text(path, origin=(0.0, 0.0, 0.0) if origin is None else origin,
+                               scan_id=0 if scan_id is None else scan_id)
+        if scan_id is not None:
+            scan.scan_id = scan_id
     else:
         scan = read_open3d(path, format=fmt, scan_id=0 if scan_id is None else scan_id)
     return check_scan(scan, min_points=min_points, require_reflectance=require_reflectance,

@@ -11,7 +11,8 @@ Files (see docs/formats.md):
 
 - ``NAME.las`` / ``NAME.laz``: LAS 1.4 point format 6, coordinates in the
   scanner frame, extra bytes ``reflectance_db`` (float32), ``pulse_id``
-  (uint32), ``truth_material`` (uint8, simulated scans only).
+  (uint32), ``truth_material`` (uint8, simulated scans only), ``beam_fraction``
+  (float32, when the scan has one: the share of the beam each echo intercepted).
 - ``NAME.pulses.npz``: the pulse table (``direction`` (P, 3), ``n_echoes``
   (P,), ``origin`` (3,), and the angular grid).
 - ``NAME.pose.json``: ``pose`` (4x4 world-from-scanner, when known) and, for
@@ -31,7 +32,7 @@ from voxlidar.safeio import describe_kind, file_kind, json_text, staged
 from tlsvox.errors import InputError, ScanFileError
 from voxlidar.safeio import atomic_write
 
-__all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "sidecar_paths"]
+__all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "read_pose_sidecar", "sidecar_paths"]
 
 
 #: ``meta["classes"]`` of a scan whose LAS classification holds tlsvox.classify's PointClass codes
@@ -155,6 +156,11 @@ class Scan:
         Row of :attr:`pulses` each echo belongs to.
     truth_material : (N,) uint8, optional
         :class:`voxlidar.materials.Material` of the surface hit (simulated scans).
+    beam_fraction : (N,) float32, optional
+        Share of the pulse's beam power each echo intercepted, in [0, 1]
+        (a simulated scan's sub-ray count over the beam's sub-rays; NaN where
+        unknown).  ``voxelize(echo_weights="fraction")`` weights echoes by it
+        (:mod:`tlsvox.voxel.weights`).
     classification : (N,) uint8, optional
         :class:`tlsvox.classify.PointClass` codes (LAS ``classification``) of a
         scan that ``tlsvox classify`` wrote; ``tlsvox voxelize`` uses them.
@@ -175,6 +181,7 @@ class Scan:
     pulse_id: np.ndarray | None = None
     truth_material: np.ndarray | None = None
     classification: np.ndarray | None = None
+    beam_fraction: np.ndarray | None = None
     pose: np.ndarray | None = None
     pose_true: np.ndarray | None = None
     pulses: PulseTable | None = None
@@ -208,6 +215,13 @@ class Scan:
         self.pulse_id = col("pulse_id", np.int64)
         self.truth_material = col("truth_material", np.uint8)
         self.classification = col("classification", np.uint8)
+        self.beam_fraction = col("beam_fraction", np.float32)
+        if self.beam_fraction is not None:
+            f = self.beam_fraction
+            bad = ~np.isnan(f) & ~((f >= 0) & (f <= 1))
+            if bad.any():
+                raise InputError(f"scan {self.name!r}: beam_fraction must lie in [0, 1] (or NaN where unknown); "
+                                 f"{int(bad.sum())} of {n} values do not (e.g. {float(f[bad][0])!r})")
         if self.return_number is None:
             self.return_number = np.ones(n, np.uint8)
         if self.number_of_returns is None:
@@ -273,6 +287,11 @@ class Scan:
         Reflectance comes from the ``reflectance_db`` extra dimension (tlsvox
         and RIEGL exports; RIEGL's ``Reflectance`` is accepted too); without
         one, ``intensity`` is kept when the file has non-zero intensities.
+        Echoes belong to pulses by the ``pulse_id`` extra dimension; without
+        one, by GPS time when the times group them (each time's echoes agree
+        on their return count and have distinct return numbers:
+        ``meta["pulse_grouping"] = "gps_time"``), else they are grouped
+        later by ray (:func:`tlsvox.voxel.pulses.group_pulses`).
         """
         import laspy
 
@@ -304,19 +323,25 @@ class Scan:
         pulse_id = np.asarray(las["pulse_id"], dtype=np.int64) if "pulse_id" in dims else None
         truth = np.asarray(las["truth_material"]) if "truth_material" in dims else None
         codes = np.asarray(las.classification) if "classification" in dims else None
+        fraction = np.asarray(las["beam_fraction"], dtype=np.float32) if "beam_fraction" in dims else None
         pulses_path, pose_path = sidecar_paths(path)
         pulses = PulseTable.load(pulses_path) if pulses_path.exists() else None
-        pose = pose_true = None
-        name, sid, meta = path.stem, 0, {}
+        doc = read_pose_sidecar(path)
+        pose, pose_true = doc.get("pose"), doc.get("pose_true")
+        name, meta = doc.get("name", path.stem), dict(doc.get("meta") or {})
         if pose_path.exists():
-            doc = json.loads(pose_path.read_text())
-            pose = doc.get("pose")
-            pose_true = doc.get("pose_true")
-            name = doc.get("name", name)
             sid = int(doc.get("scan_id", 0))
-            meta = doc.get("meta") or {}
-        elif len(las.points):
-            sid = int(np.asarray(las.point_source_id)[0])
+        else:
+            sid = int(np.asarray(las.point_source_id)[0]) if len(las.points) else 0
+        if pulse_id is None and "gps_time" in dims and len(las.points):
+            # pulses grouped by GPS time (other tools' multi-return exports); not when the times do not group
+            from tlsvox.multireturn import pulse_ids_from_time
+
+            try:
+                pulse_id = pulse_ids_from_time(las.gps_time, las.return_number, las.number_of_returns)
+                meta["pulse_grouping"] = "gps_time"
+            except InputError:
+                pulse_id = None
         return cls(
             xyz=xyz,
             reflectance_db=refl,
@@ -327,6 +352,7 @@ class Scan:
             truth_material=truth,
             # only codes tlsvox classify wrote (PointClass); other tools' codes mean other things
             classification=codes if meta.get("classes") == CLASSIFY_MARK else None,
+            beam_fraction=fraction,
             pose=pose,
             pose_true=pose_true,
             pulses=pulses,
@@ -334,6 +360,17 @@ class Scan:
             name=name,
             meta=meta,
         )
+
+
+def read_pose_sidecar(path: "str | os.PathLike") -> dict:
+    """The ``NAME.pose.json`` beside a scan file as a dict (empty when there is none)."""
+    pose_path = sidecar_paths(path)[1]
+    if not pose_path.exists():
+        return {}
+    try:
+        return json.loads(pose_path.read_text())
+    except (ValueError, OSError) as err:
+        raise InputError(f"{pose_path} is not a readable pose JSON ({err}); fix or remove it") from None
 
 
 def las_data(scans: "list[Scan]", xyz: np.ndarray, *, classification=None):
@@ -345,7 +382,8 @@ def las_data(scans: "list[Scan]", xyz: np.ndarray, *, classification=None):
     scan has one, else the linear reflectance x 10,000 (0 dB -> 10,000);
     ``gps_time`` = the pulse id (scans carry no clock); extra bytes
     ``reflectance_db``, ``pulse_id`` and, when every scan has it,
-    ``truth_material``.
+    ``truth_material``; ``beam_fraction`` when any scan has it (NaN for
+    the echoes of scans without).
 
     Parameters
     ----------
@@ -367,6 +405,10 @@ def las_data(scans: "list[Scan]", xyz: np.ndarray, *, classification=None):
     with_truth = bool(scans) and all(s.truth_material is not None for s in scans)
     if with_truth:
         extra.append(laspy.ExtraBytesParams(name="truth_material", type=np.uint8, description="tlsvox Material id"))
+    with_fraction = any(s.beam_fraction is not None for s in scans)
+    if with_fraction:
+        extra.append(laspy.ExtraBytesParams(name="beam_fraction", type=np.float32,
+                                            description="beam share intercepted"))
     header.add_extra_dims(extra)
     las = laspy.LasData(header)
     las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
@@ -392,6 +434,9 @@ def las_data(scans: "list[Scan]", xyz: np.ndarray, *, classification=None):
     las.gps_time = pid.astype(np.float64)
     if with_truth:
         las.truth_material = cat(lambda s: s.truth_material, np.uint8)
+    if with_fraction:
+        las.beam_fraction = cat(lambda s: s.beam_fraction if s.beam_fraction is not None
+                                else np.full(len(s), np.nan), np.float32)
     if classification is not None:
         if len(classification) != len(scans) or any(len(c) != len(s) for c, s in zip(classification, scans)):
             raise InputError("classification must hold one (N_i,) array per scan")

@@ -30,6 +30,14 @@ Echo classes: the scan's truth_material when present (simulated scans),
 otherwise every echo counts as plant material (the result is then plant area
 density) except ground echoes near the fitted ground plane.
 
+Echo weights (--echo-weights): how much of its pulse each echo stops. 'auto'
+(default) uses the share of the beam the echo intercepted when the scan has a
+beam_fraction column (simulated scans), else 1/n ('uniform'); 'fraction'
+takes the share from the column or else from apparent reflectance over the
+nominal reflectance of a full hit; 'threshold' is the paper's rule (drop
+returns under half the nominal leaf reflectance, then 1/n). The summary
+states the rule used per scan (docs/voxelize.md compares them).
+
 Output: the scene NPZ (docs/formats.md) and, with --vox, an AMAPVox .vox file.
 """
 
@@ -55,9 +63,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of the voxelize subcommand."""
     from tlsvox.voxel.estimators import Estimator, FillMode
     from voxlidar.leafangle import LeafAngleKind
+    from tlsvox.voxel.weights import EchoWeights
     from tlsvox.voxel.wood import WoodMethod
 
-    p.add_argument("scans", nargs="+", metavar="SCAN", help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars)")
+    p.add_argument("scans", nargs="+", metavar="SCAN",
+                   help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars), or pulse-grouped text exports "
+                        "(x y z time return_index return_count, miss rows for empty pulses: .txt/.csv/.asc)")
     p.add_argument("-o", "--output", required=True, help="scene file to write (.npz)")
     p.add_argument("--vox", help="also write an AMAPVox .vox file")
     p.add_argument("--voxel-size", type=float, default=0.2, help="voxel edge in metres (default 0.2)")
@@ -70,6 +81,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="wood model (default count_stretch, the paper)")
     p.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
                    help="occluded voxels: leave at 0 or fill with their height layer's mean")
+    p.add_argument("--echo-weights", default="auto", choices=[w.value for w in EchoWeights],
+                   help="how echoes share their pulse: auto (default: fraction with a beam_fraction column, "
+                        "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper)")
+    p.add_argument("--leaf-reflectance", type=float,
+                   help="nominal leaf reflectance of a full hit (fraction from reflectance, threshold); "
+                        "default the leaf optics at the scanner's wavelength")
+    p.add_argument("--wood-reflectance", type=float, help="nominal bark reflectance of a full hit (fraction)")
     p.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
     p.add_argument("--min-explored", type=float, default=0.05,
                    help="explored depth fraction a voxel needs (else occluded; default 0.05)")
@@ -98,6 +116,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scanner-rpy", type=lambda t: _floats(t, 3, "--scanner-rpy"),
                    help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
     p.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
+    p.add_argument("--scan-origin", type=lambda t: _floats(t, 3, "--scan-origin"),
+                   help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
                    "device; `clsim devices` lists them)")
@@ -140,11 +160,29 @@ def apply_transforms(scans, path) -> None:
         s.pose = pose
 
 
+def read_scan(path, scan_id: int, origin=None):
+    """One scan file: LAS/LAZ with its sidecars, or a pulse-grouped text export (``origin`` = the scanner there)."""
+    from tlsvox.io import ScanFormat, read_any, scan_format
+    from tlsvox.scan import Scan
+
+    path = Path(path)
+    fmt = scan_format(path) if path.is_file() else ScanFormat.LAS
+    if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
+        if origin is not None:
+            raise InputError(f"--scan-origin is for pulse-grouped text files; {path} is LAS/LAZ (its pulses start at "
+                             "the scanner frame's origin)")
+        return Scan.read(path, scan_id=scan_id)
+    if fmt is not ScanFormat.PULSES:
+        raise InputError(f"{path}: voxelize needs pulses (LAS/LAZ with a pulse table or return numbers, or "
+                         f"pulse-grouped text), not a bare {fmt.value.upper()} point cloud")
+    return read_any(path, scan_id=scan_id, origin=origin, min_points=1)
+
+
 def run(args) -> int:
     """Handler: voxelise ``args.scans`` and write ``args.output``; returns the exit code."""
     from tlsvox.voxel.amapvox import write_vox
     from tlsvox.voxel.pulses import rotation_from_rpy
-    from tlsvox.scan import AngularGrid, Scan, sidecar_paths
+    from tlsvox.scan import AngularGrid, sidecar_paths
     from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import voxelize
 
@@ -159,7 +197,7 @@ def run(args) -> int:
             raise InputError(f"-o {args.output} must end in .npz (the scene file); --vox PATH adds an AMAPVox .vox")
         if args.vox is not None and Path(args.vox).suffix.lower() != ".vox":
             raise InputError(f"--vox {args.vox} must end in .vox")
-        scans = [Scan.read(path, scan_id=i) for i, path in enumerate(args.scans)]
+        scans = [read_scan(path, i, args.scan_origin) for i, path in enumerate(args.scans)]
         if args.transforms:
             apply_transforms(scans, args.transforms)
         ground = args.ground
@@ -188,6 +226,8 @@ def run(args) -> int:
                        leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
                        bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
                        socs_rotation=rot, max_range=args.max_range, progress=not args.quiet,
+                       echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
+                       wood_reflectance=args.wood_reflectance,
                        tracer=Tracer(args.device) if args.device else None)
         for w in res.scene.meta["warnings"]:
             print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
@@ -207,7 +247,8 @@ def run(args) -> int:
                    "leaf_angle": s.leaf_angle.to_dict() | ({} if args.leaf_angle else {"note": "the default; "
                                                                             "set it with --leaf-angle"}),
                    "layout": s.meta["layout"], "grid_origin": [round(v, 6) for v in res.grid.origin],
-                   "estimator": s.meta["estimator"], "flags": s.meta["flags"], "beams": s.meta["beams"],
+                   "estimator": s.meta["estimator"], "echo_weights": s.meta["echo_weights"],
+                   "flags": s.meta["flags"], "beams": s.meta["beams"],
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
     return 0

@@ -8,7 +8,10 @@ within the range resolution of each other merge into one echo, whose range is
 the power-weighted mean of its sub-ray ranges (plus Gaussian range noise) and
 whose apparent reflectance is the power-weighted sum of
 ``rho_material * cos(incidence)`` over the sub-rays that hit (so a partial hit
-reads lower), written in dB relative to a white Lambertian target.
+reads lower), written in dB relative to a white Lambertian target.  Each
+echo's ``beam_fraction`` is the share of the beam's power its sub-rays carry
+(sub-rays that hit / ``n_subrays``): the intercepted fraction that
+``voxelize(echo_weights="fraction")`` weights it by.
 Retro-reflective targets return ``rho * retro_gain`` whatever the incidence.
 
 Echoes are reported along the pulse's central direction, in the scanner's own
@@ -243,7 +246,8 @@ def simulate_scan(tree, *, pose: ScanPose | np.ndarray, preset: ScannerPreset | 
     -------
     Scan
         Echoes in the scanner frame with ``reflectance_db``, ``truth_material``,
-        ``pulse_id``, return numbers, ``pose_true`` and the full pulse table.
+        ``beam_fraction``, ``pulse_id``, return numbers, ``pose_true`` and the
+        full pulse table.
     """
     import open3d as o3d
     from tqdm.auto import tqdm
@@ -286,7 +290,7 @@ def simulate_scan(tree, *, pose: ScanPose | np.ndarray, preset: ScannerPreset | 
     k = len(sub_r)
     n_p = len(d_scan)
     n_echo = np.zeros(n_p, np.uint8)
-    out = {key: [] for key in ("range", "refl", "mat", "pulse", "rank", "count")}
+    out = {key: [] for key in ("range", "refl", "mat", "pulse", "rank", "count", "fraction")}
 
     bar = tqdm(total=n_p, desc=f"scan {name or scan_id}", unit="pulse", unit_scale=True,
                disable=not progress, leave=False)
@@ -329,6 +333,7 @@ def simulate_scan(tree, *, pose: ScanPose | np.ndarray, preset: ScannerPreset | 
     return Scan(
         xyz=xyz, reflectance_db=cat("refl", np.float32), return_number=cat("rank", np.uint8),
         number_of_returns=cat("count", np.uint8), pulse_id=pulse, truth_material=cat("mat", np.uint8),
+        beam_fraction=cat("fraction", np.float32),
         pose=None, pose_true=pose_m, pulses=pulses, scan_id=scan_id, name=name or f"scan{scan_id}",
         meta={"preset": asdict(preset), "seed": int(seed), "simulated": True},
     )
@@ -355,6 +360,7 @@ def _merge_echoes(t, power, mat, valid, pulse0, preset, rng, out, n_echo):
     uniq, inv = np.unique(gid, return_inverse=True)
     p = power[rows, cols]
     ptot = np.bincount(inv, weights=p)
+    share = np.bincount(inv, minlength=len(uniq)) / k  # equal-power sub-rays: the beam share intercepted
     keep_power = ptot > 0
     rng_w = np.bincount(inv, weights=p * t[rows, cols]) / np.where(keep_power, ptot, 1.0)
     # truth material: that of the strongest contributing sub-ray
@@ -370,6 +376,7 @@ def _merge_echoes(t, power, mat, valid, pulse0, preset, rng, out, n_echo):
     detected = keep_power & (refl_db >= preset.min_reflectance_db)
     pulse_local = uniq // k
     pl, rg, rf, bm = pulse_local[detected], rng_noisy[detected], refl_db[detected], best_mat[detected]
+    fr = share[detected]
     counts = np.bincount(pl, minlength=m)
     # rank within pulse: groups come sorted by (pulse, range) since gid is ordered by range
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -381,4 +388,5 @@ def _merge_echoes(t, power, mat, valid, pulse0, preset, rng, out, n_echo):
     out["pulse"].append(pl.astype(np.int64) + pulse0)
     out["rank"].append(rank)
     out["count"].append(counts[pl])
+    out["fraction"].append(fr)
 

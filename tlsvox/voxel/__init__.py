@@ -2,6 +2,7 @@
 
 - :mod:`tlsvox.voxel.grid`: the regular grid beams are traced through;
 - :mod:`tlsvox.voxel.pulses`: beams (pulses with their echoes) from scans;
+- :mod:`tlsvox.voxel.weights`: how much of its beam each echo stops;
 - :mod:`tlsvox.voxel.trace`: beam tracing on OpenCL (per-voxel sums);
 - :mod:`tlsvox.voxel.estimators`: LAD estimators on those sums;
 - :mod:`tlsvox.voxel.wood`: wood per voxel;
@@ -12,5 +13,6 @@
 from tlsvox.voxel.estimators import Estimator
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.weights import EchoWeights
 
-__all__ = ["Estimator", "VoxelGrid", "voxelize"]
+__all__ = ["EchoWeights", "Estimator", "VoxelGrid", "voxelize"]

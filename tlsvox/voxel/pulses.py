@@ -26,6 +26,9 @@ outside.
 Echo classes become :class:`~tlsvox.voxel.trace.EchoKind`: leaf echoes are the
 LAD estimators' events, wood echoes the wood estimators', ground and targets
 stop the beam, noise is dropped (and does not count in the pulse's ``n``).
+How much of its beam each echo stops follows the rule of
+:mod:`tlsvox.voxel.weights` (``1/n``, the intercepted fraction, or the
+paper's reflectance threshold).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ import numpy as np
 from tlsvox.errors import InputError
 from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.trace import Beams, EchoKind
+from tlsvox.voxel.weights import EchoWeights, NominalReflectance, below_threshold, echo_fractions, resolve_rule
 
 __all__ = ["PulseGroups", "beams_from_scan", "g_table", "group_pulses", "kinds_from_material",
            "kinds_from_pointclass", "reconstruct_empty_pulses", "rotation_from_rpy"]
@@ -285,7 +289,9 @@ def g_table(leaf_angle, theta, *, nodes: int = 4097) -> np.ndarray:
 
 def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_range: float | None = None,
                     angular_grid: AngularGrid | None = None, socs_rotation=None,
-                    reconstruct: bool = True) -> tuple[Beams, dict]:
+                    reconstruct: bool = True, echo_weights="auto",
+                    leaf_reflectance: float | None = None,
+                    wood_reflectance: float | None = None) -> tuple[Beams, dict]:
     """Every pulse of ``scan`` as world-frame :class:`~tlsvox.voxel.trace.Beams`.
 
     Parameters
@@ -309,6 +315,16 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
         Scan frame from the scanner's own frame (:func:`rotation_from_rpy`).
     reconstruct : bool
         False: use only pulses that returned (biased: no gaps!).
+    echo_weights : {"uniform", "fraction", "threshold", "auto"}
+        How echoes share their pulse (:class:`~tlsvox.voxel.weights.EchoWeights`):
+        ``1/n``, the intercepted fraction of the beam (``beam_fraction``
+        column, else reflectance), or the paper's threshold; ``auto``
+        (default): fraction when the scan has a ``beam_fraction`` column,
+        else uniform.  ``info["echo_weights"]`` says which was used.
+    leaf_reflectance, wood_reflectance : float, optional
+        Nominal reflectance of a full hit at normal incidence for the
+        ``fraction`` (from reflectance) and ``threshold`` rules; default the
+        :mod:`voxlidar.materials` optics at the scanner's wavelength.
 
     Returns
     -------
@@ -336,7 +352,17 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
     kinds = np.asarray(kinds, dtype=np.uint8).reshape(-1)
     if len(kinds) != n:
         raise InputError(f"kinds has {len(kinds)} values for the {n} echoes of scan {scan.name!r}")
-    info: dict = {"scan": scan.name, "echoes": n}
+    rule = resolve_rule(echo_weights, scan)
+    info: dict = {"scan": scan.name, "echoes": n, "echo_weights": rule.value}
+    nominal = None
+    if rule is EchoWeights.THRESHOLD or (rule is EchoWeights.FRACTION and not (
+            scan.beam_fraction is not None and np.any(np.isfinite(scan.beam_fraction)))):
+        nominal = NominalReflectance.for_scan(scan, leaf_reflectance, wood_reflectance)
+    if rule is EchoWeights.THRESHOLD:
+        low = below_threshold(scan, kinds, nominal)
+        kinds = np.where(low, np.uint8(EchoKind.IGNORE), kinds)
+        info.update(echo_weights_source=f"dropped leaf/wood echoes under 50 % of the nominal leaf reflectance "
+                    f"{nominal.leaf:g} ({nominal.source})", below_threshold=int(low.sum()))
     origin_s = scan.pulses.origin if scan.pulses is not None else np.zeros(3)
     ranges = np.linalg.norm(scan.xyz - origin_s, axis=1)
 
@@ -381,11 +407,21 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
     pulse_k, rng_k, kind_k = pulse_k[order], rng_k[order], kind_k[order]
     counts = np.bincount(pulse_k, minlength=p)
     start = np.concatenate([[0], np.cumsum(counts)])
-    w = 1.0 / n_eff[pulse_k]
-    # more echoes present than announced: renormalise so the weights sum to 1
-    over = counts > n_eff
-    if np.any(over):
-        w = np.where(over[pulse_k], 1.0 / counts[pulse_k], w)
+    rot, trans = pose[:3, :3], pose[:3, 3]
+    world_dirs = dirs @ rot.T
+    world_dirs /= np.linalg.norm(world_dirs, axis=1, keepdims=True)
+    if rule is EchoWeights.FRACTION:
+        theta = np.arccos(np.clip(world_dirs[pulse, 2], -1, 1))
+        frac, info["echo_weights_source"] = echo_fractions(scan, kinds, theta, leaf_angle=leaf_angle,
+                                                           nominal=nominal)
+        w = _fraction_weights(frac[keep][order], pulse_k, p)
+    else:
+        w = 1.0 / n_eff[pulse_k]
+        # more echoes present than announced: renormalise so the weights sum to 1
+        over = counts > n_eff
+        if np.any(over):
+            w = np.where(over[pulse_k], 1.0 / counts[pulse_k], w)
+        info.setdefault("echo_weights_source", "1/n, n the pulse's echo count")
     wsum = np.bincount(pulse_k, weights=w, minlength=p)
     tail = np.clip(1.0 - wsum, 0.0, 1.0)
     tail[tail < 1e-9] = 0.0
@@ -393,9 +429,6 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
     last = np.zeros(p)
     np.maximum.at(last, pulse_k, rng_k)
     max_r = np.maximum(max_r, last)
-    rot, trans = pose[:3, :3], pose[:3, 3]
-    world_dirs = dirs @ rot.T
-    world_dirs /= np.linalg.norm(world_dirs, axis=1, keepdims=True)
     origin_w = rot @ origin_s + trans
     g = None
     if leaf_angle is not None:
@@ -406,3 +439,28 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
                   echo_range=rng_k, echo_weight=w, echo_kind=kind_k, tail=tail, max_range=max_r, g=g,
                   scan_index=np.full(p, scan.scan_id, np.int16))
     return beams, info
+
+
+def _fraction_weights(frac, pulse, p: int) -> np.ndarray:
+    """Echo weights from intercepted shares (NaN = unknown), pulse by pulse.
+
+    ``frac`` and ``pulse`` are sorted by pulse, then range.  Echoes without a
+    share (ground and targets when the shares come from reflectance, NaN in a
+    ``beam_fraction`` column) take equal parts of what the others left.  When
+    the shares of a pulse add up to more than 1, the nearer echoes keep theirs
+    and a farther one takes only what is left (the beam meets them in order).
+    """
+    known = np.isfinite(frac)
+    f = np.where(known, np.clip(frac, 0.0, 1.0), 0.0)
+    used = np.bincount(pulse, weights=f, minlength=p)
+    n_unknown = np.bincount(pulse, weights=(~known).astype(np.float64), minlength=p)
+    rest = np.clip(1.0 - used, 0.0, 1.0) / np.maximum(n_unknown, 1.0)
+    w = np.where(known, f, rest[pulse])
+    # cap the running total of each pulse at 1, in range order
+    cum = np.cumsum(w)
+    first = np.searchsorted(pulse, pulse, side="left")  # row of each pulse's first echo
+    before = np.concatenate([[0.0], cum])[first]
+    within = np.minimum(cum - before, 1.0)
+    prev = np.concatenate([[0.0], within[:-1]])
+    prev[np.arange(len(w)) == first] = 0.0
+    return np.clip(within - prev, 0.0, 1.0)

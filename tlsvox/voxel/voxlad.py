@@ -41,6 +41,7 @@ from tlsvox.voxel.grid import format_bytes
 from tlsvox.voxel.bricks import Bricks
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from voxlidar.choices import Choice
+from tlsvox.voxel.weights import EchoWeights, resolve_rule
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
 
 __all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "voxelize", "score_lad"]
@@ -154,6 +155,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
              min_explored: float = 0.05, leaf_size: float | None = 0.05, small_voxel_factor: float = 1.0,
              fill="none", max_range: float | None = None, angular_grid: AngularGrid | None = None,
              socs_rotation=None, scanner_frame: bool = False, crown_center=None,
+             echo_weights="auto", leaf_reflectance: float | None = None, wood_reflectance: float | None = None,
              layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
              progress: bool = True, plan_only: bool = False) -> VoxelizeResult:
     """Build the voxel scene from registered scans.
@@ -205,6 +207,15 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         per brick of 8^3 voxels; its scene then stores no echo-free occluded
         voxel (``meta["occluded_bricks"]`` counts them).  ``auto``: dense up to
         1 GiB.
+    echo_weights : {"auto", "uniform", "fraction", "threshold"}
+        How echoes share their pulse's beam (:mod:`tlsvox.voxel.weights`):
+        ``auto`` (default) weights each echo by the share of the beam it
+        intercepted when the scan has a ``beam_fraction`` column (simulated
+        scans), else ``1/n``.  The rule used per scan is in
+        ``scene.meta["echo_weights"]``.
+    leaf_reflectance, wood_reflectance : float, optional
+        Nominal reflectance of a full hit (``fraction`` from reflectance,
+        ``threshold``); default the optics at the scanner's wavelength.
     tracer : Tracer, optional
         OpenCL tracer to reuse (default: a new one).
     max_bytes : int, optional
@@ -235,6 +246,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         raise InputError(f"max_range={max_range!r} must be a positive distance in metres (how far empty "
                          "pulses are followed), or None for the scanner's range")
     est = Estimator.parse(estimator, "estimator")
+    weights = EchoWeights.parse(echo_weights, "echo_weights")
+    for s in scans:
+        resolve_rule(weights, s)  # the inputs the rule needs, checked before any work
     fill = FillMode.parse(fill, "fill")
     wood_m = WoodMethod.parse(wood, "wood")
     la = LeafAngle.from_dict(leaf_angle)
@@ -325,7 +339,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         it = tqdm(it, desc="pulses", unit="scan", leave=False)
     for s, p, k in it:
         b, info = beams_from_scan(s, kinds=k, pose=p, leaf_angle=la, max_range=max_range,
-                                  angular_grid=angular_grid, socs_rotation=socs_rotation)
+                                  angular_grid=angular_grid, socs_rotation=socs_rotation,
+                                  echo_weights=weights, leaf_reflectance=leaf_reflectance,
+                                  wood_reflectance=wood_reflectance)
         parts.append(b)
         infos.append(info)
     beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
@@ -362,6 +378,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,
         "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
         "leaf_angle": la.to_dict(), "layout": plan.layout.value, "memory_plan": plan.describe(),
+        "echo_weights": [i["echo_weights"] for i in infos],
         "ground": None if plane is None else {"coefficients": list(plane.coefficients),
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
     }

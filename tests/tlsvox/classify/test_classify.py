@@ -136,7 +136,8 @@ def test_injected_noise_is_found(synthetic_scan):
                     return_number=np.concatenate([s.return_number, np.ones(n, np.uint8)]),
                     number_of_returns=np.concatenate([s.number_of_returns, np.ones(n, np.uint8)]),
                     pulse_id=np.concatenate([s.pulse_id, pulse]),
-                    truth_material=np.concatenate([s.truth_material, np.zeros(n, np.uint8)]))
+                    truth_material=np.concatenate([s.truth_material, np.zeros(n, np.uint8)]),
+                    beam_fraction=np.concatenate([s.beam_fraction, np.full(n, np.nan, np.float32)]))
     c = classify_scan(noisy)
     sc = score(c.labels, noisy.truth_material)
     print("\n" + sc.table())

@@ -164,25 +164,44 @@ def test_cli_takes_poses_from_register_transforms(box_scans, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_synthetic_oak_two_scans_20cm():
-    """The procedural oak, two simulated scans, 20 cm voxels, scored against the mesh."""
-    from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
+    """The procedural oak, two simulated scans, 20 cm voxels, scored against the mesh.
+
+    With 1/n echo weights the visible leaf area comes out within 5 %, but only
+    because the wide beam's partial-hit bias (+43 % on the leaf box) cancels an
+    underestimate that pencil beams show too (docs/voxelize.md, *Echo weights*).
+    Weighted by the intercepted share, the wide beam gives the pencil beams' total.
+    """
+    from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import make_tree
 
     tree = make_tree(seed=1)
-    scans = []
-    for i, pose in enumerate(paper_scan_poses(tree)):
-        s = simulate_scan(tree, pose=pose, seed=10 + i, scan_id=i, progress=False)
-        s.pose = s.pose_true  # registration is tested elsewhere
-        scans.append(s)
-    res = voxelize(scans, voxel_size=0.2, leaf_angle="uniform", estimator="bcmle", ground=0.0, progress=False)
-    g = res.grid
-    truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
-    occ = res.lad.occluded
+
+    def scans_with(preset):
+        out = []
+        for i, pose in enumerate(paper_scan_poses(tree)):
+            s = simulate_scan(tree, pose=pose, preset=preset, seed=10 + i, scan_id=i, progress=False)
+            s.pose = s.pose_true  # registration is tested elsewhere
+            out.append(s)
+        return out
+
+    def run(scans, rule):
+        res = voxelize(scans, voxel_size=0.2, leaf_angle="uniform", estimator="bcmle", ground=0.0, progress=False,
+                       echo_weights=rule)
+        g = res.grid
+        truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
+        return res, truth
+
+    wide = scans_with(ScannerPreset.riegl_vz400())
+    res, truth = run(wide, "uniform")
+    g, occ = res.grid, res.lad.occluded
     visible = score_lad(np.where(occ, 0, res.lad.lad), np.where(occ, 0, truth), voxel_volume=g.voxel_volume)
-    # the goal: leaf area within 5% where the scans can see
     assert abs(visible["area_error"]) < 0.05, visible
     per_voxel = score_lad(res.lad.lad, truth, mask=~occ)
     assert abs(per_voxel["bias"]) < 0.05 * truth[~occ & (truth > 0)].mean()
+    share, _ = run(wide, "fraction")
+    pencil, _ = run(scans_with(ScannerPreset.riegl_vz400(n_subrays=1)), "uniform")
+    a, b = share.scene.total_leaf_area(), pencil.scene.total_leaf_area()
+    assert abs(a / b - 1) < 0.03, (a, b)  # measured with the demo's scan seeds (1, 2): 332.2 and 332.3 m2
 
 
 def test_bounds_are_taken_as_given(box_scans):

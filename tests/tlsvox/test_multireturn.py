@@ -1,0 +1,218 @@
+"""Pulse-grouped multi-return exports (tlsvox.multireturn): ASCII rows with miss rows,
+and LAS/LAZ grouped by GPS time, written here from a simulated scan of a leaf box and
+read back into the same pulses, echoes and LAD; malformed files give one clear line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlsvox.errors import InputError, ScanFileError
+from tlsvox.io import ScanFormat, read_any, scan_format
+from tlsvox.multireturn import looks_pulse_grouped, pulse_ids_from_time, read_pulse_text
+from tlsvox.scan import Scan
+from tlsvox.voxel.voxlad import voxelize
+
+ORIGIN = np.array([100.0, 200.0, 10.0])  # the scanner in the file's coordinates
+
+
+@pytest.fixture(scope="module")
+def sim():
+    """A simulated scan of a leaf box (1 m cube, 7 sub-rays, 0.5 deg steps), pose = identity."""
+    pytest.importorskip("open3d")
+    from tlsvox.truth.scanner import ScannerPreset, ScanPose, simulate_scan
+    from tlsvox.truth.synthetic import make_leaf_slab
+
+    box = make_leaf_slab(lad=2.0, size=(1.0, 1.0, 1.0), origin=(2.5, -0.5, -0.5), seed=5)
+    preset = ScannerPreset.riegl_vz400(zenith_step_deg=0.5, azimuth_step_deg=0.5, n_subrays=7)
+    scan = simulate_scan(box, pose=ScanPose(position=(0.0, 0.0, 0.0)), preset=preset, seed=1, progress=False)
+    scan.pose = np.eye(4)
+    assert (scan.pulses.n_echoes == 0).sum() > 100 and (scan.number_of_returns > 1).any()
+    return scan
+
+
+def write_rows(scan, path, *, miss="far", header=None, sep=" ", shift=ORIGIN):
+    """One row per echo, one miss row per empty pulse, in time (= pulse) order."""
+    xyz = scan.xyz + shift
+    t = 1000.0 + 1e-5 * scan.pulse_id
+    rows = np.column_stack([xyz, t, scan.return_number, scan.number_of_returns])
+    empty = np.nonzero(scan.pulses.n_echoes == 0)[0]
+    d = scan.pulses.direction[empty].astype(np.float64)
+    if miss == "far":  # a point 1e6 m along the beam, return count 0
+        m = np.column_stack([d * 1e6 + shift, 1000.0 + 1e-5 * empty, np.zeros(len(empty)), np.zeros(len(empty))])
+    elif miss == "far-as-echo":  # flagged only by its distance
+        m = np.column_stack([d * 1e6 + shift, 1000.0 + 1e-5 * empty, np.ones(len(empty)), np.ones(len(empty))])
+    else:  # NaN coordinates: no direction
+        m = np.column_stack([np.full((len(empty), 3), np.nan), 1000.0 + 1e-5 * empty, np.zeros((len(empty), 2))])
+    allrows = np.vstack([rows, m])
+    allrows = allrows[np.argsort(allrows[:, 3], kind="stable")]
+    text = "\n".join(sep.join(f"{v:.6f}" if i < 4 else f"{int(v)}" if np.isfinite(v) else "nan"
+                              for i, v in enumerate(r)) for r in allrows)
+    path.write_text((header + "\n" if header else "") + text + "\n")
+    return path
+
+
+def _same_pulses(scan, back):
+    assert len(back) == len(scan)
+    assert len(back.pulses) == len(scan.pulses)
+    assert back.pulses.n_echoes.tolist() == scan.pulses.n_echoes.tolist()
+    assert np.allclose(back.pulses.origin, ORIGIN)
+    cos = np.sum(back.pulses.direction * scan.pulses.direction, axis=1)
+    assert cos.min() > np.cos(np.deg2rad(0.05))
+    assert np.array_equal(back.pulse_id, scan.pulse_id)
+    assert np.array_equal(back.return_number, scan.return_number)
+
+
+@pytest.mark.parametrize("miss", ["far", "far-as-echo"])
+def test_miss_rows_become_pulses_without_echo(sim, tmp_path, miss):
+    path = write_rows(sim, tmp_path / "sim.txt", miss=miss)
+    back = read_any(path, origin=ORIGIN)
+    _same_pulses(sim, back)
+    assert back.meta["miss_rows"] == int((sim.pulses.n_echoes == 0).sum())
+
+
+def test_voxelised_like_the_original(sim, tmp_path):
+    path = write_rows(sim, tmp_path / "sim.csv", sep=",",
+                      header="# x,y,z,gps_time,return_number,number_of_returns")
+    back = read_any(path, origin=ORIGIN)
+    _same_pulses(sim, back)
+    kw = dict(voxel_size=0.25, ground=None, bounds=[[2.5, -0.5, -0.5], [3.5, 0.5, 0.5]], progress=False,
+              echo_weights="uniform")
+    a = voxelize([sim], **kw, scanner_frame=True)
+    shifted = np.eye(4)
+    shifted[:3, 3] = -ORIGIN  # the file's frame back onto the scanner's
+    back.pose = shifted
+    b = voxelize([back], **kw)
+    assert a.scene.n_voxels == b.scene.n_voxels > 0
+    assert np.allclose(a.lad.lad, b.lad.lad, rtol=1e-4, atol=1e-6)
+
+
+def test_extra_columns_by_header(sim, tmp_path):
+    path = write_rows(sim, tmp_path / "h.txt", header="x y z time return_index return_count")
+    text = path.read_text().splitlines()
+    # add a beam_fraction column: the echoes' shares, 1 for miss rows
+    frac = iter(sim.beam_fraction[np.argsort(sim.pulse_id, kind="stable")])
+    out = [text[0] + " beam_fraction"] + [ln + (f" {next(frac):.6f}" if ln.split()[-1] != "0" else " 1")
+                                          for ln in text[1:]]
+    path.write_text("\n".join(out) + "\n")
+    back = read_pulse_text(path, origin=ORIGIN)
+    assert np.allclose(np.sort(back.beam_fraction), np.sort(sim.beam_fraction), atol=1e-6)
+
+
+def test_xyz_suffix_is_sniffed(sim, tmp_path):
+    path = write_rows(sim, tmp_path / "sim.xyz")
+    assert scan_format(path) is ScanFormat.PULSES
+    assert len(read_any(path, origin=ORIGIN).pulses) == len(sim.pulses)
+    rgb = tmp_path / "colour.xyz"
+    rgb.write_text("\n".join(f"{i} {i % 7} 1.0 {200 - i} {i % 255} {i % 100}" for i in range(50)) + "\n")
+    assert not looks_pulse_grouped(rgb) and scan_format(rgb) is ScanFormat.XYZ
+
+
+def test_nan_miss_rows_need_a_direction(sim, tmp_path):
+    path = write_rows(sim, tmp_path / "nan.txt", miss="nan")
+    with pytest.raises(InputError, match=r"miss rows .* have no coordinates, so their beam direction is unknown"):
+        read_any(path, origin=ORIGIN)
+
+
+BAD = {
+    "columns": ("1 2 3 0.1 1 1\n1 2 3 0.2 1\n", "number of columns changed"),
+    "index above count": ("1 2 3 0.1 3 2\n", "return_index 3 is above its return_count 2"),
+    "counts disagree": ("1 2 3 0.1 1 2\n2 2 3 0.1 2 3\n", "disagree on the return count"),
+    "index twice": ("1 2 3 0.1 1 2\n2 2 3 0.1 1 2\n", "both have return index 1"),
+    "fractional index": ("1 2 3 0.1 1.5 2\n", "return_index=1.5 must be a whole number"),
+    "echo and miss": ("1 2 3 0.1 1 1\n0 9e6 0 0.1 0 0\n", "has both echoes and a miss row"),
+    "header lacks a column": ("x y z time return_index\n1 2 3 0.1 1\n", "but not ['return_count']"),
+    "header only": ("x y z time return_index return_count\n", "no rows"),
+    "words": ("one two three\n1 2 3\n", "but not"),
+    "time not a number": ("1 2 3 nan 1 1\n", "time that is not a number"),
+    "echo at the origin": ("0 0 0 0.1 1 1\n", "at the scanner origin"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_malformed_files_one_line(tmp_path, case):
+    text, says = BAD[case]
+    path = tmp_path / "bad.txt"
+    path.write_text(text)
+    with pytest.raises(InputError, match=None) as err:
+        read_pulse_text(path)
+    msg = str(err.value)
+    assert says in msg and "\n" not in msg and str(path) in msg, msg
+
+
+def test_empty_and_missing_files(tmp_path):
+    (tmp_path / "e.txt").write_text("")
+    with pytest.raises(InputError, match="is empty"):
+        read_pulse_text(tmp_path / "e.txt")
+    with pytest.raises(ScanFileError, match="does not exist"):
+        read_pulse_text(tmp_path / "nope.txt")
+    with pytest.raises(InputError, match="origin= is for pulse-grouped text"):
+        read_any(_las(tmp_path), origin=(0, 0, 0))
+
+
+def _las(tmp_path):
+    Scan(xyz=np.ones((3, 3)) + np.arange(3)[:, None], name="plain").write(tmp_path / "plain.las")
+    return tmp_path / "plain.las"
+
+
+# ---- LAS/LAZ grouped by GPS time
+
+def _foreign_las(scan, path, times):
+    """A LAS written by another tool: no pulse_id dimension, no sidecars, pulses by GPS time."""
+    import laspy
+
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.scales = np.array([1e-4] * 3)
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = scan.xyz[:, 0], scan.xyz[:, 1], scan.xyz[:, 2]
+    las.return_number = scan.return_number
+    las.number_of_returns = scan.number_of_returns
+    las.gps_time = times
+    las.write(str(path))
+    return path
+
+
+def test_las_pulses_grouped_by_gps_time(sim, tmp_path):
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(len(sim))  # echoes in any order
+    shuffled = Scan(xyz=sim.xyz[perm], return_number=sim.return_number[perm],
+                    number_of_returns=sim.number_of_returns[perm])
+    times = 5e8 + 1e-5 * sim.pulse_id[perm]
+    back = Scan.read(_foreign_las(shuffled, tmp_path / "foreign.laz", times))
+    assert back.meta["pulse_grouping"] == "gps_time" and back.pulses is None
+    # the same partition of echoes into pulses as the simulator's
+    truth = sim.pulse_id[perm]
+    pairs = set(zip(back.pulse_id.tolist(), truth.tolist()))
+    assert len(pairs) == len(np.unique(truth)) == len(np.unique(back.pulse_id))
+    # 1/n per pulse from its return count: every pulse's weights add up to 1
+    from tlsvox.voxel.pulses import beams_from_scan
+
+    back.pose = np.eye(4)
+    beams, info = beams_from_scan(back, reconstruct=False, echo_weights="uniform")
+    sums = np.add.reduceat(beams.echo_weight, beams.echo_start[:-1][np.diff(beams.echo_start) > 0])
+    assert np.allclose(sums, 1.0) and info["pulses"] == len(np.unique(truth))
+
+
+def test_las_times_that_do_not_group_pulses_are_ignored(sim, tmp_path):
+    back = Scan.read(_foreign_las(sim, tmp_path / "zero.laz", np.zeros(len(sim))))
+    assert back.pulse_id is None and "pulse_grouping" not in back.meta
+
+
+def test_pulse_ids_from_time():
+    pid = pulse_ids_from_time([3.0, 1.0, 3.0, 2.0], [1, 1, 2, 1], [2, 1, 2, 1])
+    assert pid.tolist() == [2, 0, 2, 1]
+
+
+def test_cli_voxelizes_a_pulse_text_export(sim, tmp_path, capsys):
+    import json
+
+    from tlsvox.cli.voxelize import main
+
+    path = write_rows(sim, tmp_path / "sim.txt")
+    out = tmp_path / "scene.npz"
+    code = main([str(path), "--scanner-frame", "--scan-origin", ",".join(map(str, ORIGIN)), "--ground", "none",
+                 "--voxel-size", "0.25", "-o", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0 and out.exists()
+    summary = json.loads(text[text.index("{"):])
+    assert summary["echo_weights"] == ["uniform"] and summary["beams"] == len(sim.pulses)
