@@ -104,9 +104,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer voxel sizes and photon counts")
     ap.add_argument("--sizes", default=None, help="voxel sizes for the exact-LAD scene, m "
-                    "(default 0.05,0.1,0.2,0.4; quick 0.2,0.4)")
+                    "(default 0.02,0.05,0.1,0.2,0.4; quick 0.2,0.4)")
     ap.add_argument("--tls-sizes", default=None, help="voxel sizes for the TLS pipeline, m "
-                    "(default 0.1,0.2,0.4; quick 0.2,0.4)")
+                    "(default 0.02,0.05,0.1,0.2,0.4; quick 0.2,0.4)")
     ap.add_argument("--hotspot-off-size", type=float, default=0.2,
                     help="voxel size also simulated without the hot-spot option")
     ap.add_argument("--pulses", default="nadir-centre,oblique-edge")
@@ -130,9 +130,9 @@ def main(argv=None) -> int:
         report(json.loads((Path(args.cache) / "pipeline_last.json").read_text()), Path(args.out), Path(args.png))
         return 0
     q = args.quick
-    sizes = [float(v) for v in (args.sizes or ("0.2,0.4" if q else "0.05,0.1,0.2,0.4")).split(",") if v]
+    sizes = [float(v) for v in (args.sizes or ("0.2,0.4" if q else "0.02,0.05,0.1,0.2,0.4")).split(",") if v]
     tls_sizes = [float(v) for v in (args.tls_sizes if args.tls_sizes is not None else
-                                   ("0.2,0.4" if q else "0.1,0.2,0.4")).split(",") if v]
+                                   ("0.2,0.4" if q else "0.02,0.05,0.1,0.2,0.4")).split(",") if v]
     n_mesh = args.photons_mesh or (300_000 if q else 1_000_000)
     n_vox = args.photons_voxel or (300_000 if q else 1_000_000)
     series = [int(float(v)) for v in (args.photons_series or ("1e3,1e4,1e5,1e6" if q else
@@ -354,12 +354,9 @@ def report(d: dict, out: Path, png: Path) -> None:
                      f"{per(r, 'total')} |")
     for h, msg in d["tls_skipped"]:
         lines += ["", f"TLS pipeline at {h:g} m skipped: {msg}"]
-    if 0.05 not in d["tls_sizes"] and not any(h == 0.05 for h, _ in d["tls_skipped"]):
-        lines += ["", "TLS pipeline at 0.05 m is not run by default: voxelising the two scans at 5 cm needs "
-                  "about 8.4 GiB for tracing and estimation (15.7 M voxels x 576 bytes, see "
-                  "docs/bench/voxelize.md), above `voxelize`'s 6 GiB guard and more than a shared 24 GB machine "
-                  "should give one benchmark (`--tls-sizes 0.05,0.1,0.2,0.4` tries it). The exact-LAD scene at "
-                  "5 cm is sparse (only occupied voxels) and costs about 1.6 GB."]
+    lines += ["", "The TLS pipeline's scenes at 5 cm and below are traced with the sparse layout (`voxelize`'s "
+              "`layout='auto'`: full sums only for voxels holding echoes; see docs/bench/memory.md for its memory "
+              "and leaf area against voxel size). The exact-LAD scenes store only voxels holding leaves or wood."]
     lines += ["", f"## 2. Photon count (exact-LAD scene, {d['twin_size']:g} m, hot spot on)", "",
               f"`vs mesh`: the total error. `vs voxel ref`: against a {d['n_ref']:,}-photon run of the same voxel "
               "scene (" + " / ".join(f"{d['vref_time'][n]:.1f} s" for n in pn) + "), i.e. the Monte Carlo noise "

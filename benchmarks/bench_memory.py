@@ -1,0 +1,213 @@
+"""Peak memory and time of tracing and estimating the synthetic oak's two scans, per
+voxel size and tracer layout (dense: sums for every voxel; sparse: only voxels holding
+echoes, plus coarse sums per 8^3 brick), with the leaf area each gives against the mesh.
+
+The two scans are simulated once and cached; each configuration then runs in a fresh
+Python process (so its peak RSS is its own): it loads the scans (RSS "scans loaded"),
+runs ``voxelize`` (the beams, the trace, the estimate and the scene: "peak"), and then,
+outside the measured part, scores the result against the mesh's exact leaf area per
+voxel:
+
+- total leaf area, without and with the layer fill of occluded voxels (``fill``),
+  against the tree's true leaf area;
+- visible leaf area: the estimate against the truth over the voxels the scans saw
+  (not flagged occluded; in the sparse layout, also not in an occluded brick).
+
+Writes the table to docs/bench/memory.md and a chart to docs/img/memory_voxel_size.png.
+
+    .venv/bin/python benchmarks/bench_memory.py [--sizes 0.02,0.05,0.1,0.2] [--repeats 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pickle
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = 1
+#: (layout, fill) per voxel size
+CONFIGS = (("sparse", "none"), ("sparse", "layer"), ("dense", "none"), ("dense", "layer"))
+
+
+def simulate(cache: Path) -> float:
+    """The paper's two scans of the oak, pickled to ``cache``; returns seconds."""
+    from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
+    from tlsvox.truth.synthetic import make_tree
+
+    t = time.perf_counter()
+    tree = make_tree(seed=SEED)
+    scans = []
+    for i, pose in enumerate(paper_scan_poses(tree)):
+        s = simulate_scan(tree, pose=pose, seed=10 + i, scan_id=i, progress=False)
+        s.pose = s.pose_true
+        scans.append(s)
+    with open(cache, "wb") as fh:
+        pickle.dump(scans, fh)
+    return time.perf_counter() - t
+
+
+def child(cache: str, h: float, layout: str, fill: str) -> dict:
+    """One configuration, in this (fresh) process."""
+    import resource
+
+    from tlsvox.errors import InputError
+    from tlsvox.voxel.voxlad import voxelize
+
+    def rss_gib():
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+
+    with open(cache, "rb") as fh:
+        scans = pickle.load(fh)
+    loaded = rss_gib()
+    t = time.perf_counter()
+    try:
+        res = voxelize(scans, voxel_size=h, leaf_angle="uniform", ground=0.0, fill=fill,
+                       layout=layout, progress=False)
+    except InputError as err:
+        return {"skipped": str(err)}
+    seconds = time.perf_counter() - t
+    peak = rss_gib()
+    del scans
+    from tlsvox.truth.synthetic import make_tree  # Open3D: after the measured part
+
+    s, g = res.scene, res.grid
+    tree = make_tree(seed=SEED)
+    true_total = tree.leaf_area()
+    truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=h, shape=g.shape)
+    est = np.zeros(g.shape)
+    est[tuple(s.ijk.T)] = s.lad * h**3
+    seen = np.ones(g.shape, bool)
+    seen[tuple(s.ijk[s.occluded].T)] = False
+    if res.stats.sparse:  # echo-free voxels of occluded bricks were not seen either
+        dark = np.repeat(np.repeat(np.repeat(res.lad.brick_occluded, 8, 0), 8, 1), 8, 2)
+        seen &= ~dark[: g.shape[0], : g.shape[1], : g.shape[2]]
+    return {"seconds": seconds, "trace_s": res.timings["trace"], "loaded_gib": loaded, "peak_gib": peak,
+            "voxels": g.n_voxels, "rows": int(s.n_voxels), "steps": res.stats.n_steps,
+            "area": float(s.lad.sum() * h**3), "true_area": true_total,
+            "visible_est": float(est[seen].sum()), "visible_true": float(truth[seen].sum())}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", default="0.02,0.05,0.1,0.2")
+    ap.add_argument("--repeats", type=int, default=1, help="runs per configuration (median time)")
+    ap.add_argument("--dense-max-gib", type=float, default=6.0, help="skip dense grids needing more")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "memory.md"))
+    ap.add_argument("--png", default=str(ROOT / "docs" / "img" / "memory_voxel_size.png"))
+    ap.add_argument("--child", nargs=4, metavar=("CACHE", "H", "LAYOUT", "FILL"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        cache, h, layout, fill = args.child
+        print(json.dumps(child(cache, float(h), layout, fill)))
+        return
+    load_before = os.getloadavg()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp) / "scans.pkl"
+        t_sim = simulate(cache)
+        for h in [float(v) for v in args.sizes.split(",")]:
+            dense_gib = (np.prod(np.ceil(np.array([15.0, 15.0, 14.0]) / h)) * 16 * 8 * 3 / 1024**3)
+            for layout, fill in CONFIGS:
+                if layout == "dense" and dense_gib > args.dense_max_gib:
+                    rows.append({"h": h, "layout": layout, "fill": fill,
+                                 "skipped": f"dense needs about {dense_gib:.0f} GiB"})
+                    continue
+                runs = []
+                for _ in range(args.repeats):
+                    out = subprocess.run([sys.executable, __file__, "--child", str(cache), str(h), layout, fill],
+                                         capture_output=True, text=True, cwd=ROOT)
+                    if out.returncode != 0:
+                        raise SystemExit(f"child {h} {layout} {fill} failed:\n{out.stderr[-3000:]}")
+                    runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+                r = dict(runs[0])
+                if "seconds" in r:
+                    r["seconds"] = float(np.median([x["seconds"] for x in runs]))
+                    r["peak_gib"] = float(max(x["peak_gib"] for x in runs))
+                rows.append({"h": h, "layout": layout, "fill": fill, **r})
+                print(json.dumps(rows[-1]), flush=True)
+    load_after = os.getloadavg()
+    write(rows, args, t_sim, load_before, load_after)
+
+
+def write(rows, args, t_sim, load_before, load_after):
+    from voxlidar.safeio import atomic_write, save_figure
+
+    lines = [
+        "# Memory and time against voxel size (synthetic oak, two scans)", "",
+        f"Machine: {platform.machine()}, {os.cpu_count()} CPU(s) shared with other work, Python "
+        f"{platform.python_version()}. Command: `.venv/bin/python benchmarks/bench_memory.py --sizes {args.sizes} "
+        f"--repeats {args.repeats}`. Load average (1, 5, 15 min) before: "
+        f"{', '.join(f'{v:.2f}' for v in load_before)}; after: {', '.join(f'{v:.2f}' for v in load_after)}.",
+        "",
+        f"The two scans (4.1 M pulses, 1.7 M echoes) were simulated once ({t_sim:.0f} s, not counted). Each "
+        "row is a fresh process: *scans loaded* is its RSS with the scans in memory, *peak* its peak RSS "
+        "through `voxelize` (beams, trace, estimate, scene); time is `voxelize`'s wall time"
+        + (f", median of {args.repeats} runs" if args.repeats > 1 else ", one run") + ". Leaf area against "
+        "the mesh: *total* over the whole scene (true total in the last column), *visible* over the voxels "
+        "the scans saw (estimate against truth there).", "",
+        "| voxel | layout | fill | grid voxels | stored voxels | time, s | trace, s | scans loaded, GiB | "
+        "peak, GiB | total leaf area, m2 (error) | visible leaf area error | true area, m2 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        head = f"| {r['h'] * 100:g} cm | {r['layout']} | {r['fill']} |"
+        if "skipped" in r:
+            lines.append(head + f" not run: {r['skipped']} |||||||||")
+            continue
+        tot_err = (r["area"] - r["true_area"]) / r["true_area"]
+        vis_err = (r["visible_est"] - r["visible_true"]) / r["visible_true"]
+        lines.append(head + f" {r['voxels']:,} | {r['rows']:,} | {r['seconds']:.1f} | {r['trace_s']:.1f} | "
+                     f"{r['loaded_gib']:.2f} | {r['peak_gib']:.2f} | {r['area']:.1f} ({100 * tot_err:+.1f} %) | "
+                     f"{100 * vis_err:+.1f} % | {r['true_area']:.1f} |")
+    lines += ["", "Goals (issue 14): 2 cm at most 4 GiB peak and 10 minutes; 5 cm at most 1.5 GiB.", ""]
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    for layout, marker in (("dense", "s"), ("sparse", "o")):
+        sel = [r for r in rows if r["layout"] == layout and r["fill"] == "none" and "skipped" not in r]
+        if not sel:
+            continue
+        h = [r["h"] * 100 for r in sel]
+        axes[0].plot(h, [r["peak_gib"] for r in sel], marker=marker, label=layout)
+        axes[1].plot(h, [r["seconds"] for r in sel], marker=marker, label=layout)
+    for layout, fill, marker in (("sparse", "none", "o"), ("sparse", "layer", "s"), ("dense", "none", "^"),
+                                 ("dense", "layer", "v")):
+        sel = [r for r in rows if r["layout"] == layout and r["fill"] == fill and "skipped" not in r]
+        h = [r["h"] * 100 for r in sel]
+        axes[2].plot(h, [100 * (r["area"] - r["true_area"]) / r["true_area"] for r in sel], marker=marker,
+                     label=f"{layout}, fill {fill}")
+    axes[0].axhline(4, color="grey", ls="--", lw=0.8)
+    axes[0].axhline(1.5, color="grey", ls=":", lw=0.8)
+    titles = ("Peak memory (goal lines 4 and 1.5 GiB)", "voxelize wall time", "Total leaf area error")
+    ylabels = ("peak RSS, GiB", "seconds", "error, %")
+    for ax, title, yl in zip(axes, titles, ylabels):
+        ax.set_xscale("log")
+        ax.set_xlabel("voxel size, cm")
+        ax.set_ylabel(yl)
+        ax.set_title(title)
+        ax.legend()
+    axes[2].axhline(0, color="grey", lw=0.8)
+    fig.suptitle("Synthetic oak, two TLS scans: memory, time and accuracy against voxel size")
+    fig.tight_layout()
+    save_figure(fig, args.png)
+
+
+if __name__ == "__main__":
+    main()
