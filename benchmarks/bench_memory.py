@@ -105,7 +105,11 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "memory.md"))
     ap.add_argument("--png", default=str(ROOT / "docs" / "img" / "memory_voxel_size.png"))
     ap.add_argument("--child", nargs=4, metavar=("CACHE", "H", "LAYOUT", "FILL"), help=argparse.SUPPRESS)
+    ap.add_argument("--simulate", metavar="CACHE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.simulate:
+        print(json.dumps({"seconds": simulate(Path(args.simulate))}))
+        return
     if args.child:
         cache, h, layout, fill = args.child
         print(json.dumps(child(cache, float(h), layout, fill)))
@@ -114,7 +118,13 @@ def main(argv=None):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         cache = Path(tmp) / "scans.pkl"
-        t_sim = simulate(cache)
+        # every heavy step in its own process: a child's peak RSS counts from the RSS of the process that
+        # started it (Linux keeps the high-water mark across exec), so this one stays small
+        out = subprocess.run([sys.executable, __file__, "--simulate", str(cache)], capture_output=True, text=True,
+                             cwd=ROOT)
+        if out.returncode != 0:
+            raise SystemExit(f"simulating the scans failed:\n{out.stderr[-3000:]}")
+        t_sim = json.loads(out.stdout.strip().splitlines()[-1])["seconds"]
         for h in [float(v) for v in args.sizes.split(",")]:
             dense_gib = (np.prod(np.ceil(np.array([15.0, 15.0, 14.0]) / h)) * 16 * 8 * 3 / 1024**3)
             for layout, fill in CONFIGS:

@@ -14,14 +14,19 @@ from voxlidar.safeio import save_figure
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
 
-__all__ = ["plot_result", "plot_traces", "plot_waveforms", "render_traces", "trace_paths"]
+__all__ = ["plot_result", "plot_traces", "plot_waveforms", "render_traces", "settings_caption", "trace_paths"]
 
 
-def _save(fig, path) -> Path:
-    """Lay out, write (format by suffix, atomically) and close a figure."""
+def _save(fig, path, caption: str | None = None) -> Path:
+    """Lay out, write (format by suffix, atomically) and close a figure; ``caption`` goes under the axes."""
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
+    if caption:
+        lines = caption.count("\n") + 1
+        fig.tight_layout(rect=(0, 0.035 * lines, 1, 1))
+        fig.text(0.01, 0.01, caption, fontsize=6.5, ha="left", va="bottom", color="0.25")
+    else:
+        fig.tight_layout()
     out = save_figure(fig, Path(path))
     plt.close(fig)
     return out
@@ -43,7 +48,8 @@ def trace_paths(result, top: float):
         yield p
 
 
-def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis=True) -> Path:
+def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis=True,
+                   caption: str | None = None) -> Path:
     """Overlay waveforms, drawn against height above ground when ``ground_time_ns`` is given.
 
     Parameters
@@ -52,6 +58,9 @@ def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis
     path : PNG path (written atomically)
     ground_time_ns : float, optional
         Ground return time on the beam axis; the x axis becomes height (m).
+    caption : str, optional
+        Text under the axes; default the settings of the first curve that is
+        a SimulationResult (:func:`settings_caption`).
     """
     import matplotlib
 
@@ -82,7 +91,10 @@ def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis
     if title:
         ax.set_title(title, fontsize=10)
     ax.legend(fontsize=8)
-    return _save(fig, path)
+    if caption is None:
+        caption = next((settings_caption(item[1].settings) for item in curves
+                        if len(item) == 2 and getattr(item[1], "settings", None)), None)
+    return _save(fig, path, caption)
 
 
 def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: float = 8.0,
@@ -139,6 +151,38 @@ def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: 
                   colorbar=("Greens", -1.5, 1.0, "voxels: log10 LAD (m²/m³)"))
 
 
+def settings_caption(settings: dict) -> str:
+    """The run's settings in two lines, for a figure's caption.
+
+    Examples
+    --------
+    >>> print(settings_caption({"sensor": {"name": "ahab-chiroptera-i", "altitude_m": 400, "off_nadir_deg": 15,
+    ...       "divergence_mrad": 0.5}, "mode": "exact", "detect": "nee", "photons": 1000, "seed": 3,
+    ...       "max_order": 3, "hotspot": True, "target": [1.0, 2.0],
+    ...       "scene": {"voxel_size": 0.2, "n_voxels": 10, "leaf_angle": {"name": "uniform"}}}))
+    sensor ahab-chiroptera-i, 400 m, 15 deg off nadir, 0.5 mrad; aimed at x 1.00, y 2.00 m
+    exact/nee, 1,000 photons, seed 3, up to 3 scatterings, hot spot on; scene 10 voxels of 0.2 m, leaf angles uniform
+    """
+    sn = settings.get("sensor", {})
+    sc = settings.get("scene", {})
+    parts = [f"sensor {sn.get('name', '?')}"]
+    for key, unit in (("altitude_m", "m"), ("off_nadir_deg", "deg off nadir"), ("divergence_mrad", "mrad")):
+        if key in sn:
+            parts.append(f"{sn[key]:g} {unit}")
+    line1 = ", ".join(parts)
+    target = settings.get("target")
+    if target is not None and len(target) >= 2:
+        line1 += f"; aimed at x {target[0]:.2f}, y {target[1]:.2f} m"
+    la = sc.get("leaf_angle", {})
+    line2 = (f"{settings.get('mode', '?')}/{settings.get('detect', '?')}, {settings.get('photons', 0):,} photons, "
+             f"seed {settings.get('seed', '?')}, up to {settings.get('max_order', '?')} scatterings, hot spot "
+             f"{'on' if settings.get('hotspot') else 'off'}")
+    if sc:
+        line2 += (f"; scene {sc.get('n_voxels', 0):,} voxels of {sc.get('voxel_size', float('nan')):g} m, "
+                  f"leaf angles {la.get('name', '?') if isinstance(la, dict) else la}")
+    return line1 + "\n" + line2
+
+
 def plot_result(res, path) -> Path:
     """Waveform (total and per order) as a PNG, written atomically."""
     import matplotlib
@@ -158,7 +202,7 @@ def plot_result(res, path) -> Path:
     ax.set_xlabel("time after emission (ns)")
     ax.set_ylabel("received power (fraction of emitted energy / ns)")
     ax.legend(fontsize=8)
-    return _save(fig, path)
+    return _save(fig, path, settings_caption(s))
 
 
 def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
@@ -191,7 +235,4 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.set_title(f"{len(res.traces)} photon paths")
-    path = Path(path)
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return _save(fig, path, settings_caption(res.settings))

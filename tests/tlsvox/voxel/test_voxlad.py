@@ -106,12 +106,19 @@ def test_bad_choices_list_valid_ones(box_scans):
         voxelize(box_scans, ground="flat", progress=False)
 
 
-def test_cli_in_process(box_scans, tmp_path, capsys):
+@pytest.fixture
+def box_files(box_scans, tmp_path):
+    """The box scans written as LAZ files (with their sidecars); their paths."""
     paths = []
     for s in box_scans:
         p = tmp_path / f"{s.name}.laz"
         s.write(p)
         paths.append(str(p))
+    return paths
+
+
+def test_cli_in_process(box_files, tmp_path, capsys):
+    paths = box_files
     out = tmp_path / "scene.npz"
     vox = tmp_path / "scene.vox"
     rc = cli_main(paths + ["--voxel-size", "0.5", "--leaf-angle", "spherical", "--estimator", "bcmle",
@@ -215,12 +222,8 @@ def test_bounds_are_taken_as_given(box_scans):
     assert res.scene.meta["leaf_angle"] == {"name": "uniform"} == res.scene.leaf_angle.to_dict()
 
 
-def test_cli_plan_layout_and_leaf_angle_note(box_scans, tmp_path, capsys):
-    paths = []
-    for s in box_scans:
-        p = tmp_path / f"{s.name}.laz"
-        s.write(p)
-        paths.append(str(p))
+def test_cli_plan_layout_and_leaf_angle_note(box_files, tmp_path, capsys):
+    paths = box_files
     out = tmp_path / "scene.npz"
     rc = cli_main(paths + ["--voxel-size", "0.1", "--ground", "none", "--plan", "-o", str(out), "-q"])
     text = capsys.readouterr().out
