@@ -139,7 +139,8 @@ def check_scan(scan: Scan, *, min_points: int = 2, require_reflectance: bool = F
 
 def scan_format(path: Path, format=None) -> ScanFormat:
     """The format of a point-cloud file: ``format`` when given, else its content
-    (LAS/LAZ and PLY by their first bytes; an ``.xyz`` whose rows read as
+    (LAS/LAZ, PLY and PCD by their first bytes; XYZ, XYZI and PTS text by their
+    first lines, whichever of the three the suffix says; an ``.xyz`` whose rows read as
     pulse-grouped, see :func:`tlsvox.multireturn.looks_pulse_grouped`), else
     its suffix."""
     kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
@@ -147,7 +148,11 @@ def scan_format(path: Path, format=None) -> ScanFormat:
         return ScanFormat.LAS
     if kind == "ply":
         return ScanFormat.PLY
+    if kind == "pcd":
+        return ScanFormat.PCD
     fmt = ScanFormat.from_path(path) if format is None else ScanFormat.parse(format)
+    if kind == "text" and format is None and fmt in _TEXT_FORMATS:
+        fmt = _text_layout(path) or fmt
     if fmt is ScanFormat.XYZ and kind == "text" and format is None:
         from tlsvox.multireturn import looks_pulse_grouped
 
@@ -159,9 +164,50 @@ def scan_format(path: Path, format=None) -> ScanFormat:
     return fmt
 
 
+_TEXT_FORMATS = (ScanFormat.XYZ, ScanFormat.XYZI, ScanFormat.PTS)
+
+
+def _text_layout(path: Path) -> "ScanFormat | None":
+    """XYZ, XYZI or PTS from a text file's first lines (a PTS starts with its point count);
+    None when they do not say."""
+    with open(path, "rb") as fh:
+        lines = [ln.split() for ln in fh.read(4096).decode("utf-8", "replace").splitlines() if ln.strip()]
+    if len(lines) < 2:
+        return None
+    first, second = lines[0], lines[1]
+    if len(first) == 1 and first[0].isdigit() and len(second) >= 3:
+        return ScanFormat.PTS
+    try:
+        [float(v) for v in first]
+    except ValueError:
+        return None
+    return {3: ScanFormat.XYZ, 4: ScanFormat.XYZI}.get(len(first))
+
+
+def _read_text(path: Path, fmt: ScanFormat, *, scan_id: int, name: str | None) -> Scan:
+    """XYZ (x y z), XYZI (x y z intensity) or PTS (a count line, then x y z [intensity [r g b]]), in float64."""
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: the check below says it in one line
+            rows = np.loadtxt(path, skiprows=1 if fmt is ScanFormat.PTS else 0, ndmin=2, dtype=np.float64,
+                              comments="#")
+    except ValueError as err:
+        raise InputError(f"scan file {str(path)!r} is not {fmt.value.upper()} text (rows of numbers): "
+                         f"{str(err).splitlines()[0]}; check the file") from None
+    if rows.size == 0 or rows.shape[1] < 3:
+        raise InputError(f"scan file {str(path)!r} holds no points that could be read as {fmt.value.upper()} "
+                         "(rows of at least x y z); check that the file is such a point cloud")
+    fields = {}
+    if fmt is not ScanFormat.XYZ and rows.shape[1] >= 4 and np.any(rows[:, 3] > 0):
+        fields["intensity"] = rows[:, 3]
+    return Scan(xyz=rows[:, :3], scan_id=scan_id, name=name or path.stem, **fields)
+
+
 def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = None,
                 scan_id: int = 0, name: str | None = None) -> Scan:
-    """Read a PLY, PCD, XYZ, XYZI or PTS file with Open3D into a :class:`Scan`.
+    """Read a PLY or PCD file with Open3D, or XYZ, XYZI or PTS text, into a :class:`Scan`.
 
     Coordinates are taken as the scanner frame.  Attributes named
     ``reflectance_db``/``reflectance`` (dB), ``intensity``, ``return_number``,
@@ -192,6 +238,8 @@ def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" 
         raise ScanFileError(f"scan file {str(path)!r} does not exist")
     if path.stat().st_size == 0:
         raise InputError(f"scan file {str(path)!r} is empty (0 bytes); re-export the scan")
+    if fmt in _TEXT_FORMATS:
+        return _read_text(path, fmt, scan_id=scan_id, name=name)
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         pc = o3d.t.io.read_point_cloud(str(path), format=fmt.value, remove_nan_points=False,
                                        remove_infinite_points=False)
@@ -201,12 +249,6 @@ def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" 
                 f"{fmt.value.upper()}; check that the file is a {fmt.value.upper()} point cloud"
             )
         xyz = pc.point.positions.numpy().astype(np.float64)
-        if fmt in (ScanFormat.XYZ, ScanFormat.XYZI, ScanFormat.PTS):
-            # the tensor text readers parse float32; re-read positions in double
-            legacy = o3d.io.read_point_cloud(str(path), format=fmt.value, remove_nan_points=False,
-                                             remove_infinite_points=False)
-            if len(legacy.points) == len(xyz):
-                xyz = np.asarray(legacy.points, dtype=np.float64)
     fields = {}
     for key in pc.point:
         if key == "positions":

@@ -51,12 +51,13 @@ def _key(path: Path) -> tuple:
 #: magic bytes of the file kinds voxlidar reads, and what each is
 MAGIC = ((b"LASF", "las", "a LAS/LAZ file"), (b"PK\x03\x04", "npz", "a NumPy NPZ (zip) file"),
          (b"VOXEL SPACE", "vox", "an AMAPVox .vox file"), (b"ply", "ply", "a PLY file"),
-         (b"PulseWavesPulse", "pls", "a PulseWaves .pls file"), (b"\x93NUMPY", "npy", "a NumPy .npy file"))
+         (b"PulseWavesPulse", "pls", "a PulseWaves .pls file"), (b"\x93NUMPY", "npy", "a NumPy .npy file"),
+         (b"# .PCD", "pcd", "a PCD point cloud"), (b"VERSION ", "pcd", "a PCD point cloud"))
 
 
 def file_kind(path) -> str:
     """What a file is by its first bytes, not its name: ``las``, ``npz``, ``vox``, ``ply``,
-    ``pls``, ``npy``, ``empty``, ``text`` or ``unknown``.
+    ``pls``, ``npy``, ``pcd``, ``empty``, ``text`` or ``unknown``.
 
     >>> import tempfile
     >>> p = Path(tempfile.mkdtemp()) / "scan.txt"

@@ -155,3 +155,25 @@ def test_a_scene_is_read_by_content(tmp_path):
     (tmp_path / "v.npz").write_text("VOXEL SPACE\n")
     with pytest.raises(InputError, match="AMAPVox .vox file"):
         Scene.load(tmp_path / "v.npz")
+
+
+def test_text_and_pcd_files_are_read_by_content(tmp_path, rng):
+    """A PTS saved as .xyz, an XYZI saved as .pts and a PCD saved as .ply are read as what they hold."""
+    import open3d as o3d
+
+    from voxlidar.safeio import file_kind
+
+    xyz = np.array([[1.5, 2.25, 3.0], [4.0, 5.0, 6.5], [7.0, 8.0, 9.25]])
+    inten = np.array([10.0, 20.0, 30.0])
+    rows = "\n".join(f"{x:g} {y:g} {z:g} {i:g}" for (x, y, z), i in zip(xyz, inten)) + "\n"
+    (tmp_path / "a.xyz").write_text("3\n" + rows)  # really PTS
+    (tmp_path / "b.pts").write_text(rows)  # really XYZI
+    for name in ("a.xyz", "b.pts"):
+        scan = read_any(tmp_path / name)
+        np.testing.assert_allclose(scan.xyz, xyz)
+        np.testing.assert_allclose(scan.intensity, inten)
+    cloud = rng.uniform(-5, 5, (50, 3))
+    o3d.t.io.write_point_cloud(str(tmp_path / "c.pcd"), _tensor_cloud(cloud))
+    (tmp_path / "c.ply").write_bytes((tmp_path / "c.pcd").read_bytes())
+    assert file_kind(tmp_path / "c.ply") == "pcd"
+    np.testing.assert_allclose(read_any(tmp_path / "c.ply").xyz, cloud, atol=1e-6)
