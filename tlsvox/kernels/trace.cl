@@ -67,17 +67,23 @@
 #define ADD(p, v) (*(p) += (v))
 #endif
 
-inline void trace_one(
-    const long b,
-    __global const double *origin, __global const double *direction,
-    __global const long *echo_start, __global const double *echo_range,
-    __global const double *echo_weight, __global const uchar *echo_kind,
-    __global const double *tail, __global const double *max_range,
-    __global const double *gval,
-    const double lx, const double ly, const double lz, const double h,
-    const int nx, const int ny, const int nz, const double fx_scale,
-    __global const int *brick_start, __global const ushort *brick_key,
-    __global double *acc, __global double *bacc, __global ulong *steps)
+/* The beams, the grid and the layout: the kernel's inputs, handed on to the per-beam body
+ * as they are (OpenCL C 1.2 has no struct of global pointers) */
+#define TRACE_INPUTS \
+    __global const double *origin, __global const double *direction, \
+    __global const long *echo_start, __global const double *echo_range, \
+    __global const double *echo_weight, __global const uchar *echo_kind, \
+    __global const double *tail, __global const double *max_range, \
+    __global const double *gval, \
+    const double lx, const double ly, const double lz, const double h, \
+    const int nx, const int ny, const int nz, const double fx_scale, \
+    __global const int *brick_start, __global const ushort *brick_key
+#define TRACE_INPUT_NAMES \
+    origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail, max_range, gval, \
+    lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key
+
+inline void trace_one(const long b, TRACE_INPUTS,
+                      __global double *acc, __global double *bacc, __global ulong *steps)
 {
     const double ox = origin[3 * b], oy = origin[3 * b + 1], oz = origin[3 * b + 2];
     const double dx = direction[3 * b], dy = direction[3 * b + 1], dz = direction[3 * b + 2];
@@ -239,24 +245,13 @@ inline void trace_one(
 }
 
 __kernel void trace_beams(
-    const long b_begin, const long b_end,
-    __global const double *origin, __global const double *direction,
-    __global const long *echo_start, __global const double *echo_range,
-    __global const double *echo_weight, __global const uchar *echo_kind,
-    __global const double *tail, __global const double *max_range,
-    __global const double *gval,
-    const double lx, const double ly, const double lz, const double h,
-    const int nx, const int ny, const int nz, const double fx_scale,
-    const long n_rows, const long n_bricks,
-    __global const int *brick_start, __global const ushort *brick_key,
+    const long b_begin, const long b_end, TRACE_INPUTS, const long n_rows, const long n_bricks,
     __global double *acc, __global double *bacc, __global ulong *steps)
 {
 #ifdef USE_ATOMICS
     const long b = b_begin + get_global_id(0);
     if (b >= b_end) return;
-    trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
-              max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key,
-              acc, bacc, steps);
+    trace_one(b, TRACE_INPUT_NAMES, acc, bacc, steps);
 #else
     const long c = get_global_id(0);
     const long nc = get_global_size(0);
@@ -264,8 +259,6 @@ __kernel void trace_beams(
     __global double *mine = acc + c * n_rows * NF;
     __global double *bmine = bacc + c * n_bricks * NB;
     for (long b = b_begin + c; b < b_end; b += nc)
-        trace_one(b, origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail,
-                  max_range, gval, lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key,
-                  mine, bmine, steps + c);
+        trace_one(b, TRACE_INPUT_NAMES, mine, bmine, steps + c);
 #endif
 }

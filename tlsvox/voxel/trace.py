@@ -541,7 +541,7 @@ class Tracer:
                 kernel(q, gsize, lsize, np.int64(b0), np.int64(b1), *bufs,
                        np.float64(lo[0]), np.float64(lo[1]), np.float64(lo[2]),
                        np.float64(grid.voxel_size), np.int32(nx), np.int32(ny), np.int32(nz),
-                       np.float64(fx_scale), np.int64(n_rows), np.int64(n_bricks), *layout,
+                       np.float64(fx_scale), *layout, np.int64(n_rows), np.int64(n_bricks),
                        acc_dev, bacc_dev, steps_dev)
                 q.finish()
                 if bar is not None:
