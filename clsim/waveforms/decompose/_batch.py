@@ -29,6 +29,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
 from clsim.errors import InputError
+from clsim.waveforms.decompose._batch_cl import device_fitter
 from clsim.waveforms.decompose._batch_fit import fit_group
 from clsim.waveforms.decompose._checks import _positive
 from clsim.waveforms.decompose._fitting import _MIN_SIGMA_SAMPLES
@@ -186,9 +187,10 @@ class _State:
         return self.on.sum(axis=1)
 
 
-def _fit_rows(rows, a, m, s, b, y, use, cens, noise, fit_baseline=True):
+def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True):
     """Fit rows (R,) with start (R, K) arrays, grouped by the number of active echoes
-    (``a`` NaN = inactive). Returns per-row results padded back to (R, K)."""
+    (``a`` NaN = inactive), each group one call of ``fit`` (:func:`_group_fitter`).
+    Returns per-row results padded back to (R, K)."""
     rk = np.isfinite(a).sum(axis=1)
     R, K = a.shape
     out_a, out_m, out_s = np.full((R, K), np.nan), np.full((R, K), np.nan), np.full((R, K), np.nan)
@@ -203,17 +205,14 @@ def _fit_rows(rows, a, m, s, b, y, use, cens, noise, fit_baseline=True):
         # compact the active echoes to the first k columns
         order = np.argsort(~on, axis=1, kind="stable")[:, :k]
         take = lambda v: np.take_along_axis(v[sel], order, axis=1)  # noqa: E731
-        r = rows[sel]
-        fit = fit_group(y[r], use[r], take(a), take(m), take(s), b[sel],
-                        cens=None if cens is None else cens[r], fit_baseline=fit_baseline,
-                        noise=noise[r])
+        res = fit(rows[sel], take(a), take(m), take(s), b[sel], fit_baseline)
         ii = sel[:, None]
-        out_a[ii, order], out_m[ii, order], out_s[ii, order] = fit.a, fit.m, fit.s
+        out_a[ii, order], out_m[ii, order], out_s[ii, order] = res.a, res.m, res.s
         for q in range(3):
-            out_se[ii, q, order] = fit.se[:, q * k:(q + 1) * k]
-        out_b[sel], out_rss[sel], out_neff[sel] = fit.b, fit.rss, fit.n_eff
+            out_se[ii, q, order] = res.se[:, q * k:(q + 1) * k]
+        out_b[sel], out_rss[sel], out_neff[sel] = res.b, res.rss, res.n_eff
         if fit_baseline:
-            out_bse[sel] = fit.se[:, 3 * k]
+            out_bse[sel] = res.se[:, 3 * k]
     return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff
 
 
@@ -244,7 +243,8 @@ def _resolved_rows(a, m, s, on, a1, m1, s1):
 def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
                     pulse_sigma_ns=None, false_alarm: float = FALSE_ALARM,
                     saturation="auto", max_components: int = 8,
-                    add_components: bool = True, chunk: int = 2000) -> EchoTable:
+                    add_components: bool = True, chunk: int = 2000,
+                    device=None) -> EchoTable:
     """Gaussian decomposition of many waveforms at once (see the module docstring).
 
     Parameters
@@ -272,6 +272,12 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         Add resolved echoes at residual features while the BIC falls.
     chunk : int
         Waveforms processed together (memory: about ``chunk * n * 100`` bytes).
+    device : str, voxlidar.devices.DeviceInfo, pyopencl.Device or None
+        Where the Levenberg-Marquardt fits run, one waveform per work-item
+        (:mod:`._batch_cl`): None (default) ``VOXLIDAR_DEVICE``,
+        ``PYOPENCL_CTX`` or the best OpenCL device that builds the fitting
+        kernel, else NumPy; ``"numpy"``: the NumPy path (:mod:`._batch_fit`);
+        ``"0:1"``, ``"cpu"``, ``"gpu"``, ``"intel"``...: that device.
 
     Returns
     -------
@@ -284,6 +290,9 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         Empty input, a waveform under 4 samples, NaN or inf, non-positive
         ``dt_ns`` or ``false_alarm``, bad ``saturation``, ``pulse`` and
         ``pulse_sigma_ns`` both given.
+    DeviceError
+        ``device`` (or ``VOXLIDAR_DEVICE`` / ``PYOPENCL_CTX``) names a device
+        that is absent or cannot build the fitting kernel.
 
     Examples
     --------
@@ -300,6 +309,7 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         raise InputError(f"max_components must be >= 1; got {max_components!r}")
     if pulse is not None and pulse_sigma_ns is not None:
         raise InputError("give pulse (a measured response) or pulse_sigma_ns, not both")
+    fitter = device_fitter(device)
     y_all, len_all = _pad(waveforms)
     n_all = y_all.shape[0]
     t0 = np.broadcast_to(np.asarray(t0_ns, dtype=float), (n_all,))
@@ -314,7 +324,8 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
     for lo in range(0, n_all, step):
         hi = min(n_all, lo + step)
         parts.append(_decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl,
-                                      fa, saturation, int(max_components), add_components))
+                                      fa, saturation, int(max_components), add_components,
+                                      fitter))
     return _table(parts, t0, dt)
 
 
@@ -347,7 +358,21 @@ def _table(parts, t0, dt):
                      **{k: np.concatenate(v) for k, v in per.items()})
 
 
-def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components):
+def _group_fitter(device, y, use, cens, noise):
+    """``fit(rows, a, m, s, b, fit_baseline) -> GroupFit`` for rows of a chunk: one
+    launch on the OpenCL device (its samples uploaded once), else :func:`fit_group`."""
+    if device is not None:
+        bound = device.bind(y, use, cens, noise)
+        return lambda rows, a, m, s, b, fb: bound.fit(rows, a, m, s, b, fit_baseline=fb)
+
+    def fit(rows, a, m, s, b, fb):
+        return fit_group(y[rows], use[rows], a, m, s, b, fit_baseline=fb, noise=noise[rows],
+                         cens=None if cens is None else cens[rows])
+
+    return fit
+
+
+def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, device):
     n_rows, n = y.shape
     rows = np.arange(n_rows)
     inside = np.arange(n) < lengths[:, None]
@@ -412,6 +437,7 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components):
     st.on = cand
     st.b = b.copy()
     st.noise = sigma
+    st.fit = _group_fitter(device, y, use, cens, sigma)
     _linear_start(st, y, use, cens)
     start = (st.a.copy(), st.m.copy(), st.s.copy(), st.on.copy(), st.b.copy())
     # fit, prune, add
@@ -466,7 +492,7 @@ def _refit(st, rows, y, use, cens):
     if rows.size == 0:
         return
     a = np.where(st.on[rows], st.a[rows], np.nan)
-    res = _fit_rows(rows, a, st.m[rows], st.s[rows], st.b[rows], y, use, cens, st.noise)
+    res = _fit_rows(st.fit, rows, a, st.m[rows], st.s[rows], st.b[rows])
     _store(st, rows, *res)
 
 
@@ -517,8 +543,8 @@ def _rescue(st, start, y, use, cens, lengths):
         return
     best = np.argmax(np.where(on0[rows], a0[rows], -np.inf), axis=1)
     ii = np.arange(rows.size)
-    res = _fit_rows(rows, a0[rows, best][:, None], m0[rows, best][:, None],
-                    s0[rows, best][:, None], b0[rows], y, use, cens, st.noise)
+    res = _fit_rows(st.fit, rows, a0[rows, best][:, None], m0[rows, best][:, None],
+                    s0[rows, best][:, None], b0[rows])
     a, m, s = res[0][:, 0], res[1][:, 0], res[2][:, 0]
     n = lengths[rows]
     ok = (np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES) & (s <= n) & (m >= -s)
@@ -594,8 +620,8 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         tm, ts = st.m[rows].copy(), st.s[rows].copy()
         ii = np.arange(rows.size)
         ta[ii, free], tm[ii, free], ts[ii, free] = a1, m1, s1
-        fa, fm_, fs_, fse, fb, fbse, frss, fneff = _fit_rows(rows, ta, tm, ts, st.b[rows],
-                                                             y, use, cens, sigma)
+        fa, fm_, fs_, fse, fb, fbse, frss, fneff = _fit_rows(st.fit, rows, ta, tm, ts,
+                                                             st.b[rows])
         k_old = st.k()[rows]
         bic_old = _bic(st.rss[rows], st.n_eff[rows], 3 * k_old + 1)
         bic_new = _bic(frss, fneff, 3 * (k_old + 1) + 1)

@@ -198,20 +198,32 @@ def fit_group(y, w, a, m, s, b, *, cens=None, fit_baseline=True, max_iter=40, to
             done |= np.any((sa <= 0.25) | (a[act] <= 0.0) | (ma < first[act, None] - sa)
                            | (ma > last[act, None] + sa), axis=1)
             act = act[~done]
-        # standard errors from s^2 (J^T J)^-1 at the solution
         n_eff = w.sum(axis=1)
         if cens is not None:
             n_eff = n_eff - (cens & w).sum(axis=1)
-        dof = np.maximum(n_eff - p, 0)
-        se = np.full((g, 3 * k + 1), np.nan)
+        se = standard_errors(hess, cost, n_eff, k)
+    return GroupFit(a, m, s, b, cost, se, n_eff, n_iter)
+
+
+def standard_errors(hess, rss, n_eff, k):
+    """(G, 3K + 1) standard errors from ``s^2 (J^T J)^-1``, ``s^2 = RSS / (n - P)``.
+
+    ``hess`` (G, P, P) is ``J^T J`` at the solution (P = 3K + 1, or 3K with the
+    baseline held: its error is then NaN); NaN where a diagonal is not positive
+    or no degree of freedom is left.
+    """
+    g, p = hess.shape[0], hess.shape[1]
+    dof = np.maximum(n_eff - p, 0)
+    se = np.full((g, 3 * k + 1), np.nan)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         d = np.diagonal(hess, axis1=1, axis2=2)
         okh = np.all(d > 0, axis=1) & (dof > 0)
         if okh.any():
-            hh = hess[okh] + 1e-12 * d[okh].max(axis=1)[:, None, None] * eye
+            hh = hess[okh] + 1e-12 * d[okh].max(axis=1)[:, None, None] * np.eye(p)
             try:
                 cov = np.linalg.inv(hh)
             except np.linalg.LinAlgError:
                 cov = np.linalg.pinv(hh)
-            var = np.diagonal(cov, axis1=1, axis2=2) * (cost[okh] / dof[okh])[:, None]
+            var = np.diagonal(cov, axis1=1, axis2=2) * (rss[okh] / dof[okh])[:, None]
             se[np.ix_(okh, np.arange(p))] = np.sqrt(np.clip(var, 0.0, None))
-    return GroupFit(a, m, s, b, cost, se, n_eff, n_iter)
+    return se

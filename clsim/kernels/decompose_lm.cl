@@ -1,0 +1,244 @@
+/* Levenberg-Marquardt fits of Gaussian sums, one work-item per waveform.
+ *
+ * The OpenCL twin of clsim/waveforms/decompose/_batch_fit.py (the NumPy path):
+ * the same model, censoring, damping (Nielsen 1999), trust region and stopping
+ * rules, in float32.  Every waveform of a launch has K echoes (compile-time,
+ * -DK) and a fitted (-DFIT_BASELINE=1) or held baseline.  Parameters are laid
+ * out [a_1..a_K, m_1..m_K, s_1..s_K, b] (samples); the Jacobian is never
+ * stored: each sample adds its row to the normal matrix J^T J and to J^T r.
+ *
+ * Portability: no infinity or NaN is created or relied upon (a residual sum
+ * that overflows fails the `<=` test that accepts a step; a zero pivot freezes
+ * its parameter); build without -cl-fast-relaxed-math.
+ */
+#include "common.cl"
+
+#ifndef K
+#error "build with -DK=<echoes per waveform>"
+#endif
+#ifndef FIT_BASELINE
+#define FIT_BASELINE 1
+#endif
+
+#define NP (3 * K + 1)          /* parameters stored */
+#define NF (3 * K + FIT_BASELINE) /* parameters fitted */
+#define USE 1                   /* flag bits of a sample: it counts */
+#define CENS 2                  /* it is censored (clipped) */
+#define BIG 3.0e38f             /* "no value": above any residual sum that passes */
+
+CLSIM_INLINE float hsum8(const float8 v)
+{
+    const float4 a = v.lo + v.hi;
+    return (a.x + a.y) + (a.z + a.w);
+}
+
+/* Residual sum of squares at q and, when want, J^T J (h, NF x NF, full) and J^T r (g).
+ * A censored sample counts only where the model falls below it (Tobin 1958).
+ * Eight samples at a time (float8: one SIMD register on a CPU); rows are padded
+ * to a multiple of 8 with samples that do not count. */
+CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const int n,
+                            const float *q, const int want, float *h, float *g)
+{
+    float inv_s[K], a_s[K];
+    for (int k = 0; k < K; ++k) {
+        inv_s[k] = 1.0f / q[2 * K + k];
+        a_s[k] = q[k] * inv_s[k];
+    }
+    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    float8 hv[NF * (NF + 1) / 2], gv[NF];
+    float8 cost = (float8)(0.0f);
+    if (want) {
+        for (int i = 0; i < NF * (NF + 1) / 2; ++i) hv[i] = (float8)(0.0f);
+        for (int i = 0; i < NF; ++i) gv[i] = (float8)(0.0f);
+    }
+    for (int i0 = 0; i0 < n; i0 += 8) {
+        const int8 f = convert_int8(vload8(0, fl + i0));
+        const float8 t = (float8)((float)i0) + lane;
+        float8 e[K], z[K];
+        float8 model = (float8)(q[3 * K]);
+        for (int k = 0; k < K; ++k) {
+            z[k] = (t - q[K + k]) * inv_s[k];
+            e[k] = exp(-0.5f * z[k] * z[k]);
+            model += q[k] * e[k];
+        }
+        float8 r = model - vload8(0, y + i0);
+        const int8 keep = ((f & USE) != 0) & ~(((f & CENS) != 0) & (r >= 0.0f));
+        r = select((float8)(0.0f), r, keep);
+        cost += r * r;
+        if (!want) continue;
+        const float8 kf = select((float8)(0.0f), (float8)(1.0f), keep);
+        float8 d[NF];
+        for (int k = 0; k < K; ++k) {
+            d[k] = e[k] * kf;
+            d[K + k] = d[k] * a_s[k] * z[k];
+            d[2 * K + k] = d[K + k] * z[k];
+        }
+#if FIT_BASELINE
+        d[3 * K] = kf;
+#endif
+        int idx = 0;
+        for (int p = 0; p < NF; ++p) {
+            gv[p] += d[p] * r;
+            for (int c = p; c < NF; ++c) hv[idx++] += d[p] * d[c];
+        }
+    }
+    if (want) {
+        int idx = 0;
+        for (int p = 0; p < NF; ++p) {
+            g[p] = hsum8(gv[p]);
+            for (int c = p; c < NF; ++c) {
+                const float v = hsum8(hv[idx++]);
+                h[p * NF + c] = v;
+                h[c * NF + p] = v;
+            }
+        }
+    }
+    return hsum8(cost);
+}
+
+/* Cholesky factorisation in place (lower triangle of c); 0 when not positive definite. */
+CLSIM_INLINE int cholesky(float *c)
+{
+    for (int j = 0; j < NF; ++j) {
+        float d = c[j * NF + j];
+        for (int k = 0; k < j; ++k) d -= c[j * NF + k] * c[j * NF + k];
+        if (!(d > 0.0f)) return 0;
+        d = sqrt(d);
+        c[j * NF + j] = d;
+        for (int i = j + 1; i < NF; ++i) {
+            float v = c[i * NF + j];
+            for (int k = 0; k < j; ++k) v -= c[i * NF + k] * c[j * NF + k];
+            c[i * NF + j] = v / d;
+        }
+    }
+    return 1;
+}
+
+/* Solve (L L^T) x = b with the factor from cholesky(); x may alias b. */
+CLSIM_INLINE void chol_solve(const float *c, const float *b, float *x)
+{
+    for (int i = 0; i < NF; ++i) {
+        float v = b[i];
+        for (int k = 0; k < i; ++k) v -= c[i * NF + k] * x[k];
+        x[i] = v / c[i * NF + i];
+    }
+    for (int i = NF - 1; i >= 0; --i) {
+        float v = x[i];
+        for (int k = i + 1; k < NF; ++k) v -= c[k * NF + i] * x[k];
+        x[i] = v / c[i * NF + i];
+    }
+}
+
+/* The damped normal matrix h + lam diag(h) (lam at least 1e-6) into c, scaled to a
+ * unit diagonal (Marquardt 1963: the same step, and float32 factorises it far more
+ * accurately than the raw matrix, whose diagonal spans many orders), with its
+ * right-hand side -g scaled alike; the step is x * sc.  A parameter whose diagonal
+ * is (relatively) zero is frozen: its row and column become the identity, its
+ * right-hand side zero, so it takes no step. */
+CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float *c, float *rhs,
+                         float *sc)
+{
+    float dmax = 0.0f;
+    for (int p = 0; p < NF; ++p) dmax = fast_max(dmax, h[p * NF + p]);
+    const float tiny = 1.0e-7f * dmax;
+    for (int p = 0; p < NF; ++p) sc[p] = h[p * NF + p] > tiny ? rsqrt(h[p * NF + p]) : 0.0f;
+    for (int p = 0; p < NF; ++p) {
+        for (int c2 = 0; c2 < NF; ++c2) c[p * NF + c2] = h[p * NF + c2] * sc[p] * sc[c2];
+        c[p * NF + p] = sc[p] > 0.0f ? 1.0f + fast_max(lam, 1.0e-6f) : 1.0f;
+        rhs[p] = -g[p] * sc[p];
+    }
+}
+
+/* One launch: waveform `row[w]` of the uploaded samples for each work-item w.
+ * q (G x NP) holds the start values and receives the fit; H (G x NF x NF)
+ * J^T J at the fit (for the standard errors, inverted in float64 on the host);
+ * stats (G x 2) the samples that count and the iterations. */
+kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
+                   global const int *row, global const int2 *span,
+                   global const float *noise, global float *Q, global float *RSS,
+                   global float *H, global int *stats, const int G, const int max_iter,
+                   const float tol)
+{
+    const int w = get_global_id(0);
+    if (w >= G) return;
+    global const float *y = Y + (size_t)row[w] * n;
+    global const uchar *fl = FL + (size_t)row[w] * n;
+    float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
+    float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
+    for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
+    const float first = (float)span[row[w]].x, last = (float)span[row[w]].y;
+    const float enough_noise = 0.01f * noise[row[w]] * noise[row[w]];
+    float cost = evaluate(y, fl, n, q, 1, h, g);
+    float lam = 1.0e-3f, nu = 2.0f;
+    int it = 0;
+    while (it < max_iter) {
+        ++it;
+        damped(h, g, lam, c, rhs, sc);
+        int done = 0;
+        if (!cholesky(c)) {
+            lam *= nu;
+            nu *= 2.0f;
+            if (lam > 1.0e8f) break;
+            continue;
+        }
+        chol_solve(c, rhs, step);
+        for (int p = 0; p < NF; ++p) step[p] *= sc[p];
+        /* trust region in the natural scales: no location moves more than
+         * 2 sigma + 1 sample, no width more than half of itself + 0.5 sample */
+        float ratio = 1.0f;
+        for (int k = 0; k < K; ++k) {
+            const float s = q[2 * K + k];
+            ratio = fast_max(ratio, fast_abs(step[K + k]) / (2.0f * s + 1.0f));
+            ratio = fast_max(ratio, fast_abs(step[2 * K + k]) / (0.5f * s + 0.5f));
+        }
+        for (int p = 0; p < NF; ++p) step[p] /= ratio;
+        for (int p = 0; p < NP; ++p) qt[p] = q[p] + (p < NF ? step[p] : 0.0f);
+        for (int k = 0; k < K; ++k)
+            qt[2 * K + k] = clamp(fast_abs(qt[2 * K + k]), 0.2f, (float)n);
+        const float ct = evaluate(y, fl, n, qt, 1, ht, gt);
+        /* predicted decrease of the RSS: -2 g.d - d.H.d */
+        float pred = 0.0f;
+        for (int p = 0; p < NF; ++p) {
+            float hd = 0.0f;
+            for (int c2 = 0; c2 < NF; ++c2) hd += h[p * NF + c2] * step[c2];
+            pred -= step[p] * (2.0f * g[p] + hd);
+        }
+        if (ct <= cost && ct < BIG) {
+            const float gain = cost - ct;
+            const float rho = pred > 0.0f ? clamp(gain / pred, 0.0f, 1.0f) : 0.0f;
+            const float x = 2.0f * rho - 1.0f;
+            lam *= fast_max(1.0f / 3.0f, 1.0f - x * x * x);
+            nu = 2.0f;
+            for (int p = 0; p < NP; ++p) q[p] = qt[p];
+            for (int p = 0; p < NF * NF; ++p) h[p] = ht[p];
+            for (int p = 0; p < NF; ++p) g[p] = gt[p];
+            cost = ct;
+            done = gain <= fast_max(tol * cost, enough_noise);
+        } else {
+            lam *= nu;
+            nu *= 2.0f;
+        }
+        /* MINPACK's xtol: the step under tol of the parameters' size */
+        float size2 = 0.0f, step2 = 0.0f;
+        for (int p = 0; p < 3 * K; ++p) {
+            size2 += q[p] * q[p];
+            step2 += step[p] * step[p];
+        }
+        done |= step2 <= tol * tol * size2;
+        done |= lam > 1.0e8f;
+        /* an echo collapsed or left the record: model selection takes over */
+        for (int k = 0; k < K; ++k) {
+            const float s = q[2 * K + k], m = q[K + k];
+            done |= (s <= 0.25f) | (q[k] <= 0.0f) | (m < first - s) | (m > last + s);
+        }
+        if (done) break;
+    }
+    /* J^T J at the solution: the host turns it into standard errors */
+    int n_eff = 0;
+    for (int i = 0; i < n; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);  /* n: padded */
+    for (int p = 0; p < NF * NF; ++p) H[(size_t)w * NF * NF + p] = h[p];
+    for (int p = 0; p < NP; ++p) Q[w * NP + p] = q[p];
+    RSS[w] = cost;
+    stats[2 * w] = n_eff;
+    stats[2 * w + 1] = it;
+}

@@ -1,0 +1,211 @@
+"""The Levenberg-Marquardt fits of :mod:`._batch_fit` on an OpenCL device.
+
+One work-item fits one waveform (``clsim/kernels/decompose_lm.cl``): the same
+model, censoring, damping, trust region and stopping rules as the NumPy path,
+in float32, with the normal matrix summed sample by sample instead of a stored
+Jacobian. A chunk's samples are uploaded once (:meth:`DeviceFitter.bind`);
+each group of waveforms with the same number of echoes is then one launch that
+sends only the row indices and the start values.
+"""
+
+from __future__ import annotations
+
+import time
+from importlib import resources
+
+import numpy as np
+
+from clsim.waveforms.decompose._batch_fit import _TOL, GroupFit, standard_errors
+
+#: Flag bits of a sample in the kernel: it counts; it is censored (clipped).
+_USE, _CENS = 1, 2
+
+
+def _source() -> tuple[str, str]:
+    kdir = resources.files("clsim") / "kernels"
+    return (kdir / "decompose_lm.cl").read_text(), f"-I{kdir}"
+
+
+def build_options(info, k: int, fit_baseline: bool) -> list[str]:
+    """``-D`` options of the fitting kernel: echoes per waveform and baseline fitted.
+
+    No ``-cl-fast-relaxed-math``: the kernel relies on a non-finite residual sum
+    failing the step's acceptance test."""
+    opts = [f"-DK={int(k)}", f"-DFIT_BASELINE={int(bool(fit_baseline))}", "-cl-mad-enable"]
+    if info.runtime.startswith("PoCL"):
+        opts.append("-DCLSIM_CLANG_BUILTINS")
+    return opts
+
+
+def probe_build(device) -> str | None:
+    """Build the fitting kernel (one echo) on a ``pyopencl.Device``; the device
+    layer's probe (:data:`voxlidar.devices.KERNEL_SETS`). Raises on a build failure."""
+    import pyopencl as cl
+
+    from voxlidar.devices import build_program, describe
+
+    src, inc = _source()
+    build_program(cl.Context([device]), src, [inc] + build_options(describe(device), 1, True))
+    return None
+
+
+class DeviceFitter:
+    """An OpenCL context, queue and the fitting programs built on one device.
+
+    Parameters
+    ----------
+    info : voxlidar.devices.DeviceInfo
+        A device that builds the ``decompose`` kernel set.
+    """
+
+    def __init__(self, info):
+        import pyopencl as cl
+
+        from voxlidar.devices import open_queue
+
+        self._cl = cl
+        self.info = info
+        self.context, self.queue = open_queue(info)
+        self._kernels = {}
+        self.build_seconds = 0.0
+
+    def kernel(self, k: int, fit_baseline: bool):
+        """The ``lm_fit`` kernel for ``k`` echoes (built once per fitter)."""
+        key = (int(k), bool(fit_baseline))
+        if key not in self._kernels:
+            from voxlidar.devices import build_program
+
+            src, inc = _source()
+            t0 = time.perf_counter()
+            prg = build_program(self.context, src, [inc] + build_options(self.info, *key))
+            self.build_seconds += time.perf_counter() - t0
+            self._kernels[key] = self._cl.Kernel(prg, "lm_fit")
+        return self._kernels[key]
+
+    def bind(self, y, use, cens, noise) -> "BoundFitter":
+        """Upload a chunk: samples (N, n), the samples that count and the censored
+        ones (N, n) bool, the noise sigma (N,)."""
+        return BoundFitter(self, y, use, cens, noise)
+
+
+class BoundFitter:
+    """A chunk's samples on the device; :meth:`fit` fits any of its rows."""
+
+    def __init__(self, fitter: DeviceFitter, y, use, cens, noise):
+        cl = fitter._cl
+        n = y.shape[1]
+        first = np.argmax(use, axis=1)
+        last = n - 1 - np.argmax(use[:, ::-1], axis=1)
+        # rows padded to a multiple of 8 samples (the kernel reads float8), padding unused
+        self.fitter, self.n = fitter, -(-n // 8) * 8
+        flags = np.zeros((y.shape[0], self.n), dtype=np.uint8)
+        flags[:, :n] = use
+        if cens is not None:
+            flags[:, :n] |= (cens & use).astype(np.uint8) * _CENS
+        yp = np.zeros((y.shape[0], self.n), dtype=np.float32)
+        yp[:, :n] = y
+        span = np.ascontiguousarray(np.stack([first, last], axis=1), dtype=np.int32)
+        mf = cl.mem_flags
+        ctx = fitter.context
+
+        def up(a):
+            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
+
+        self.y = up(yp)
+        self.flags = up(flags)
+        self.span = up(span)
+        self.noise = up(np.asarray(noise, dtype=np.float32))
+
+    def fit(self, rows, a, m, s, b, *, fit_baseline=True, max_iter=40, tol=_TOL) -> GroupFit:
+        """Fit chunk rows ``rows`` (G,) from start values (G, K) and (G,), as
+        :func:`._batch_fit.fit_group` does."""
+        cl = self.fitter._cl
+        queue = self.fitter.queue
+        g, k = a.shape
+        npar = 3 * k + 1
+        q = np.empty((g, npar), dtype=np.float32)
+        q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1] = a, m, s, b
+        nf = 3 * k + (1 if fit_baseline else 0)
+        rss = np.empty(g, dtype=np.float32)
+        hess = np.empty((g, nf, nf), dtype=np.float32)
+        stats = np.empty((g, 2), dtype=np.int32)
+        mf = cl.mem_flags
+        ctx = self.fitter.context
+        d_row = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                          hostbuf=np.ascontiguousarray(rows, dtype=np.int32))
+        d_q = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=q)
+        d_rss = cl.Buffer(ctx, mf.WRITE_ONLY, rss.nbytes)
+        d_hess = cl.Buffer(ctx, mf.WRITE_ONLY, hess.nbytes)
+        d_stats = cl.Buffer(ctx, mf.WRITE_ONLY, stats.nbytes)
+        kern = self.fitter.kernel(k, fit_baseline)
+        kern.set_args(self.y, self.flags, np.int32(self.n), d_row, self.span, self.noise, d_q,
+                      d_rss, d_hess, d_stats, np.int32(g), np.int32(max_iter), np.float32(tol))
+        cl.enqueue_nd_range_kernel(queue, kern, (g,), (1,))
+        cl.enqueue_copy(queue, q, d_q)
+        cl.enqueue_copy(queue, rss, d_rss)
+        cl.enqueue_copy(queue, hess, d_hess)
+        cl.enqueue_copy(queue, stats, d_stats).wait()
+        q, rss, n_eff = q.astype(float), rss.astype(float), stats[:, 0].astype(int)
+        se = standard_errors(hess.astype(float), rss, n_eff, k)
+        return GroupFit(q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1], rss, se, n_eff,
+                        stats[:, 1].astype(int))
+
+
+#: Fitters built in this process, by device key (a context and built programs each).
+_FITTERS: dict = {}
+_ENV = ("VOXLIDAR_DEVICE", "PYOPENCL_CTX")
+
+
+def device_fitter(device=None) -> DeviceFitter | None:
+    """The :class:`DeviceFitter` for ``device`` (built once per process), or None for
+    the NumPy path.
+
+    Parameters
+    ----------
+    device : DeviceInfo, pyopencl.Device, str or None
+        ``"numpy"``: the NumPy path. None: ``VOXLIDAR_DEVICE``, ``PYOPENCL_CTX``
+        or the best device that builds the fitting kernel
+        (:func:`voxlidar.devices.choose_device`), and the NumPy path when
+        pyopencl is missing or no device builds it (unless one of those
+        variables names a device: then its error). Else a device as
+        :func:`voxlidar.devices.choose_device` takes it (``"0:1"``, ``"cpu"``,
+        ``"gpu"``, ``"intel"``, ...).
+
+    Raises
+    ------
+    clsim.errors.DeviceError
+        A device asked for (argument or variable) that is absent or cannot
+        build the kernel; pyopencl missing when a device is asked for.
+    """
+    import os
+
+    from clsim.errors import DeviceError
+
+    if isinstance(device, str) and device.strip().lower() == "numpy":
+        return None
+    asked = device is not None or any(os.environ.get(v, "").strip() for v in _ENV)
+    memo = ("auto",) + tuple(os.environ.get(v, "") for v in _ENV) if device is None else None
+    if memo is not None and memo in _FITTERS:
+        return _FITTERS[memo]
+    try:
+        import pyopencl  # noqa: F401 - the device path needs it
+
+        from voxlidar.devices import choose_device
+    except ImportError as err:
+        if asked:
+            raise DeviceError("decompose_batch on an OpenCL device needs pyopencl; fix: pip "
+                              "install pyopencl, or pass device='numpy'") from err
+        _FITTERS[memo] = None
+        return None
+    try:
+        info = choose_device(device, kernels=("decompose",))
+    except DeviceError as err:
+        if asked:
+            raise DeviceError(f"{err} (or pass device='numpy')") from None
+        _FITTERS[memo] = None
+        return None
+    if info.key not in _FITTERS:
+        _FITTERS[info.key] = DeviceFitter(info)
+    if memo is not None:
+        _FITTERS[memo] = _FITTERS[info.key]
+    return _FITTERS[info.key]
