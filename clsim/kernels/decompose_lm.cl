@@ -96,38 +96,101 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
     return hsum8(cost);
 }
 
-/* Cholesky factorisation in place (lower triangle of c); 0 when not positive definite. */
-CLSIM_INLINE int cholesky(float *c)
+/* Cholesky factorisation in place of the M x M matrix c (lower triangle); 0 when
+ * it is not positive definite. */
+CLSIM_INLINE int cholesky(float *c, const int M)
 {
-    for (int j = 0; j < NF; ++j) {
-        float d = c[j * NF + j];
-        for (int k = 0; k < j; ++k) d -= c[j * NF + k] * c[j * NF + k];
+    for (int j = 0; j < M; ++j) {
+        float d = c[j * M + j];
+        for (int k = 0; k < j; ++k) d -= c[j * M + k] * c[j * M + k];
         if (!(d > 0.0f)) return 0;
         d = sqrt(d);
-        c[j * NF + j] = d;
-        for (int i = j + 1; i < NF; ++i) {
-            float v = c[i * NF + j];
-            for (int k = 0; k < j; ++k) v -= c[i * NF + k] * c[j * NF + k];
-            c[i * NF + j] = v / d;
+        c[j * M + j] = d;
+        for (int i = j + 1; i < M; ++i) {
+            float v = c[i * M + j];
+            for (int k = 0; k < j; ++k) v -= c[i * M + k] * c[j * M + k];
+            c[i * M + j] = v / d;
         }
     }
     return 1;
 }
 
 /* Solve (L L^T) x = b with the factor from cholesky(); x may alias b. */
-CLSIM_INLINE void chol_solve(const float *c, const float *b, float *x)
+CLSIM_INLINE void chol_solve(const float *c, const float *b, float *x, const int M)
 {
-    for (int i = 0; i < NF; ++i) {
+    for (int i = 0; i < M; ++i) {
         float v = b[i];
-        for (int k = 0; k < i; ++k) v -= c[i * NF + k] * x[k];
-        x[i] = v / c[i * NF + i];
+        for (int k = 0; k < i; ++k) v -= c[i * M + k] * x[k];
+        x[i] = v / c[i * M + i];
     }
-    for (int i = NF - 1; i >= 0; --i) {
+    for (int i = M - 1; i >= 0; --i) {
         float v = x[i];
-        for (int k = i + 1; k < NF; ++k) v -= c[k * NF + i] * x[k];
-        x[i] = v / c[i * NF + i];
+        for (int k = i + 1; k < M; ++k) v -= c[k * M + i] * x[k];
+        x[i] = v / c[i * M + i];
     }
 }
+
+#if FIT_BASELINE
+/* Start amplitudes and baseline by linear least squares at the start locations and
+ * widths (clipped samples left out), kept only when every amplitude comes out
+ * positive: the twin of _batch_fit.linear_start. c: (K+1)^2 scratch. */
+CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, const int n,
+                               float *q, float *c)
+{
+#define NL (K + 1)
+    float inv_s[K];
+    for (int k = 0; k < K; ++k) inv_s[k] = 1.0f / q[2 * K + k];
+    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    float8 av[NL * (NL + 1) / 2], bv[NL];
+    for (int i = 0; i < NL * (NL + 1) / 2; ++i) av[i] = (float8)(0.0f);
+    for (int i = 0; i < NL; ++i) bv[i] = (float8)(0.0f);
+    for (int i0 = 0; i0 < n; i0 += 8) {
+        const int8 f = convert_int8(vload8(0, fl + i0));
+        const float8 wf = select((float8)(0.0f), (float8)(1.0f), (f & (USE | CENS)) == USE);
+        const float8 t = (float8)((float)i0) + lane;
+        const float8 yv = vload8(0, y + i0);
+        float8 e[NL];
+        for (int k = 0; k < K; ++k) {
+            const float8 z = (t - q[K + k]) * inv_s[k];
+            e[k] = exp(-0.5f * z * z) * wf;
+        }
+        e[K] = wf;
+        int idx = 0;
+        for (int p = 0; p < NL; ++p) {
+            bv[p] += e[p] * yv;
+            for (int c2 = p; c2 < NL; ++c2) av[idx++] += e[p] * e[c2];
+        }
+    }
+    float x[NL], sc[NL];
+    int idx = 0;
+    for (int p = 0; p < NL; ++p) {
+        x[p] = hsum8(bv[p]);
+        for (int c2 = p; c2 < NL; ++c2) {
+            const float v = hsum8(av[idx++]);
+            c[p * NL + c2] = v;
+            c[c2 * NL + p] = v;
+        }
+    }
+    for (int p = 0; p < NL; ++p) {
+        if (!(c[p * NL + p] > 0.0f)) return;
+        sc[p] = rsqrt(c[p * NL + p]);
+    }
+    for (int p = 0; p < NL; ++p) {
+        for (int c2 = 0; c2 < NL; ++c2) c[p * NL + c2] *= sc[p] * sc[c2];
+        c[p * NL + p] += 1.0e-6f;
+        x[p] *= sc[p];
+    }
+    if (!cholesky(c, NL)) return;
+    chol_solve(c, x, x, NL);
+    for (int p = 0; p < NL; ++p) x[p] *= sc[p];
+    for (int k = 0; k < K; ++k)
+        if (!(x[k] > 0.0f && x[k] < BIG)) return;
+    if (!(fast_abs(x[K]) < BIG)) return;
+    for (int k = 0; k < K; ++k) q[k] = x[k];
+    q[3 * K] = x[K];
+#undef NL
+}
+#endif
 
 /* The damped normal matrix h + lam diag(h) (lam at least 1e-6) into c, scaled to a
  * unit diagonal (Marquardt 1963: the same step, and float32 factorises it far more
@@ -157,7 +220,7 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const int *row, global const int2 *span,
                    global const float *noise, global float *Q, global float *RSS,
                    global float *H, global int *stats, const int G, const int max_iter,
-                   const float tol)
+                   const float tol, const int linear)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
@@ -168,6 +231,9 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
     for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
     const float first = (float)span[row[w]].x, last = (float)span[row[w]].y;
     const float enough_noise = 0.01f * noise[row[w]] * noise[row[w]];
+#if FIT_BASELINE
+    if (linear) linear_start(y, fl, n, q, c);
+#endif
     float cost = evaluate(y, fl, n, q, 1, h, g);
     float lam = 1.0e-3f, nu = 2.0f;
     int it = 0;
@@ -175,13 +241,13 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         ++it;
         damped(h, g, lam, c, rhs, sc);
         int done = 0;
-        if (!cholesky(c)) {
+        if (!cholesky(c, NF)) {
             lam *= nu;
             nu *= 2.0f;
             if (lam > 1.0e8f) break;
             continue;
         }
-        chol_solve(c, rhs, step);
+        chol_solve(c, rhs, step, NF);
         for (int p = 0; p < NF; ++p) step[p] *= sc[p];
         /* trust region in the natural scales: no location moves more than
          * 2 sigma + 1 sample, no width more than half of itself + 0.5 sample */

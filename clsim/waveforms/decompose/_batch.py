@@ -30,7 +30,7 @@ from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
 from clsim.errors import InputError
 from clsim.waveforms.decompose._batch_cl import device_fitter
-from clsim.waveforms.decompose._batch_fit import fit_group
+from clsim.waveforms.decompose._batch_fit import fit_group, linear_start
 from clsim.waveforms.decompose._checks import _positive
 from clsim.waveforms.decompose._fitting import _MIN_SIGMA_SAMPLES
 from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse, _FALLBACK_SIGMA, filter_output
@@ -187,9 +187,10 @@ class _State:
         return self.on.sum(axis=1)
 
 
-def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True):
+def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     """Fit rows (R,) with start (R, K) arrays, grouped by the number of active echoes
-    (``a`` NaN = inactive), each group one call of ``fit`` (:func:`_group_fitter`).
+    (``a`` NaN = inactive), each group one call of ``fit`` (:func:`_group_fitter`;
+    ``linear``: start amplitudes and baseline by linear least squares first).
     Returns per-row results padded back to (R, K)."""
     rk = np.isfinite(a).sum(axis=1)
     R, K = a.shape
@@ -205,7 +206,7 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True):
         # compact the active echoes to the first k columns
         order = np.argsort(~on, axis=1, kind="stable")[:, :k]
         take = lambda v: np.take_along_axis(v[sel], order, axis=1)  # noqa: E731
-        res = fit(rows[sel], take(a), take(m), take(s), b[sel], fit_baseline)
+        res = fit(rows[sel], take(a), take(m), take(s), b[sel], fit_baseline, linear)
         ii = sel[:, None]
         out_a[ii, order], out_m[ii, order], out_s[ii, order] = res.a, res.m, res.s
         for q in range(3):
@@ -359,15 +360,19 @@ def _table(parts, t0, dt):
 
 
 def _group_fitter(device, y, use, cens, noise):
-    """``fit(rows, a, m, s, b, fit_baseline) -> GroupFit`` for rows of a chunk: one
-    launch on the OpenCL device (its samples uploaded once), else :func:`fit_group`."""
+    """``fit(rows, a, m, s, b, fit_baseline, linear) -> GroupFit`` for rows of a chunk:
+    one launch on the OpenCL device (its samples uploaded once), else :func:`fit_group`."""
     if device is not None:
         bound = device.bind(y, use, cens, noise)
-        return lambda rows, a, m, s, b, fb: bound.fit(rows, a, m, s, b, fit_baseline=fb)
+        return lambda rows, a, m, s, b, fb, linear: bound.fit(rows, a, m, s, b, fit_baseline=fb,
+                                                              linear=linear)
 
-    def fit(rows, a, m, s, b, fb):
+    def fit(rows, a, m, s, b, fb, linear):
+        c = None if cens is None else cens[rows]
+        if linear and fb:
+            a, b = linear_start(y[rows], use[rows] if c is None else use[rows] & ~c, a, m, s, b)
         return fit_group(y[rows], use[rows], a, m, s, b, fit_baseline=fb, noise=noise[rows],
-                         cens=None if cens is None else cens[rows])
+                         cens=c)
 
     return fit
 
@@ -438,10 +443,9 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     st.b = b.copy()
     st.noise = sigma
     st.fit = _group_fitter(device, y, use, cens, sigma)
-    _linear_start(st, y, use, cens)
     start = (st.a.copy(), st.m.copy(), st.s.copy(), st.on.copy(), st.b.copy())
-    # fit, prune, add
-    _refit(st, rows[st.k() > 0], y, use, cens)
+    # fit (amplitudes and baseline first by linear least squares), prune, add
+    _refit(st, rows[st.k() > 0], y, use, cens, linear=True)
     _prune(st, y, use, cens, u, sigma, lengths)
     _rescue(st, start, y, use, cens, lengths)
     if add_components:
@@ -452,47 +456,11 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     return st, sigma
 
 
-def _linear_start(st, y, use, cens):
-    """Amplitudes and baseline by linear least squares at the start locations and widths
-    (kept only where every amplitude comes out positive)."""
-    rows = np.flatnonzero(st.k() > 0)
-    if rows.size == 0:
-        return
-    n = y.shape[1]
-    t = np.arange(n, dtype=float)
-    w = use[rows] if cens is None else use[rows] & ~cens[rows]
-    k = int(st.k().max())
-    # active echoes first (the rest of the columns are never on here)
-    order = np.argsort(~st.on[rows], axis=1, kind="stable")[:, :k]
-    on = np.take_along_axis(st.on[rows], order, axis=1)
-    m = np.take_along_axis(st.m[rows], order, axis=1)
-    sg = np.take_along_axis(st.s[rows], order, axis=1)
-    z = (t - m[:, :, None]) / sg[:, :, None]
-    arg = np.multiply(z, z, dtype=np.float32)
-    arg *= np.float32(-0.5)
-    e = np.where(on[:, :, None], np.exp(arg, out=arg), np.float32(0.0))
-    design = np.concatenate([e.astype(float), np.ones((rows.size, 1, n))], axis=1) * w[:, None, :]
-    h = np.matmul(design, design.transpose(0, 2, 1))
-    h[:, np.arange(k), np.arange(k)] += np.where(on, 0.0, 1.0)
-    rhs = np.matmul(design, (y[rows] * w)[:, :, None])
-    try:
-        coef = np.linalg.solve(h + 1e-9 * np.eye(k + 1), rhs)[:, :, 0]
-    except np.linalg.LinAlgError:
-        return
-    ok = np.all((coef[:, :k] > 0) | ~on, axis=1) & np.all(np.isfinite(coef), axis=1)
-    r = rows[ok]
-    a = st.a[r]
-    np.put_along_axis(a, order[ok], np.where(on[ok], coef[ok, :k],
-                                             np.take_along_axis(a, order[ok], axis=1)), axis=1)
-    st.a[r] = a
-    st.b[r] = coef[ok, k]
-
-
-def _refit(st, rows, y, use, cens):
+def _refit(st, rows, y, use, cens, linear=False):
     if rows.size == 0:
         return
     a = np.where(st.on[rows], st.a[rows], np.nan)
-    res = _fit_rows(st.fit, rows, a, st.m[rows], st.s[rows], st.b[rows])
+    res = _fit_rows(st.fit, rows, a, st.m[rows], st.s[rows], st.b[rows], linear=linear)
     _store(st, rows, *res)
 
 
@@ -544,7 +512,7 @@ def _rescue(st, start, y, use, cens, lengths):
     best = np.argmax(np.where(on0[rows], a0[rows], -np.inf), axis=1)
     ii = np.arange(rows.size)
     res = _fit_rows(st.fit, rows, a0[rows, best][:, None], m0[rows, best][:, None],
-                    s0[rows, best][:, None], b0[rows])
+                    s0[rows, best][:, None], b0[rows], linear=True)
     a, m, s = res[0][:, 0], res[1][:, 0], res[2][:, 0]
     n = lengths[rows]
     ok = (np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES) & (s <= n) & (m >= -s)
@@ -563,9 +531,25 @@ def _bic(rss, n, p):
     return n * np.log(np.maximum(rss, 1e-300) / n) + p * np.log(n)
 
 
+def _model(st, rows, n):
+    """(R, n) baseline plus the active echoes of ``rows`` at samples 0..n-1 (only the
+    columns some row uses; the exponential in float32, as in the fits)."""
+    on = st.on[rows]
+    k = int(on.sum(axis=1).max())
+    order = np.argsort(~on, axis=1, kind="stable")[:, :k]
+    take = lambda v: np.take_along_axis(v[rows], order, axis=1)  # noqa: E731
+    a = np.where(np.take_along_axis(on, order, axis=1), take(st.a), 0.0)
+    m, s = take(st.m).astype(np.float32), take(st.s).astype(np.float32)
+    z = np.arange(n, dtype=np.float32) - m[:, :, None]
+    z /= s[:, :, None]
+    z *= z
+    z *= np.float32(-0.5)
+    e = np.exp(z, out=z)
+    return st.b[rows][:, None] + np.matmul(a[:, None, :].astype(np.float32), e)[:, 0, :]
+
+
 def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
     n_rows, n = y.shape
-    t = np.arange(n, dtype=float)
     search = (st.k() > 0) & (st.k() < k_cap)
     skipped = np.zeros((n_rows, n), bool)
     passes = np.zeros(n_rows, int)
@@ -574,10 +558,7 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         if rows.size == 0:
             return
         on = st.on[rows]
-        z = (t - st.m[rows][:, :, None]) / st.s[rows][:, :, None]
-        model = st.b[rows][:, None] + np.sum(np.where(on[:, :, None], st.a[rows][:, :, None]
-                                                      * np.exp(-0.5 * z * z), 0.0), axis=1)
-        r = np.where(use[rows], y[rows] - model, 0.0)
+        r = np.where(use[rows], y[rows] - _model(st, rows, n), 0.0)
         if cens is not None:
             r[cens[rows]] = 0.0
         fm = filter_output(r, pl) / level[rows][:, None]

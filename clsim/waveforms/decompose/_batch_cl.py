@@ -116,9 +116,12 @@ class BoundFitter:
         self.span = up(span)
         self.noise = up(np.asarray(noise, dtype=np.float32))
 
-    def fit(self, rows, a, m, s, b, *, fit_baseline=True, max_iter=40, tol=_TOL) -> GroupFit:
+    def fit(self, rows, a, m, s, b, *, fit_baseline=True, linear=False, max_iter=40,
+            tol=_TOL) -> GroupFit:
         """Fit chunk rows ``rows`` (G,) from start values (G, K) and (G,), as
-        :func:`._batch_fit.fit_group` does."""
+        :func:`._batch_fit.fit_group` does (``linear``: the start amplitudes and
+        baseline first by linear least squares, :func:`._batch_fit.linear_start`;
+        with the baseline fitted only)."""
         cl = self.fitter._cl
         queue = self.fitter.queue
         g, k = a.shape
@@ -139,7 +142,8 @@ class BoundFitter:
         d_stats = cl.Buffer(ctx, mf.WRITE_ONLY, stats.nbytes)
         kern = self.fitter.kernel(k, fit_baseline)
         kern.set_args(self.y, self.flags, np.int32(self.n), d_row, self.span, self.noise, d_q,
-                      d_rss, d_hess, d_stats, np.int32(g), np.int32(max_iter), np.float32(tol))
+                      d_rss, d_hess, d_stats, np.int32(g), np.int32(max_iter), np.float32(tol),
+                      np.int32(bool(linear) and bool(fit_baseline)))
         cl.enqueue_nd_range_kernel(queue, kern, (g,), (1,))
         cl.enqueue_copy(queue, q, d_q)
         cl.enqueue_copy(queue, rss, d_rss)

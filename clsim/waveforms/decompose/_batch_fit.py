@@ -205,6 +205,30 @@ def fit_group(y, w, a, m, s, b, *, cens=None, fit_baseline=True, max_iter=40, to
     return GroupFit(a, m, s, b, cost, se, n_eff, n_iter)
 
 
+def linear_start(y, w, a, m, s, b):
+    """Start amplitudes and baseline by linear least squares at the start locations and
+    widths ``m, s`` (G, K) over the samples ``w`` (G, n) that count (clipped ones left
+    out): sample heights include the tails of overlapping echoes, the linear solution
+    does not. Kept for a waveform only where every amplitude comes out positive;
+    returns (a, b)."""
+    g, k = a.shape
+    n = y.shape[1]
+    z = (np.arange(n, dtype=float) - m[:, :, None]) / s[:, :, None]
+    arg = np.multiply(z, z, dtype=np.float32)
+    arg *= np.float32(-0.5)
+    design = np.ones((g, k + 1, n))
+    design[:, :k] = np.exp(arg, out=arg)
+    design *= w[:, None, :]
+    h = np.matmul(design, design.transpose(0, 2, 1))
+    rhs = np.matmul(design, (y * w)[:, :, None])
+    try:
+        coef = np.linalg.solve(h + 1e-9 * np.eye(k + 1), rhs)[:, :, 0]
+    except np.linalg.LinAlgError:
+        return a, b
+    ok = np.all(coef[:, :k] > 0, axis=1) & np.all(np.isfinite(coef), axis=1)
+    return np.where(ok[:, None], coef[:, :k], a), np.where(ok, coef[:, k], b)
+
+
 def standard_errors(hess, rss, n_eff, k):
     """(G, 3K + 1) standard errors from ``s^2 (J^T J)^-1``, ``s^2 = RSS / (n - P)``.
 
