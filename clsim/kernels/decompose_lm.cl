@@ -26,6 +26,11 @@
 #define CENS 2                  /* it is censored (clipped) */
 #define BIG 3.0e38f             /* "no value": above any residual sum that passes */
 
+/* Sigmas beyond which an echo is left out of a block of samples (exp(-32) = 1.3e-14). */
+#define REACH 8.0f
+/* Index of (p, c), c >= p, in the packed upper triangle of an NF x NF matrix. */
+#define HIDX(p, c) ((p) * (2 * NF - (p) - 1) / 2 + (c))
+
 CLSIM_INLINE float hsum8(const float8 v)
 {
     const float4 a = v.lo + v.hi;
@@ -44,6 +49,13 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         inv_s[k] = 1.0f / q[2 * K + k];
         a_s[k] = q[k] * inv_s[k];
     }
+    /* an echo reaches the samples within REACH sigma of its peak (beyond, its
+     * exponential is under 1.3e-14): a block of samples outside that reach skips it */
+    float lo[K], hi[K];
+    for (int k = 0; k < K; ++k) {
+        lo[k] = q[K + k] - REACH * q[2 * K + k] - 7.0f;
+        hi[k] = q[K + k] + REACH * q[2 * K + k];
+    }
     const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
     float8 hv[NF * (NF + 1) / 2], gv[NF];
     float8 cost = (float8)(0.0f);
@@ -53,13 +65,18 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
     }
     for (int i0 = 0; i0 < n; i0 += 8) {
         const int8 f = convert_int8(vload8(0, fl + i0));
-        const float8 t = (float8)((float)i0) + lane;
+        const float x0 = (float)i0;
+        const float8 t = (float8)(x0) + lane;
         float8 e[K], z[K];
+        int near[K];
         float8 model = (float8)(q[3 * K]);
         for (int k = 0; k < K; ++k) {
-            z[k] = (t - q[K + k]) * inv_s[k];
-            e[k] = exp(-0.5f * z[k] * z[k]);
-            model += q[k] * e[k];
+            near[k] = x0 >= lo[k] && x0 <= hi[k];
+            if (near[k]) {
+                z[k] = (t - q[K + k]) * inv_s[k];
+                e[k] = exp(-0.5f * z[k] * z[k]);
+                model += q[k] * e[k];
+            }
         }
         float8 r = model - vload8(0, y + i0);
         const int8 keep = ((f & USE) != 0) & ~(((f & CENS) != 0) & (r >= 0.0f));
@@ -69,6 +86,7 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         const float8 kf = select((float8)(0.0f), (float8)(1.0f), keep);
         float8 d[NF];
         for (int k = 0; k < K; ++k) {
+            if (!near[k]) continue;
             d[k] = e[k] * kf;
             d[K + k] = d[k] * a_s[k] * z[k];
             d[2 * K + k] = d[K + k] * z[k];
@@ -76,10 +94,14 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
 #if FIT_BASELINE
         d[3 * K] = kf;
 #endif
-        int idx = 0;
+        /* only the rows and columns of the echoes in reach (and the baseline) */
         for (int p = 0; p < NF; ++p) {
+            if (p < 3 * K && !near[p % K]) continue;
             gv[p] += d[p] * r;
-            for (int c = p; c < NF; ++c) hv[idx++] += d[p] * d[c];
+            for (int c = p; c < NF; ++c) {
+                if (c < 3 * K && !near[c % K]) continue;
+                hv[HIDX(p, c)] += d[p] * d[c];
+            }
         }
     }
     if (want) {

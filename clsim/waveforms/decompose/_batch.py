@@ -437,15 +437,28 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     # amplitudes by linear least squares below
     height = np.where(peak, ys, np.where(shoulder, yc, np.where(weak, f, -np.inf)))
     k_cap = max(1, min(k_max, int((n - 2) // 3)))
-    order = np.argsort(-height, axis=1)[:, :k_cap]
-    cand = np.take_along_axis(height, order, axis=1) > -np.inf
+    # the k_cap highest candidates of each row, highest first (candidates are sparse)
+    r_all, i_all = np.nonzero(height > -np.inf)
+    o = np.lexsort((-height[r_all, i_all], r_all))
+    r_all, i_all = r_all[o], i_all[o]
+    rank = np.arange(r_all.size) - np.searchsorted(r_all, r_all)
+    keep = rank < k_cap
+    r_c, c_c, idx = r_all[keep], rank[keep], i_all[keep]
+    cand = np.zeros((n_rows, k_cap), bool)
+    cand[r_c, c_c] = True
     st = _State(n_rows, k_cap)
-    r_c, c_c = np.nonzero(cand)
-    idx = order[r_c, c_c]
     is_peak = peak[r_c, idx]
     is_sh = shoulder[r_c, idx]
-    src = np.where(is_peak[:, None], ys[r_c], np.where(is_sh[:, None], -d2[r_c], f[r_c]))
-    loc, var = _log_parabola(src, np.arange(r_c.size), idx, n)
+    # the three samples around each candidate, from the curve that found it
+    near3 = np.clip(idx[:, None] + np.arange(-1, 2), 0, n - 1)
+    rr = r_c[:, None]
+    src = np.where(is_peak[:, None], ys[rr, near3], np.where(is_sh[:, None], -d2[rr, near3],
+                                                              f[rr, near3]))
+    loc, var = _log_parabola(src, np.arange(r_c.size), np.ones_like(idx), 3)
+    # (a candidate on the first or last sample has no neighbour on that side)
+    inner = (idx > 0) & (idx < n - 1)
+    loc = np.where(inner, loc + idx - 1, idx)
+    var = np.where(inner, var, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         var_sh = -yc[r_c, idx] / d2[r_c, idx] - _CURV_SMOOTH ** 2
     var = np.where(is_peak, var - 1.0, np.where(is_sh, var_sh, var - pl.sigma ** 2))
