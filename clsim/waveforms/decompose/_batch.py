@@ -55,8 +55,11 @@ def _pad(waveforms):
         if not rows:
             raise InputError("waveforms is empty; pass at least one waveform")
         lengths = np.array([r.size for r in rows])
-        y = np.zeros((len(rows), lengths.max()))
-        y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
+        if lengths.min() == lengths.max():
+            y = np.stack(rows)
+        else:
+            y = np.zeros((len(rows), lengths.max()))
+            y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
     if y.shape[0] == 0:
         raise InputError("waveforms is empty; pass at least one waveform")
     short = np.flatnonzero(lengths < 4)
@@ -241,6 +244,10 @@ def _bad(a, m, s, se_a, u, sigma, n):
 def _resolved_rows(a, m, s, on, a1, m1, s1):
     """Sparrow's criterion between the new echo (a1, m1, s1) (R,) and each active
     echo (R, K): the pair's sum has four inflection points."""
+    k = int(on.sum(axis=1).max()) if on.size else 0
+    if k < on.shape[1]:  # only the columns some row uses, active ones first
+        order = np.argsort(~on, axis=1, kind="stable")[:, :k]
+        a, m, s, on = (np.take_along_axis(v, order, axis=1) for v in (a, m, s, on))
     lo = np.minimum(m - 3 * s, (m1 - 3 * s1)[:, None])
     hi = np.maximum(m + 3 * s, (m1 + 3 * s1)[:, None])
     x = lo[..., None] + (hi - lo)[..., None] * np.linspace(0.0, 1.0, 160)

@@ -68,6 +68,10 @@ class DeviceFitter:
         self.context, self.queue = open_queue(info)
         self._kernels = {}
         self.build_seconds = 0.0
+        # one waveform per work-group on a CPU (the runtime's own choice of a large
+        # group overflows PoCL's stack with the kernel's private arrays); GPUs: the
+        # runtime's choice
+        self.local_size = None if info.is_gpu else (1,)
 
     def kernel(self, k: int, fit_baseline: bool):
         """The ``lm_fit`` kernel for ``k`` echoes (built once per fitter)."""
@@ -144,7 +148,7 @@ class BoundFitter:
         kern.set_args(self.y, self.flags, np.int32(self.n), d_row, self.span, self.noise, d_q,
                       d_rss, d_hess, d_stats, np.int32(g), np.int32(max_iter), np.float32(tol),
                       np.int32(bool(linear) and bool(fit_baseline)))
-        cl.enqueue_nd_range_kernel(queue, kern, (g,), (1,))
+        cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
         cl.enqueue_copy(queue, q, d_q)
         cl.enqueue_copy(queue, rss, d_rss)
         cl.enqueue_copy(queue, hess, d_hess)
