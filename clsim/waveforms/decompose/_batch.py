@@ -43,8 +43,13 @@ _CURV_SMOOTH = 1.5
 
 def _pad(waveforms):
     """(N, n) samples, (N,) lengths from a 2-D array or a sequence of 1-D arrays."""
-    if isinstance(waveforms, np.ndarray) and waveforms.ndim == 2:
-        y = np.asarray(waveforms, dtype=float)
+    y = None
+    if not (isinstance(waveforms, np.ndarray) and waveforms.ndim != 2):
+        try:  # a 2-D array, or a sequence of equal-length rows: one conversion
+            y = np.asarray(waveforms, dtype=float)
+        except (TypeError, ValueError):
+            y = None  # ragged rows (or not numbers: said below)
+    if y is not None and y.ndim == 2:
         lengths = np.full(y.shape[0], y.shape[1])
     else:
         try:
@@ -55,11 +60,8 @@ def _pad(waveforms):
         if not rows:
             raise InputError("waveforms is empty; pass at least one waveform")
         lengths = np.array([r.size for r in rows])
-        if lengths.min() == lengths.max():
-            y = np.stack(rows)
-        else:
-            y = np.zeros((len(rows), lengths.max()))
-            y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
+        y = np.zeros((len(rows), lengths.max()))
+        y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
     if y.shape[0] == 0:
         raise InputError("waveforms is empty; pass at least one waveform")
     short = np.flatnonzero(lengths < 4)
