@@ -237,11 +237,13 @@ CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float 
 /* One launch: waveform `row[w]` of the uploaded samples for each work-item w.
  * q (G x NP) holds the start values and receives the fit; H (G x NF x NF)
  * J^T J at the fit (for the standard errors, inverted in float64 on the host);
- * stats (G x 2) the samples that count and the iterations. */
+ * RES (G x n) samples minus model at the fit (zero where a sample does not count
+ * or is censored); stats (G x 2) the samples that count and the iterations. */
 kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const int *row, global const int2 *span,
                    global const float *noise, global float *Q, global float *RSS,
-                   global float *H, global int *stats, const int G, const int max_iter,
+                   global float *H, global float *RES, global int *stats, const int G,
+                   const int max_iter,
                    const float tol, const int linear)
 {
     const int w = get_global_id(0);
@@ -325,6 +327,25 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
     int n_eff = 0;
     for (int i = 0; i < n; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);  /* n: padded */
     for (int p = 0; p < NF * NF; ++p) H[(size_t)w * NF * NF + p] = h[p];
+    /* the residual at the fit, for the host's search for further echoes */
+    global float *res = RES + (size_t)w * n;
+    float inv_s[K];
+    for (int k = 0; k < K; ++k) inv_s[k] = 1.0f / q[2 * K + k];
+    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    for (int i0 = 0; i0 < n; i0 += 8) {
+        const float x0 = (float)i0;
+        const float8 t = (float8)(x0) + lane;
+        float8 model = (float8)(q[3 * K]);
+        for (int k = 0; k < K; ++k) {
+            if (x0 >= q[K + k] - REACH * q[2 * K + k] - 7.0f && x0 <= q[K + k] + REACH * q[2 * K + k]) {
+                const float8 z = (t - q[K + k]) * inv_s[k];
+                model += q[k] * exp(-0.5f * z * z);
+            }
+        }
+        const int8 f = convert_int8(vload8(0, fl + i0));
+        vstore8(select((float8)(0.0f), vload8(0, y + i0) - model, (f & (USE | CENS)) == USE),
+                0, res + i0);
+    }
     for (int p = 0; p < NP; ++p) Q[w * NP + p] = q[p];
     RSS[w] = cost;
     stats[2 * w] = n_eff;

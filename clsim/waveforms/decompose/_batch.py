@@ -191,7 +191,7 @@ def _censored(y, inside, saturation):
 class _State:
     """Echo parameters of every waveform, (N, K_max) with an ``on`` mask."""
 
-    def __init__(self, n_rows, k_max):
+    def __init__(self, n_rows, k_max, n):
         shape = (n_rows, k_max)
         self.a, self.m, self.s = np.zeros(shape), np.zeros(shape), np.ones(shape)
         self.se = np.full((n_rows, 3, k_max), np.nan)
@@ -200,6 +200,9 @@ class _State:
         self.b_se = np.full(n_rows, np.nan)
         self.rss = np.full(n_rows, np.nan)
         self.n_eff = np.zeros(n_rows, int)
+        # samples minus model of the last fit kept (float32, from the device), where ok
+        self.resid = np.zeros((n_rows, n), dtype=np.float32)
+        self.resid_ok = np.zeros(n_rows, bool)
 
     def k(self):
         return self.on.sum(axis=1)
@@ -216,6 +219,7 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     out_se = np.full((R, 3, K), np.nan)
     out_b, out_bse, out_rss = b.astype(float).copy(), np.full(R, np.nan), np.full(R, np.nan)
     out_neff = np.zeros(R, int)
+    out_resid = None
     for k in np.unique(rk):
         if k == 0:
             continue
@@ -232,7 +236,11 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
         out_b[sel], out_rss[sel], out_neff[sel] = res.b, res.rss, res.n_eff
         if fit_baseline:
             out_bse[sel] = res.se[:, 3 * k]
-    return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff
+        if res.resid is not None:
+            if out_resid is None:
+                out_resid = np.full((R, res.resid.shape[1]), np.nan, dtype=np.float32)
+            out_resid[sel] = res.resid
+    return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff, out_resid
 
 
 def _bad(a, m, s, se_a, u, sigma, n):
@@ -455,7 +463,7 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     r_c, c_c, idx = r_all[keep], rank[keep], i_all[keep]
     cand = np.zeros((n_rows, k_cap), bool)
     cand[r_c, c_c] = True
-    st = _State(n_rows, k_cap)
+    st = _State(n_rows, k_cap, n)
     is_peak = peak[r_c, idx]
     is_sh = shoulder[r_c, idx]
     # the three samples around each candidate, from the curve that found it
@@ -499,7 +507,7 @@ def _refit(st, rows, y, use, cens, linear=False):
     _store(st, rows, *res)
 
 
-def _store(st, rows, a, m, s, se, b, bse, rss, neff):
+def _store(st, rows, a, m, s, se, b, bse, rss, neff, resid):
     on = np.isfinite(a)
     st.on[rows] = on
     st.a[rows] = np.where(on, a, 0.0)
@@ -507,6 +515,17 @@ def _store(st, rows, a, m, s, se, b, bse, rss, neff):
     st.s[rows] = np.where(on, s, 1.0)
     st.se[rows] = se
     st.b[rows], st.b_se[rows], st.rss[rows], st.n_eff[rows] = b, bse, rss, neff
+    _keep_resid(st, rows, resid)
+
+
+def _keep_resid(st, rows, resid):
+    """Keep the fits' residuals (R, n) of ``rows`` (None, or NaN rows: not kept)."""
+    if resid is None:
+        st.resid_ok[rows] = False
+        return
+    ok = ~np.isnan(resid[:, 0])
+    st.resid[rows[ok]] = resid[ok]
+    st.resid_ok[rows] = ok
 
 
 def _prune(st, y, use, cens, u, sigma, lengths, rounds=4):
@@ -532,6 +551,7 @@ def _prune(st, y, use, cens, u, sigma, lengths, rounds=4):
             keep[fix, best[fix]] = True
             locked[rows[fix]] = True
         st.on[rows] = keep
+        st.resid_ok[rows] = False
         gone = rows[~keep.any(axis=1)]
         st.se[gone] = np.nan
         _refit(st, rows[keep.any(axis=1)], y, use, cens)
@@ -560,6 +580,7 @@ def _rescue(st, start, y, use, cens, lengths):
     st.se[rows, :, best] = res[3][ii, :, 0]
     st.b[rows], st.b_se[rows], st.rss[rows], st.n_eff[rows] = (res[4][ii], res[5][ii],
                                                              res[6][ii], res[7][ii])
+    _keep_resid(st, rows, None if res[8] is None else res[8][ii])
 
 
 def _bic(rss, n, p):
@@ -593,9 +614,13 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         if rows.size == 0:
             return
         on = st.on[rows]
-        r = np.where(use[rows], y[rows] - _model(st, rows, n), 0.0)
-        if cens is not None:
-            r[cens[rows]] = 0.0
+        # the residual of the last fit, kept from the device (else computed here)
+        r = st.resid[rows].astype(float)
+        redo = np.flatnonzero(~st.resid_ok[rows])
+        if redo.size:
+            r[redo] = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
+            if cens is not None:
+                r[redo] = np.where(cens[rows[redo]], 0.0, r[redo])
         fm = filter_output(r, pl) / level[rows][:, None]
         fs = gaussian_filter1d(r, 1.0, axis=1, mode="constant") / (4.0 * sigma[rows])[:, None]
         out = ~use[rows] | skipped[rows]
@@ -636,8 +661,8 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         tm, ts = st.m[rows].copy(), st.s[rows].copy()
         ii = np.arange(rows.size)
         ta[ii, free], tm[ii, free], ts[ii, free] = a1, m1, s1
-        fa, fm_, fs_, fse, fb, fbse, frss, fneff = _fit_rows(st.fit, rows, ta, tm, ts,
-                                                             st.b[rows])
+        fa, fm_, fs_, fse, fb, fbse, frss, fneff, fres = _fit_rows(st.fit, rows, ta, tm, ts,
+                                                                   st.b[rows])
         k_old = st.k()[rows]
         bic_old = _bic(st.rss[rows], st.n_eff[rows], 3 * k_old + 1)
         bic_new = _bic(frss, fneff, 3 * (k_old + 1) + 1)
@@ -646,7 +671,7 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         ok = (bic_new < bic_old) & ~bad.any(axis=1) & np.isfinite(frss)
         acc = rows[ok]
         _store(st, acc, fa[ok], fm_[ok], fs_[ok], fse[ok], fb[ok], fbse[ok], frss[ok],
-               fneff[ok])
+               fneff[ok], None if fres is None else fres[ok])
         skipped[acc] = False
         passes[acc] = 0
         search[rows[~ok]] = False

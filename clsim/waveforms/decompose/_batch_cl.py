@@ -101,7 +101,7 @@ class BoundFitter:
         first = np.argmax(use, axis=1)
         last = n - 1 - np.argmax(use[:, ::-1], axis=1)
         # rows padded to a multiple of 8 samples (the kernel reads float8), padding unused
-        self.fitter, self.n = fitter, -(-n // 8) * 8
+        self.fitter, self.n, self.n_samples = fitter, -(-n // 8) * 8, n
         flags = np.zeros((y.shape[0], self.n), dtype=np.uint8)
         flags[:, :n] = use
         if cens is not None:
@@ -135,6 +135,7 @@ class BoundFitter:
         nf = 3 * k + (1 if fit_baseline else 0)
         rss = np.empty(g, dtype=np.float32)
         hess = np.empty((g, nf, nf), dtype=np.float32)
+        resid = np.empty((g, self.n), dtype=np.float32)
         stats = np.empty((g, 2), dtype=np.int32)
         mf = cl.mem_flags
         ctx = self.fitter.context
@@ -143,20 +144,22 @@ class BoundFitter:
         d_q = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=q)
         d_rss = cl.Buffer(ctx, mf.WRITE_ONLY, rss.nbytes)
         d_hess = cl.Buffer(ctx, mf.WRITE_ONLY, hess.nbytes)
+        d_resid = cl.Buffer(ctx, mf.WRITE_ONLY, resid.nbytes)
         d_stats = cl.Buffer(ctx, mf.WRITE_ONLY, stats.nbytes)
         kern = self.fitter.kernel(k, fit_baseline)
         kern.set_args(self.y, self.flags, np.int32(self.n), d_row, self.span, self.noise, d_q,
-                      d_rss, d_hess, d_stats, np.int32(g), np.int32(max_iter), np.float32(tol),
+                      d_rss, d_hess, d_resid, d_stats, np.int32(g), np.int32(max_iter), np.float32(tol),
                       np.int32(bool(linear) and bool(fit_baseline)))
         cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
         cl.enqueue_copy(queue, q, d_q)
         cl.enqueue_copy(queue, rss, d_rss)
         cl.enqueue_copy(queue, hess, d_hess)
+        cl.enqueue_copy(queue, resid, d_resid)
         cl.enqueue_copy(queue, stats, d_stats).wait()
         q, rss, n_eff = q.astype(float), rss.astype(float), stats[:, 0].astype(int)
         se = standard_errors(hess.astype(float), rss, n_eff, k)
         return GroupFit(q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1], rss, se, n_eff,
-                        stats[:, 1].astype(int))
+                        stats[:, 1].astype(int), resid[:, :self.n_samples])
 
 
 #: Fitters built in this process, by device key (a context and built programs each).

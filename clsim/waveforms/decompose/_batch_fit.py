@@ -38,7 +38,9 @@ class GroupFit:
     ``a, m, s`` (G, K) in samples; ``b`` (G,); ``rss`` (G,); ``se`` (G, P)
     standard errors in the order [a_1..a_K, m_1..m_K, s_1..s_K, b]
     (b's NaN when the baseline was held); ``n_eff`` (G,) samples that count;
-    ``n_iter`` (G,) Levenberg-Marquardt iterations (one model and Jacobian each).
+    ``n_iter`` (G,) Levenberg-Marquardt iterations (one model and Jacobian each);
+    ``resid`` (G, n) float32 samples minus model at the fit, zero where a sample
+    does not count or is censored, or None (the NumPy path does not keep it).
     """
 
     a: np.ndarray
@@ -49,6 +51,7 @@ class GroupFit:
     se: np.ndarray
     n_eff: np.ndarray
     n_iter: np.ndarray
+    resid: np.ndarray | None = None
 
 
 def _evaluate(y, w, cens, t, a, m, s, b, fit_baseline, want_jac):
