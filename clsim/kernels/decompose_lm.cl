@@ -5,11 +5,13 @@
  * rules, in float32.  Every waveform of a launch has K echoes (compile-time,
  * -DK) and a fitted (-DFIT_BASELINE=1) or held baseline.  Parameters are laid
  * out [a_1..a_K, m_1..m_K, s_1..s_K, b] (samples); the Jacobian is never
- * stored: each sample adds its row to the normal matrix J^T J and to J^T r.
+ * stored: each block of 8 samples (a float8) adds its rows to the normal matrix
+ * J^T J and to J^T r, skipping the echoes more than REACH sigma away.
  *
- * Portability: no infinity or NaN is created or relied upon (a residual sum
- * that overflows fails the `<=` test that accepts a step; a zero pivot freezes
- * its parameter); build without -cl-fast-relaxed-math.
+ * Portability: the kernel is built without -cl-fast-relaxed-math and relies on
+ * no infinity: a trial step whose residual sum overflows (or is NaN) fails the
+ * finite test `ct <= cost && ct < BIG` and is rejected; a parameter with a zero
+ * diagonal in J^T J is frozen instead of dividing by it.
  */
 #include "common.cl"
 
@@ -243,8 +245,7 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const int *row, global const int2 *span,
                    global const float *noise, global float *Q, global float *RSS,
                    global float *H, global float *RES, global int *stats, const int G,
-                   const int max_iter,
-                   const float tol, const int linear)
+                   const int max_iter, const float tol, const int linear)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
@@ -337,7 +338,8 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         const float8 t = (float8)(x0) + lane;
         float8 model = (float8)(q[3 * K]);
         for (int k = 0; k < K; ++k) {
-            if (x0 >= q[K + k] - REACH * q[2 * K + k] - 7.0f && x0 <= q[K + k] + REACH * q[2 * K + k]) {
+            const float reach = REACH * q[2 * K + k];
+            if (x0 >= q[K + k] - reach - 7.0f && x0 <= q[K + k] + reach) {
                 const float8 z = (t - q[K + k]) * inv_s[k];
                 model += q[k] * exp(-0.5f * z * z);
             }

@@ -4,10 +4,13 @@ The steps of :func:`decompose` with ``detection="matched"``, each one NumPy
 call over a padded (N, n) array: robust baseline and noise, no-data gaps,
 clipped samples, the matched filter and its threshold, candidates, start
 widths (a log-parabola through the three samples around each maximum, exact
-for a Gaussian: Caruana et al. 1986), start amplitudes by linear least
-squares, the Levenberg-Marquardt fit of all waveforms with the same number of
-echoes together (:mod:`._batch_fit`), pruning of weak echoes, and rounds of
+for a Gaussian: Caruana et al. 1986), then the Levenberg-Marquardt fit of all
+waveforms with the same number of echoes together, its start amplitudes and
+baseline by linear least squares, pruning of weak echoes, and rounds of
 adding a resolved echo at the highest residual feature while the BIC falls.
+The fits run on an OpenCL device, one waveform per work-item (:mod:`._batch_cl`,
+``clsim/kernels/decompose_lm.cl``), which also returns each fit's residual for
+the search; without a device, vectorised in NumPy (:mod:`._batch_fit`).
 
 Differences from :func:`decompose`, for speed: one pulse for the whole batch
 (default: the 20th percentile of the widths of the strongest echoes), no
