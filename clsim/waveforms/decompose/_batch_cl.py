@@ -163,8 +163,8 @@ class BoundFitter:
         d_stats = cl.Buffer(ctx, mf.WRITE_ONLY, stats.nbytes)
         kern = self.fitter.kernel(k, fit_baseline)
         kern.set_args(self.y, self.flags, np.int32(self.n), d_row, self.span, self.noise, d_q,
-                      d_rss, d_hess, d_resid, d_stats, np.int32(g), np.int32(max_iter), np.float32(tol),
-                      np.int32(bool(linear) and bool(fit_baseline)))
+                      d_rss, d_hess, d_resid, d_stats, np.int32(g), np.int32(max_iter),
+                      np.float32(tol), np.int32(bool(linear) and bool(fit_baseline)))
         cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
         cl.enqueue_copy(queue, q, d_q)
         cl.enqueue_copy(queue, rss, d_rss)
