@@ -263,14 +263,18 @@ def _resolved_rows(a, m, s, on, a1, m1, s1):
         a, m, s, on = (np.take_along_axis(v, order, axis=1) for v in (a, m, s, on))
     lo = np.minimum(m - 3 * s, (m1 - 3 * s1)[:, None])
     hi = np.maximum(m + 3 * s, (m1 + 3 * s1)[:, None])
-    x = lo[..., None] + (hi - lo)[..., None] * np.linspace(0.0, 1.0, 160)
+    grid = np.linspace(0.0, 1.0, 160)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        z0 = (x - m[..., None]) / s[..., None]
-        z1 = (x - m1[:, None, None]) / s1[:, None, None]
-        curv = (a[..., None] * (z0 * z0 - 1) * np.exp(-0.5 * z0 * z0) / s[..., None] ** 2
-                + a1[:, None, None] * (z1 * z1 - 1) * np.exp(-0.5 * z1 * z1)
-                / s1[:, None, None] ** 2)
-    changes = np.count_nonzero(np.diff(np.sign(curv), axis=-1) != 0, axis=-1)
+        # z^2 of each echo of the pair on the grid x = lo + (hi - lo) * grid
+        z0 = ((lo - m) / s)[..., None] + ((hi - lo) / s)[..., None] * grid
+        z1 = (((lo - m1[:, None]) / s1[:, None])[..., None]
+              + ((hi - lo) / s1[:, None])[..., None] * grid)
+        z0 *= z0
+        z1 *= z1
+        curv = (z0 - 1) * np.exp(-0.5 * z0) * (a / s ** 2)[..., None]
+        curv += (z1 - 1) * np.exp(-0.5 * z1) * (a1 / s1 ** 2)[:, None, None]
+    sign = np.sign(curv)
+    changes = np.count_nonzero(sign[..., 1:] != sign[..., :-1], axis=-1)
     return np.all((changes >= 4) | ~on, axis=1)
 
 
