@@ -223,6 +223,7 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     out_b, out_bse, out_rss = b.astype(float).copy(), np.full(R, np.nan), np.full(R, np.nan)
     out_neff = np.zeros(R, int)
     out_resid = None
+    pending = []
     for k in np.unique(rk):
         if k == 0:
             continue
@@ -231,7 +232,10 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
         # compact the active echoes to the first k columns
         order = np.argsort(~on, axis=1, kind="stable")[:, :k]
         take = lambda v: np.take_along_axis(v[sel], order, axis=1)  # noqa: E731
-        res = fit(rows[sel], take(a), take(m), take(s), b[sel], fit_baseline, linear)
+        pending.append((k, sel, order, fit(rows[sel], take(a), take(m), take(s), b[sel],
+                                           fit_baseline, linear)))
+    for k, sel, order, finish in pending:
+        res = finish()
         ii = sel[:, None]
         out_a[ii, order], out_m[ii, order], out_s[ii, order] = res.a, res.m, res.s
         for q in range(3):
@@ -397,19 +401,22 @@ def _table(parts, t0, dt):
 
 
 def _group_fitter(device, y, use, cens, noise):
-    """``fit(rows, a, m, s, b, fit_baseline, linear) -> GroupFit`` for rows of a chunk:
-    one launch on the OpenCL device (its samples uploaded once), else :func:`fit_group`."""
+    """``fit(rows, a, m, s, b, fit_baseline, linear) -> finish`` for rows of a chunk,
+    ``finish() -> GroupFit``: one launch on the OpenCL device (its samples uploaded
+    once; the groups of one round are all enqueued before the first wait), else
+    :func:`fit_group`."""
     if device is not None:
         bound = device.bind(y, use, cens, noise)
-        return lambda rows, a, m, s, b, fb, linear: bound.fit(rows, a, m, s, b, fit_baseline=fb,
-                                                              linear=linear)
+        return lambda rows, a, m, s, b, fb, linear: bound.start(rows, a, m, s, b,
+                                                                fit_baseline=fb, linear=linear)
 
     def fit(rows, a, m, s, b, fb, linear):
         c = None if cens is None else cens[rows]
         if linear and fb:
             a, b = linear_start(y[rows], use[rows] if c is None else use[rows] & ~c, a, m, s, b)
-        return fit_group(y[rows], use[rows], a, m, s, b, fit_baseline=fb, noise=noise[rows],
-                         cens=c)
+        res = fit_group(y[rows], use[rows], a, m, s, b, fit_baseline=fb, noise=noise[rows],
+                        cens=c)
+        return lambda: res
 
     return fit
 

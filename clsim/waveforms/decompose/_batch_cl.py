@@ -141,6 +141,13 @@ class BoundFitter:
         :func:`._batch_fit.fit_group` does (``linear``: the start amplitudes and
         baseline first by linear least squares, :func:`._batch_fit.linear_start`;
         with the baseline fitted only)."""
+        return self.start(rows, a, m, s, b, fit_baseline=fit_baseline, linear=linear,
+                          max_iter=max_iter, tol=tol)()
+
+    def start(self, rows, a, m, s, b, *, fit_baseline=True, linear=False, max_iter=40,
+              tol=_TOL):
+        """:meth:`fit` enqueued: returns ``finish()``, which waits for the device and
+        returns the :class:`GroupFit` (several groups then share one wait)."""
         cl = self.fitter._cl
         queue = self.fitter.queue
         g, k = a.shape
@@ -166,15 +173,19 @@ class BoundFitter:
                       d_rss, d_hess, d_resid, d_stats, np.int32(g), np.int32(max_iter),
                       np.float32(tol), np.int32(bool(linear) and bool(fit_baseline)))
         cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
-        cl.enqueue_copy(queue, q, d_q)
-        cl.enqueue_copy(queue, rss, d_rss)
-        cl.enqueue_copy(queue, hess, d_hess)
-        cl.enqueue_copy(queue, resid, d_resid)
-        cl.enqueue_copy(queue, stats, d_stats).wait()
-        q, rss, n_eff = q.astype(float), rss.astype(float), stats[:, 0].astype(int)
-        se = standard_errors(hess.astype(float), rss, n_eff, k)
-        return GroupFit(q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1], rss, se, n_eff,
-                        stats[:, 1].astype(int), resid[:, :self.n_samples])
+        # an in-order queue: the last copy's completion covers the others
+        for host, dev in ((q, d_q), (rss, d_rss), (hess, d_hess), (resid, d_resid)):
+            cl.enqueue_copy(queue, host, dev, is_blocking=False)
+        done = cl.enqueue_copy(queue, stats, d_stats, is_blocking=False)
+
+        def finish() -> GroupFit:
+            done.wait()
+            qf, rssf, n_eff = q.astype(float), rss.astype(float), stats[:, 0].astype(int)
+            se = standard_errors(hess.astype(float), rssf, n_eff, k)
+            return GroupFit(qf[:, :k], qf[:, k:2 * k], qf[:, 2 * k:3 * k], qf[:, -1], rssf, se,
+                            n_eff, stats[:, 1].astype(int), resid[:, :self.n_samples])
+
+        return finish
 
 
 #: Fitters built in this process, by device key (a context and built programs each).
