@@ -236,21 +236,29 @@ CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float 
     }
 }
 
-/* One launch: waveform `row[w]` of the uploaded samples for each work-item w.
- * q (G x NP) holds the start values and receives the fit; H (G x NF x NF)
- * J^T J at the fit (for the standard errors, inverted in float64 on the host);
- * RES (G x n) samples minus model at the fit (zero where a sample does not count
- * or is censored); stats (G x 2) the samples that count and the iterations. */
+/* What a work-item returns, one row of OUT (floats): the fit (NP), the residual
+ * sum of squares, the samples that count, the iterations, J^T J at the fit
+ * (NF x NF, for the standard errors, inverted in float64 on the host), and the
+ * samples minus the model at the fit (n; zero where a sample does not count or
+ * is censored).  One row, so one copy back per launch. */
+#define OUT_RSS NP
+#define OUT_NEFF (NP + 1)
+#define OUT_ITER (NP + 2)
+#define OUT_H (NP + 3)
+#define OUT_RES (NP + 3 + NF * NF)
+
+/* One launch: waveform `row[w]` of the uploaded samples for each work-item w,
+ * from the start values Q (G x NP). */
 kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const int *row, global const int2 *span,
-                   global const float *noise, global float *Q, global float *RSS,
-                   global float *H, global float *RES, global int *stats, const int G,
-                   const int max_iter, const float tol, const int linear)
+                   global const float *noise, global const float *Q, global float *OUT,
+                   const int G, const int max_iter, const float tol, const int linear)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
     global const float *y = Y + (size_t)row[w] * n;
     global const uchar *fl = FL + (size_t)row[w] * n;
+    global float *out = OUT + (size_t)w * (OUT_RES + n);
     float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
     float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
     for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
@@ -327,9 +335,9 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
     /* J^T J at the solution: the host turns it into standard errors */
     int n_eff = 0;
     for (int i = 0; i < n; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);  /* n: padded */
-    for (int p = 0; p < NF * NF; ++p) H[(size_t)w * NF * NF + p] = h[p];
+    for (int p = 0; p < NF * NF; ++p) out[OUT_H + p] = h[p];
     /* the residual at the fit, for the host's search for further echoes */
-    global float *res = RES + (size_t)w * n;
+    global float *res = out + OUT_RES;
     float inv_s[K];
     for (int k = 0; k < K; ++k) inv_s[k] = 1.0f / q[2 * K + k];
     const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
@@ -348,8 +356,8 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         vstore8(select((float8)(0.0f), vload8(0, y + i0) - model, (f & (USE | CENS)) == USE),
                 0, res + i0);
     }
-    for (int p = 0; p < NP; ++p) Q[w * NP + p] = q[p];
-    RSS[w] = cost;
-    stats[2 * w] = n_eff;
-    stats[2 * w + 1] = it;
+    for (int p = 0; p < NP; ++p) out[p] = q[p];
+    out[OUT_RSS] = cost;
+    out[OUT_NEFF] = (float)n_eff;
+    out[OUT_ITER] = (float)it;
 }
