@@ -1,7 +1,8 @@
-"""Gaussian decomposition benchmark: clsim (single waveform, batched, and the earlier
-amplitude-threshold detection) against gdecomp 1.0.6 (PyPI; C++ with mpfit) and a plain
-scipy ``curve_fit``, on the same waveforms with the same baseline and 4-sigma threshold
-for the other methods.
+"""Gaussian decomposition benchmark: clsim (batched with its fits on the default OpenCL
+device and with the NumPy fits, single waveform, and the earlier amplitude-threshold
+detection) against gdecomp 1.0.6 (PyPI; C++ with mpfit) and a plain scipy
+``curve_fit``, on the same waveforms with the same baseline and 4-sigma threshold for
+the other methods.
 
 Sets: the 500 NEON waveforms (speed, residual RMS), the Leica LAS 1.3 file (return
 points within 2 ns of an echo), the adapt-lidar-tools expectations, and synthetic sets
