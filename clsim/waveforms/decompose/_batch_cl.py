@@ -122,7 +122,7 @@ class BoundFitter:
         # rows padded to a multiple of 8 samples (the kernel reads float8), padding unused
         self.fitter, self.n, self.n_samples = fitter, -(-n // 8) * 8, n
         flags = np.zeros((y.shape[0], self.n), dtype=np.uint8)
-        flags[:, :n] = use
+        flags[:, :n] = use.astype(np.uint8) * _USE
         if cens is not None:
             flags[:, :n] |= (cens & use).astype(np.uint8) * _CENS
         yp = np.zeros((y.shape[0], self.n), dtype=np.float32)
