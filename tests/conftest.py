@@ -52,7 +52,7 @@ def _device_matrix():
     except ImportError:
         return []
     try:
-        return device_report(("clsim", "tlsvox"))
+        return device_report(("clsim", "decompose", "tlsvox"))
     except Exception as err:  # noqa: BLE001 - reported in the header, tests skip
         return [(None, {"error": f"{type(err).__name__}: {err}"})]
 
@@ -107,6 +107,18 @@ def pytest_report_header(config):
 @pytest.fixture(scope="session", params=_params("clsim"))
 def cl_device(request):
     """Each working OpenCL device in turn (a :class:`voxlidar.devices.DeviceInfo`)."""
+    return request.param
+
+
+@pytest.fixture(scope="session", params=_params("decompose"))
+def cl_device_for_fits(request):
+    """Each OpenCL device that builds the decomposition's fitting kernel in turn."""
+    return request.param
+
+
+@pytest.fixture(scope="session", params=[pytest.param("numpy", id="numpy")] + _params("decompose"))
+def decompose_device(request):
+    """Where ``decompose_batch`` fits: ``"numpy"``, then each working OpenCL device."""
     return request.param
 
 

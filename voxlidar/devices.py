@@ -59,6 +59,7 @@ __all__ = ["DeviceInfo", "FIX_NO_DEVICE", "KERNEL_SETS", "build_program", "choos
 #: can run them, or a one-line reason; a build failure raises.
 KERNEL_SETS = {
     "clsim": "clsim.transport.simulator:probe_build",
+    "decompose": "clsim.waveforms.decompose._batch_cl:probe_build",
     "tlsvox": "tlsvox.voxel.trace:probe_build",
 }
 

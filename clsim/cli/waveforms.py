@@ -63,8 +63,13 @@ def register(subparsers) -> None:
                      help="Gaussian system pulse width for the matched filter, ns (default: "
                           "from the strongest echoes)")
     dec.add_argument("--batch", action="store_true",
-                     help="decompose all waveforms at once, vectorised (much faster on "
-                          "large files; matched detection, no --impulse/--min-amplitude)")
+                     help="decompose all waveforms at once, vectorised, the fits on an "
+                          "OpenCL device (much faster on large files; matched detection, "
+                          "no --impulse/--min-amplitude)")
+    dec.add_argument("--device", default=None,
+                     help="where --batch fits: an OpenCL device ('platform:device', 'cpu', "
+                          "'gpu' or a name fragment) or 'numpy' (default: VOXLIDAR_DEVICE, "
+                          "PYOPENCL_CTX or the best device that builds the kernel, else numpy)")
     dec.add_argument("--impulse", type=Path,
                      help="CSV whose first column is the system impulse response; "
                           "deconvolve before fitting")
@@ -224,6 +229,8 @@ def cmd_decompose(args) -> int:
     if args.batch and (args.impulse is not None or args.min_amplitude is not None or args.detection == "amplitude"):
         raise InputError("--batch uses matched-filter detection on the recorded samples; "
                          "drop --impulse, --min-amplitude and --detection amplitude")
+    if args.device is not None and not args.batch:
+        raise InputError("--device chooses where --batch fits; add --batch or drop --device")
     wf = load_waveforms(args.file, dt_ns=args.dt_ns, geolocation=args.geolocation)
     impulse = None
     if args.impulse is not None:
@@ -292,7 +299,7 @@ def _decompose_batched(wf, n: int, args) -> list:
         idx = [i for i in usable if float(wf.dt_ns[i]) == dt]
         table = decompose_batch([wf.waves[i] for i in idx], dt_ns=dt,
                                 false_alarm=args.false_alarm,
-                                pulse_sigma_ns=args.pulse_sigma_ns)
+                                pulse_sigma_ns=args.pulse_sigma_ns, device=args.device)
         for k, i in enumerate(idx):
             results[i] = table[k]
     return results

@@ -4,10 +4,13 @@ The steps of :func:`decompose` with ``detection="matched"``, each one NumPy
 call over a padded (N, n) array: robust baseline and noise, no-data gaps,
 clipped samples, the matched filter and its threshold, candidates, start
 widths (a log-parabola through the three samples around each maximum, exact
-for a Gaussian: Caruana et al. 1986), start amplitudes by linear least
-squares, the Levenberg-Marquardt fit of all waveforms with the same number of
-echoes together (:mod:`._batch_fit`), pruning of weak echoes, and rounds of
+for a Gaussian: Caruana et al. 1986), then the Levenberg-Marquardt fit of all
+waveforms with the same number of echoes together, its start amplitudes and
+baseline by linear least squares, pruning of weak echoes, and rounds of
 adding a resolved echo at the highest residual feature while the BIC falls.
+The fits run on an OpenCL device, one waveform per work-item (:mod:`._batch_cl`,
+``clsim/kernels/decompose_lm.cl``), which also returns each fit's residual for
+the search; without a device, vectorised in NumPy (:mod:`._batch_fit`).
 
 Differences from :func:`decompose`, for speed: one pulse for the whole batch
 (default: the 20th percentile of the widths of the strongest echoes), no
@@ -29,7 +32,8 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
 from clsim.errors import InputError
-from clsim.waveforms.decompose._batch_fit import fit_group
+from clsim.waveforms.decompose._batch_cl import device_fitter
+from clsim.waveforms.decompose._batch_fit import fit_group, linear_start
 from clsim.waveforms.decompose._checks import _positive
 from clsim.waveforms.decompose._fitting import _MIN_SIGMA_SAMPLES
 from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse, _FALLBACK_SIGMA, filter_output
@@ -42,8 +46,13 @@ _CURV_SMOOTH = 1.5
 
 def _pad(waveforms):
     """(N, n) samples, (N,) lengths from a 2-D array or a sequence of 1-D arrays."""
-    if isinstance(waveforms, np.ndarray) and waveforms.ndim == 2:
-        y = np.asarray(waveforms, dtype=float)
+    y = None
+    if not (isinstance(waveforms, np.ndarray) and waveforms.ndim != 2):
+        try:  # a 2-D array, or a sequence of equal-length rows: one conversion
+            y = np.asarray(waveforms, dtype=float)
+        except (TypeError, ValueError):
+            y = None  # ragged rows (or not numbers: said below)
+    if y is not None and y.ndim == 2:
         lengths = np.full(y.shape[0], y.shape[1])
     else:
         try:
@@ -69,18 +78,31 @@ def _pad(waveforms):
     return y, lengths
 
 
+def _order_mean(x, lo, hi):
+    """Per row, the mean of the ``lo``-th and ``hi``-th smallest entries of ``x``
+    (N, n) (indices (N,) int; NaN where ``hi`` is negative): a partial sort per group
+    of rows that share both indices."""
+    out = np.full(x.shape[0], np.nan)
+    key = lo * (x.shape[1] + 1) + hi
+    for kv in np.unique(key[hi >= 0]):
+        r = np.flatnonzero(key == kv)
+        i, j = int(lo[r[0]]), int(hi[r[0]])
+        part = np.partition(x[r] if r.size < x.shape[0] else x, (i, j) if i != j else i, axis=1)
+        out[r] = 0.5 * (part[:, i] + part[:, j])
+    return out
+
+
 def _noise(y, use):
     """Per row: median of the lowest fifth, and 1.4826 MAD(diff) / sqrt(2) floored at q/sqrt(12)."""
-    nrow = np.arange(y.shape[0])
-    srt = np.sort(np.where(use, y, np.inf), axis=1)
     nv = use.sum(axis=1)
     k = np.maximum(3, nv // 5)
-    base = 0.5 * (srt[nrow, (k - 1) // 2] + srt[nrow, k // 2])
+    base = _order_mean(np.where(use, y, np.inf), (k - 1) // 2, k // 2)
     d = np.diff(y, axis=1)
     dv = use[:, 1:] & use[:, :-1]
-    dn = np.where(dv, d, np.nan)
-    med = np.nanmedian(dn, axis=1)
-    sigma = 1.4826 * np.nanmedian(np.abs(dn - med[:, None]), axis=1) / np.sqrt(2.0)
+    c = dv.sum(axis=1)
+    med = _order_mean(np.where(dv, d, np.inf), (c - 1) // 2, c // 2 - (c == 0))
+    dev = np.where(dv, np.abs(d - med[:, None]), np.inf)
+    sigma = 1.4826 * _order_mean(dev, (c - 1) // 2, c // 2 - (c == 0)) / np.sqrt(2.0)
     q = np.where(dv & (d != 0), np.abs(d), np.inf).min(axis=1)
     q = np.where(np.isfinite(q), q, 1.0)
     return base, np.maximum(np.nan_to_num(sigma), q / np.sqrt(12.0))
@@ -172,7 +194,7 @@ def _censored(y, inside, saturation):
 class _State:
     """Echo parameters of every waveform, (N, K_max) with an ``on`` mask."""
 
-    def __init__(self, n_rows, k_max):
+    def __init__(self, n_rows, k_max, n):
         shape = (n_rows, k_max)
         self.a, self.m, self.s = np.zeros(shape), np.zeros(shape), np.ones(shape)
         self.se = np.full((n_rows, 3, k_max), np.nan)
@@ -181,20 +203,27 @@ class _State:
         self.b_se = np.full(n_rows, np.nan)
         self.rss = np.full(n_rows, np.nan)
         self.n_eff = np.zeros(n_rows, int)
+        # samples minus model of the last fit kept (float32, from the device), where ok
+        self.resid = np.zeros((n_rows, n), dtype=np.float32)
+        self.resid_ok = np.zeros(n_rows, bool)
 
     def k(self):
         return self.on.sum(axis=1)
 
 
-def _fit_rows(rows, a, m, s, b, y, use, cens, noise, fit_baseline=True):
+def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     """Fit rows (R,) with start (R, K) arrays, grouped by the number of active echoes
-    (``a`` NaN = inactive). Returns per-row results padded back to (R, K)."""
+    (``a`` NaN = inactive), each group one call of ``fit`` (:func:`_group_fitter`;
+    ``linear``: start amplitudes and baseline by linear least squares first).
+    Returns per-row results padded back to (R, K)."""
     rk = np.isfinite(a).sum(axis=1)
     R, K = a.shape
     out_a, out_m, out_s = np.full((R, K), np.nan), np.full((R, K), np.nan), np.full((R, K), np.nan)
     out_se = np.full((R, 3, K), np.nan)
     out_b, out_bse, out_rss = b.astype(float).copy(), np.full(R, np.nan), np.full(R, np.nan)
     out_neff = np.zeros(R, int)
+    out_resid = None
+    pending = []
     for k in np.unique(rk):
         if k == 0:
             continue
@@ -203,18 +232,22 @@ def _fit_rows(rows, a, m, s, b, y, use, cens, noise, fit_baseline=True):
         # compact the active echoes to the first k columns
         order = np.argsort(~on, axis=1, kind="stable")[:, :k]
         take = lambda v: np.take_along_axis(v[sel], order, axis=1)  # noqa: E731
-        r = rows[sel]
-        fit = fit_group(y[r], use[r], take(a), take(m), take(s), b[sel],
-                        cens=None if cens is None else cens[r], fit_baseline=fit_baseline,
-                        noise=noise[r])
+        pending.append((k, sel, order, fit(rows[sel], take(a), take(m), take(s), b[sel],
+                                           fit_baseline, linear)))
+    for k, sel, order, finish in pending:
+        res = finish()
         ii = sel[:, None]
-        out_a[ii, order], out_m[ii, order], out_s[ii, order] = fit.a, fit.m, fit.s
+        out_a[ii, order], out_m[ii, order], out_s[ii, order] = res.a, res.m, res.s
         for q in range(3):
-            out_se[ii, q, order] = fit.se[:, q * k:(q + 1) * k]
-        out_b[sel], out_rss[sel], out_neff[sel] = fit.b, fit.rss, fit.n_eff
+            out_se[ii, q, order] = res.se[:, q * k:(q + 1) * k]
+        out_b[sel], out_rss[sel], out_neff[sel] = res.b, res.rss, res.n_eff
         if fit_baseline:
-            out_bse[sel] = fit.se[:, 3 * k]
-    return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff
+            out_bse[sel] = res.se[:, 3 * k]
+        if res.resid is not None:
+            if out_resid is None:
+                out_resid = np.full((R, res.resid.shape[1]), np.nan, dtype=np.float32)
+            out_resid[sel] = res.resid
+    return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff, out_resid
 
 
 def _bad(a, m, s, se_a, u, sigma, n):
@@ -228,23 +261,32 @@ def _bad(a, m, s, se_a, u, sigma, n):
 def _resolved_rows(a, m, s, on, a1, m1, s1):
     """Sparrow's criterion between the new echo (a1, m1, s1) (R,) and each active
     echo (R, K): the pair's sum has four inflection points."""
+    k = int(on.sum(axis=1).max()) if on.size else 0
+    if k < on.shape[1]:  # only the columns some row uses, active ones first
+        order = np.argsort(~on, axis=1, kind="stable")[:, :k]
+        a, m, s, on = (np.take_along_axis(v, order, axis=1) for v in (a, m, s, on))
     lo = np.minimum(m - 3 * s, (m1 - 3 * s1)[:, None])
     hi = np.maximum(m + 3 * s, (m1 + 3 * s1)[:, None])
-    x = lo[..., None] + (hi - lo)[..., None] * np.linspace(0.0, 1.0, 160)
+    grid = np.linspace(0.0, 1.0, 160)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        z0 = (x - m[..., None]) / s[..., None]
-        z1 = (x - m1[:, None, None]) / s1[:, None, None]
-        curv = (a[..., None] * (z0 * z0 - 1) * np.exp(-0.5 * z0 * z0) / s[..., None] ** 2
-                + a1[:, None, None] * (z1 * z1 - 1) * np.exp(-0.5 * z1 * z1)
-                / s1[:, None, None] ** 2)
-    changes = np.count_nonzero(np.diff(np.sign(curv), axis=-1) != 0, axis=-1)
+        # z^2 of each echo of the pair on the grid x = lo + (hi - lo) * grid
+        z0 = ((lo - m) / s)[..., None] + ((hi - lo) / s)[..., None] * grid
+        z1 = (((lo - m1[:, None]) / s1[:, None])[..., None]
+              + ((hi - lo) / s1[:, None])[..., None] * grid)
+        z0 *= z0
+        z1 *= z1
+        curv = (z0 - 1) * np.exp(-0.5 * z0) * (a / s ** 2)[..., None]
+        curv += (z1 - 1) * np.exp(-0.5 * z1) * (a1 / s1 ** 2)[:, None, None]
+    sign = np.sign(curv)
+    changes = np.count_nonzero(sign[..., 1:] != sign[..., :-1], axis=-1)
     return np.all((changes >= 4) | ~on, axis=1)
 
 
 def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
                     pulse_sigma_ns=None, false_alarm: float = FALSE_ALARM,
                     saturation="auto", max_components: int = 8,
-                    add_components: bool = True, chunk: int = 2000) -> EchoTable:
+                    add_components: bool = True, chunk: int = 2000,
+                    device=None) -> EchoTable:
     """Gaussian decomposition of many waveforms at once (see the module docstring).
 
     Parameters
@@ -272,6 +314,12 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         Add resolved echoes at residual features while the BIC falls.
     chunk : int
         Waveforms processed together (memory: about ``chunk * n * 100`` bytes).
+    device : str, voxlidar.devices.DeviceInfo, pyopencl.Device or None
+        Where the Levenberg-Marquardt fits run, one waveform per work-item
+        (:mod:`._batch_cl`): None (default) ``VOXLIDAR_DEVICE``,
+        ``PYOPENCL_CTX`` or the best OpenCL device that builds the fitting
+        kernel, else NumPy; ``"numpy"``: the NumPy path (:mod:`._batch_fit`);
+        ``"0:1"``, ``"cpu"``, ``"gpu"``, ``"intel"``...: that device.
 
     Returns
     -------
@@ -284,6 +332,9 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         Empty input, a waveform under 4 samples, NaN or inf, non-positive
         ``dt_ns`` or ``false_alarm``, bad ``saturation``, ``pulse`` and
         ``pulse_sigma_ns`` both given.
+    DeviceError
+        ``device`` (or ``VOXLIDAR_DEVICE`` / ``PYOPENCL_CTX``) names a device
+        that is absent or cannot build the fitting kernel.
 
     Examples
     --------
@@ -300,6 +351,7 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         raise InputError(f"max_components must be >= 1; got {max_components!r}")
     if pulse is not None and pulse_sigma_ns is not None:
         raise InputError("give pulse (a measured response) or pulse_sigma_ns, not both")
+    fitter = device_fitter(device)
     y_all, len_all = _pad(waveforms)
     n_all = y_all.shape[0]
     t0 = np.broadcast_to(np.asarray(t0_ns, dtype=float), (n_all,))
@@ -314,7 +366,8 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
     for lo in range(0, n_all, step):
         hi = min(n_all, lo + step)
         parts.append(_decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl,
-                                      fa, saturation, int(max_components), add_components))
+                                      fa, saturation, int(max_components), add_components,
+                                      fitter))
     return _table(parts, t0, dt)
 
 
@@ -347,7 +400,28 @@ def _table(parts, t0, dt):
                      **{k: np.concatenate(v) for k, v in per.items()})
 
 
-def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components):
+def _group_fitter(device, y, use, cens, noise):
+    """``fit(rows, a, m, s, b, fit_baseline, linear) -> finish`` for rows of a chunk,
+    ``finish() -> GroupFit``: one launch on the OpenCL device (its samples uploaded
+    once; the groups of one round are all enqueued before the first wait), else
+    :func:`fit_group`."""
+    if device is not None:
+        bound = device.bind(y, use, cens, noise)
+        return lambda rows, a, m, s, b, fb, linear: bound.start(rows, a, m, s, b,
+                                                                fit_baseline=fb, linear=linear)
+
+    def fit(rows, a, m, s, b, fb, linear):
+        c = None if cens is None else cens[rows]
+        if linear and fb:
+            a, b = linear_start(y[rows], use[rows] if c is None else use[rows] & ~c, a, m, s, b)
+        res = fit_group(y[rows], use[rows], a, m, s, b, fit_baseline=fb, noise=noise[rows],
+                        cens=c)
+        return lambda: res
+
+    return fit
+
+
+def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, device):
     n_rows, n = y.shape
     rows = np.arange(n_rows)
     inside = np.arange(n) < lengths[:, None]
@@ -394,15 +468,28 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components):
     # amplitudes by linear least squares below
     height = np.where(peak, ys, np.where(shoulder, yc, np.where(weak, f, -np.inf)))
     k_cap = max(1, min(k_max, int((n - 2) // 3)))
-    order = np.argsort(-height, axis=1)[:, :k_cap]
-    cand = np.take_along_axis(height, order, axis=1) > -np.inf
-    st = _State(n_rows, k_cap)
-    r_c, c_c = np.nonzero(cand)
-    idx = order[r_c, c_c]
+    # the k_cap highest candidates of each row, highest first (candidates are sparse)
+    r_all, i_all = np.nonzero(height > -np.inf)
+    o = np.lexsort((-height[r_all, i_all], r_all))
+    r_all, i_all = r_all[o], i_all[o]
+    rank = np.arange(r_all.size) - np.searchsorted(r_all, r_all)
+    keep = rank < k_cap
+    r_c, c_c, idx = r_all[keep], rank[keep], i_all[keep]
+    cand = np.zeros((n_rows, k_cap), bool)
+    cand[r_c, c_c] = True
+    st = _State(n_rows, k_cap, n)
     is_peak = peak[r_c, idx]
     is_sh = shoulder[r_c, idx]
-    src = np.where(is_peak[:, None], ys[r_c], np.where(is_sh[:, None], -d2[r_c], f[r_c]))
-    loc, var = _log_parabola(src, np.arange(r_c.size), idx, n)
+    # the three samples around each candidate, from the curve that found it
+    near3 = np.clip(idx[:, None] + np.arange(-1, 2), 0, n - 1)
+    rr = r_c[:, None]
+    src = np.where(is_peak[:, None], ys[rr, near3], np.where(is_sh[:, None], -d2[rr, near3],
+                                                              f[rr, near3]))
+    loc, var = _log_parabola(src, np.arange(r_c.size), np.ones_like(idx), 3)
+    # (a candidate on the first or last sample has no neighbour on that side)
+    inner = (idx > 0) & (idx < n - 1)
+    loc = np.where(inner, loc + idx - 1, idx)
+    var = np.where(inner, var, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         var_sh = -yc[r_c, idx] / d2[r_c, idx] - _CURV_SMOOTH ** 2
     var = np.where(is_peak, var - 1.0, np.where(is_sh, var_sh, var - pl.sigma ** 2))
@@ -412,10 +499,10 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components):
     st.on = cand
     st.b = b.copy()
     st.noise = sigma
-    _linear_start(st, y, use, cens)
+    st.fit = _group_fitter(device, y, use, cens, sigma)
     start = (st.a.copy(), st.m.copy(), st.s.copy(), st.on.copy(), st.b.copy())
-    # fit, prune, add
-    _refit(st, rows[st.k() > 0], y, use, cens)
+    # fit (amplitudes and baseline first by linear least squares), prune, add
+    _refit(st, rows[st.k() > 0], y, use, cens, linear=True)
     _prune(st, y, use, cens, u, sigma, lengths)
     _rescue(st, start, y, use, cens, lengths)
     if add_components:
@@ -426,51 +513,15 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components):
     return st, sigma
 
 
-def _linear_start(st, y, use, cens):
-    """Amplitudes and baseline by linear least squares at the start locations and widths
-    (kept only where every amplitude comes out positive)."""
-    rows = np.flatnonzero(st.k() > 0)
-    if rows.size == 0:
-        return
-    n = y.shape[1]
-    t = np.arange(n, dtype=float)
-    w = use[rows] if cens is None else use[rows] & ~cens[rows]
-    k = int(st.k().max())
-    # active echoes first (the rest of the columns are never on here)
-    order = np.argsort(~st.on[rows], axis=1, kind="stable")[:, :k]
-    on = np.take_along_axis(st.on[rows], order, axis=1)
-    m = np.take_along_axis(st.m[rows], order, axis=1)
-    sg = np.take_along_axis(st.s[rows], order, axis=1)
-    z = (t - m[:, :, None]) / sg[:, :, None]
-    arg = np.multiply(z, z, dtype=np.float32)
-    arg *= np.float32(-0.5)
-    e = np.where(on[:, :, None], np.exp(arg, out=arg), np.float32(0.0))
-    design = np.concatenate([e.astype(float), np.ones((rows.size, 1, n))], axis=1) * w[:, None, :]
-    h = np.matmul(design, design.transpose(0, 2, 1))
-    h[:, np.arange(k), np.arange(k)] += np.where(on, 0.0, 1.0)
-    rhs = np.matmul(design, (y[rows] * w)[:, :, None])
-    try:
-        coef = np.linalg.solve(h + 1e-9 * np.eye(k + 1), rhs)[:, :, 0]
-    except np.linalg.LinAlgError:
-        return
-    ok = np.all((coef[:, :k] > 0) | ~on, axis=1) & np.all(np.isfinite(coef), axis=1)
-    r = rows[ok]
-    a = st.a[r]
-    np.put_along_axis(a, order[ok], np.where(on[ok], coef[ok, :k],
-                                             np.take_along_axis(a, order[ok], axis=1)), axis=1)
-    st.a[r] = a
-    st.b[r] = coef[ok, k]
-
-
-def _refit(st, rows, y, use, cens):
+def _refit(st, rows, y, use, cens, linear=False):
     if rows.size == 0:
         return
     a = np.where(st.on[rows], st.a[rows], np.nan)
-    res = _fit_rows(rows, a, st.m[rows], st.s[rows], st.b[rows], y, use, cens, st.noise)
+    res = _fit_rows(st.fit, rows, a, st.m[rows], st.s[rows], st.b[rows], linear=linear)
     _store(st, rows, *res)
 
 
-def _store(st, rows, a, m, s, se, b, bse, rss, neff):
+def _store(st, rows, a, m, s, se, b, bse, rss, neff, resid):
     on = np.isfinite(a)
     st.on[rows] = on
     st.a[rows] = np.where(on, a, 0.0)
@@ -478,6 +529,17 @@ def _store(st, rows, a, m, s, se, b, bse, rss, neff):
     st.s[rows] = np.where(on, s, 1.0)
     st.se[rows] = se
     st.b[rows], st.b_se[rows], st.rss[rows], st.n_eff[rows] = b, bse, rss, neff
+    _keep_resid(st, rows, resid)
+
+
+def _keep_resid(st, rows, resid):
+    """Keep the fits' residuals (R, n) of ``rows`` (None, or NaN rows: not kept)."""
+    if resid is None:
+        st.resid_ok[rows] = False
+        return
+    ok = ~np.isnan(resid[:, 0])
+    st.resid[rows[ok]] = resid[ok]
+    st.resid_ok[rows] = ok
 
 
 def _prune(st, y, use, cens, u, sigma, lengths, rounds=4):
@@ -503,6 +565,7 @@ def _prune(st, y, use, cens, u, sigma, lengths, rounds=4):
             keep[fix, best[fix]] = True
             locked[rows[fix]] = True
         st.on[rows] = keep
+        st.resid_ok[rows] = False
         gone = rows[~keep.any(axis=1)]
         st.se[gone] = np.nan
         _refit(st, rows[keep.any(axis=1)], y, use, cens)
@@ -517,8 +580,8 @@ def _rescue(st, start, y, use, cens, lengths):
         return
     best = np.argmax(np.where(on0[rows], a0[rows], -np.inf), axis=1)
     ii = np.arange(rows.size)
-    res = _fit_rows(rows, a0[rows, best][:, None], m0[rows, best][:, None],
-                    s0[rows, best][:, None], b0[rows], y, use, cens, st.noise)
+    res = _fit_rows(st.fit, rows, a0[rows, best][:, None], m0[rows, best][:, None],
+                    s0[rows, best][:, None], b0[rows], linear=True)
     a, m, s = res[0][:, 0], res[1][:, 0], res[2][:, 0]
     n = lengths[rows]
     ok = (np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES) & (s <= n) & (m >= -s)
@@ -531,15 +594,32 @@ def _rescue(st, start, y, use, cens, lengths):
     st.se[rows, :, best] = res[3][ii, :, 0]
     st.b[rows], st.b_se[rows], st.rss[rows], st.n_eff[rows] = (res[4][ii], res[5][ii],
                                                              res[6][ii], res[7][ii])
+    _keep_resid(st, rows, None if res[8] is None else res[8][ii])
 
 
 def _bic(rss, n, p):
     return n * np.log(np.maximum(rss, 1e-300) / n) + p * np.log(n)
 
 
+def _model(st, rows, n):
+    """(R, n) baseline plus the active echoes of ``rows`` at samples 0..n-1 (only the
+    columns some row uses; the exponential in float32, as in the fits)."""
+    on = st.on[rows]
+    k = int(on.sum(axis=1).max())
+    order = np.argsort(~on, axis=1, kind="stable")[:, :k]
+    take = lambda v: np.take_along_axis(v[rows], order, axis=1)  # noqa: E731
+    a = np.where(np.take_along_axis(on, order, axis=1), take(st.a), 0.0)
+    m, s = take(st.m).astype(np.float32), take(st.s).astype(np.float32)
+    z = np.arange(n, dtype=np.float32) - m[:, :, None]
+    z /= s[:, :, None]
+    z *= z
+    z *= np.float32(-0.5)
+    e = np.exp(z, out=z)
+    return st.b[rows][:, None] + np.matmul(a[:, None, :].astype(np.float32), e)[:, 0, :]
+
+
 def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
     n_rows, n = y.shape
-    t = np.arange(n, dtype=float)
     search = (st.k() > 0) & (st.k() < k_cap)
     skipped = np.zeros((n_rows, n), bool)
     passes = np.zeros(n_rows, int)
@@ -548,12 +628,13 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         if rows.size == 0:
             return
         on = st.on[rows]
-        z = (t - st.m[rows][:, :, None]) / st.s[rows][:, :, None]
-        model = st.b[rows][:, None] + np.sum(np.where(on[:, :, None], st.a[rows][:, :, None]
-                                                      * np.exp(-0.5 * z * z), 0.0), axis=1)
-        r = np.where(use[rows], y[rows] - model, 0.0)
-        if cens is not None:
-            r[cens[rows]] = 0.0
+        # the residual of the last fit, kept from the device (else computed here)
+        r = st.resid[rows].astype(float)
+        redo = np.flatnonzero(~st.resid_ok[rows])
+        if redo.size:
+            r[redo] = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
+            if cens is not None:
+                r[redo] = np.where(cens[rows[redo]], 0.0, r[redo])
         fm = filter_output(r, pl) / level[rows][:, None]
         fs = gaussian_filter1d(r, 1.0, axis=1, mode="constant") / (4.0 * sigma[rows])[:, None]
         out = ~use[rows] | skipped[rows]
@@ -594,8 +675,8 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         tm, ts = st.m[rows].copy(), st.s[rows].copy()
         ii = np.arange(rows.size)
         ta[ii, free], tm[ii, free], ts[ii, free] = a1, m1, s1
-        fa, fm_, fs_, fse, fb, fbse, frss, fneff = _fit_rows(rows, ta, tm, ts, st.b[rows],
-                                                             y, use, cens, sigma)
+        fa, fm_, fs_, fse, fb, fbse, frss, fneff, fres = _fit_rows(st.fit, rows, ta, tm, ts,
+                                                                   st.b[rows])
         k_old = st.k()[rows]
         bic_old = _bic(st.rss[rows], st.n_eff[rows], 3 * k_old + 1)
         bic_new = _bic(frss, fneff, 3 * (k_old + 1) + 1)
@@ -604,7 +685,7 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         ok = (bic_new < bic_old) & ~bad.any(axis=1) & np.isfinite(frss)
         acc = rows[ok]
         _store(st, acc, fa[ok], fm_[ok], fs_[ok], fse[ok], fb[ok], fbse[ok], frss[ok],
-               fneff[ok])
+               fneff[ok], None if fres is None else fres[ok])
         skipped[acc] = False
         passes[acc] = 0
         search[rows[~ok]] = False

@@ -38,7 +38,9 @@ class GroupFit:
     ``a, m, s`` (G, K) in samples; ``b`` (G,); ``rss`` (G,); ``se`` (G, P)
     standard errors in the order [a_1..a_K, m_1..m_K, s_1..s_K, b]
     (b's NaN when the baseline was held); ``n_eff`` (G,) samples that count;
-    ``n_iter`` (G,) Levenberg-Marquardt iterations (one model and Jacobian each).
+    ``n_iter`` (G,) Levenberg-Marquardt iterations (one model and Jacobian each);
+    ``resid`` (G, n) float32 samples minus model at the fit, zero where a sample
+    does not count or is censored, or None (the NumPy path does not keep it).
     """
 
     a: np.ndarray
@@ -49,6 +51,7 @@ class GroupFit:
     se: np.ndarray
     n_eff: np.ndarray
     n_iter: np.ndarray
+    resid: np.ndarray | None = None
 
 
 def _evaluate(y, w, cens, t, a, m, s, b, fit_baseline, want_jac):
@@ -198,20 +201,56 @@ def fit_group(y, w, a, m, s, b, *, cens=None, fit_baseline=True, max_iter=40, to
             done |= np.any((sa <= 0.25) | (a[act] <= 0.0) | (ma < first[act, None] - sa)
                            | (ma > last[act, None] + sa), axis=1)
             act = act[~done]
-        # standard errors from s^2 (J^T J)^-1 at the solution
         n_eff = w.sum(axis=1)
         if cens is not None:
             n_eff = n_eff - (cens & w).sum(axis=1)
-        dof = np.maximum(n_eff - p, 0)
-        se = np.full((g, 3 * k + 1), np.nan)
+        se = standard_errors(hess, cost, n_eff, k)
+    return GroupFit(a, m, s, b, cost, se, n_eff, n_iter)
+
+
+def linear_start(y, w, a, m, s, b):
+    """Start amplitudes and baseline by linear least squares at the start locations and
+    widths ``m, s`` (G, K) over the samples ``w`` (G, n) that count (clipped ones left
+    out): sample heights include the tails of overlapping echoes, the linear solution
+    does not. Kept for a waveform only where every amplitude comes out positive;
+    returns (a, b)."""
+    g, k = a.shape
+    n = y.shape[1]
+    z = (np.arange(n, dtype=float) - m[:, :, None]) / s[:, :, None]
+    arg = np.multiply(z, z, dtype=np.float32)
+    arg *= np.float32(-0.5)
+    design = np.ones((g, k + 1, n))
+    design[:, :k] = np.exp(arg, out=arg)
+    design *= w[:, None, :]
+    h = np.matmul(design, design.transpose(0, 2, 1))
+    rhs = np.matmul(design, (y * w)[:, :, None])
+    try:
+        coef = np.linalg.solve(h + 1e-9 * np.eye(k + 1), rhs)[:, :, 0]
+    except np.linalg.LinAlgError:
+        return a, b
+    ok = np.all(coef[:, :k] > 0, axis=1) & np.all(np.isfinite(coef), axis=1)
+    return np.where(ok[:, None], coef[:, :k], a), np.where(ok, coef[:, k], b)
+
+
+def standard_errors(hess, rss, n_eff, k):
+    """(G, 3K + 1) standard errors from ``s^2 (J^T J)^-1``, ``s^2 = RSS / (n - P)``.
+
+    ``hess`` (G, P, P) is ``J^T J`` at the solution (P = 3K + 1, or 3K with the
+    baseline held: its error is then NaN); NaN where a diagonal is not positive
+    or no degree of freedom is left.
+    """
+    g, p = hess.shape[0], hess.shape[1]
+    dof = np.maximum(n_eff - p, 0)
+    se = np.full((g, 3 * k + 1), np.nan)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         d = np.diagonal(hess, axis1=1, axis2=2)
         okh = np.all(d > 0, axis=1) & (dof > 0)
         if okh.any():
-            hh = hess[okh] + 1e-12 * d[okh].max(axis=1)[:, None, None] * eye
+            hh = hess[okh] + 1e-12 * d[okh].max(axis=1)[:, None, None] * np.eye(p)
             try:
                 cov = np.linalg.inv(hh)
             except np.linalg.LinAlgError:
                 cov = np.linalg.pinv(hh)
-            var = np.diagonal(cov, axis1=1, axis2=2) * (cost[okh] / dof[okh])[:, None]
+            var = np.diagonal(cov, axis1=1, axis2=2) * (rss[okh] / dof[okh])[:, None]
             se[np.ix_(okh, np.arange(p))] = np.sqrt(np.clip(var, 0.0, None))
-    return GroupFit(a, m, s, b, cost, se, n_eff, n_iter)
+    return se

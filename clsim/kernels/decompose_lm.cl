@@ -1,0 +1,363 @@
+/* Levenberg-Marquardt fits of Gaussian sums, one work-item per waveform.
+ *
+ * The OpenCL twin of clsim/waveforms/decompose/_batch_fit.py (the NumPy path):
+ * the same model, censoring, damping (Nielsen 1999), trust region and stopping
+ * rules, in float32.  Every waveform of a launch has K echoes (compile-time,
+ * -DK) and a fitted (-DFIT_BASELINE=1) or held baseline.  Parameters are laid
+ * out [a_1..a_K, m_1..m_K, s_1..s_K, b] (samples); the Jacobian is never
+ * stored: each block of 8 samples (a float8) adds its rows to the normal matrix
+ * J^T J and to J^T r, skipping the echoes more than REACH sigma away.
+ *
+ * Portability: the kernel is built without -cl-fast-relaxed-math and relies on
+ * no infinity: a trial step whose residual sum overflows (or is NaN) fails the
+ * finite test `ct <= cost && ct < BIG` and is rejected; a parameter with a zero
+ * diagonal in J^T J is frozen instead of dividing by it.
+ */
+#include "common.cl"
+
+#ifndef K
+#error "build with -DK=<echoes per waveform>"
+#endif
+#ifndef FIT_BASELINE
+#define FIT_BASELINE 1
+#endif
+
+#define NP (3 * K + 1)          /* parameters stored */
+#define NF (3 * K + FIT_BASELINE) /* parameters fitted */
+#define USE 1                   /* flag bits of a sample: it counts */
+#define CENS 2                  /* it is censored (clipped) */
+#define BIG 3.0e38f             /* "no value": above any residual sum that passes */
+
+/* Sigmas beyond which an echo is left out of a block of samples (exp(-32) = 1.3e-14). */
+#define REACH 8.0f
+/* Index of (p, c), c >= p, in the packed upper triangle of an NF x NF matrix. */
+#define HIDX(p, c) ((p) * (2 * NF - (p) - 1) / 2 + (c))
+
+CLSIM_INLINE float hsum8(const float8 v)
+{
+    const float4 a = v.lo + v.hi;
+    return (a.x + a.y) + (a.z + a.w);
+}
+
+/* Residual sum of squares at q and, when want, J^T J (h, NF x NF, full) and J^T r (g).
+ * A censored sample counts only where the model falls below it (Tobin 1958).
+ * Eight samples at a time (float8: one SIMD register on a CPU); rows are padded
+ * to a multiple of 8 with samples that do not count. */
+CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const int n,
+                            const float *q, const int want, float *h, float *g)
+{
+    float inv_s[K], a_s[K];
+    for (int k = 0; k < K; ++k) {
+        inv_s[k] = 1.0f / q[2 * K + k];
+        a_s[k] = q[k] * inv_s[k];
+    }
+    /* an echo reaches the samples within REACH sigma of its peak (beyond, its
+     * exponential is under 1.3e-14): a block of samples outside that reach skips it */
+    float lo[K], hi[K];
+    for (int k = 0; k < K; ++k) {
+        lo[k] = q[K + k] - REACH * q[2 * K + k] - 7.0f;
+        hi[k] = q[K + k] + REACH * q[2 * K + k];
+    }
+    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    float8 hv[NF * (NF + 1) / 2], gv[NF];
+    float8 cost = (float8)(0.0f);
+    if (want) {
+        for (int i = 0; i < NF * (NF + 1) / 2; ++i) hv[i] = (float8)(0.0f);
+        for (int i = 0; i < NF; ++i) gv[i] = (float8)(0.0f);
+    }
+    for (int i0 = 0; i0 < n; i0 += 8) {
+        const int8 f = convert_int8(vload8(0, fl + i0));
+        const float x0 = (float)i0;
+        const float8 t = (float8)(x0) + lane;
+        float8 e[K], z[K];
+        int near[K];
+        float8 model = (float8)(q[3 * K]);
+        for (int k = 0; k < K; ++k) {
+            near[k] = x0 >= lo[k] && x0 <= hi[k];
+            if (near[k]) {
+                z[k] = (t - q[K + k]) * inv_s[k];
+                e[k] = exp(-0.5f * z[k] * z[k]);
+                model += q[k] * e[k];
+            }
+        }
+        float8 r = model - vload8(0, y + i0);
+        const int8 keep = ((f & USE) != 0) & ~(((f & CENS) != 0) & (r >= 0.0f));
+        r = select((float8)(0.0f), r, keep);
+        cost += r * r;
+        if (!want) continue;
+        const float8 kf = select((float8)(0.0f), (float8)(1.0f), keep);
+        float8 d[NF];
+        for (int k = 0; k < K; ++k) {
+            if (!near[k]) continue;
+            d[k] = e[k] * kf;
+            d[K + k] = d[k] * a_s[k] * z[k];
+            d[2 * K + k] = d[K + k] * z[k];
+        }
+#if FIT_BASELINE
+        d[3 * K] = kf;
+#endif
+        /* only the rows and columns of the echoes in reach (and the baseline) */
+        for (int p = 0; p < NF; ++p) {
+            if (p < 3 * K && !near[p % K]) continue;
+            gv[p] += d[p] * r;
+            for (int c = p; c < NF; ++c) {
+                if (c < 3 * K && !near[c % K]) continue;
+                hv[HIDX(p, c)] += d[p] * d[c];
+            }
+        }
+    }
+    if (want) {
+        int idx = 0;
+        for (int p = 0; p < NF; ++p) {
+            g[p] = hsum8(gv[p]);
+            for (int c = p; c < NF; ++c) {
+                const float v = hsum8(hv[idx++]);
+                h[p * NF + c] = v;
+                h[c * NF + p] = v;
+            }
+        }
+    }
+    return hsum8(cost);
+}
+
+/* Cholesky factorisation in place of the M x M matrix c (lower triangle); 0 when
+ * it is not positive definite. */
+CLSIM_INLINE int cholesky(float *c, const int M)
+{
+    for (int j = 0; j < M; ++j) {
+        float d = c[j * M + j];
+        for (int k = 0; k < j; ++k) d -= c[j * M + k] * c[j * M + k];
+        if (!(d > 0.0f)) return 0;
+        d = sqrt(d);
+        c[j * M + j] = d;
+        for (int i = j + 1; i < M; ++i) {
+            float v = c[i * M + j];
+            for (int k = 0; k < j; ++k) v -= c[i * M + k] * c[j * M + k];
+            c[i * M + j] = v / d;
+        }
+    }
+    return 1;
+}
+
+/* Solve (L L^T) x = b with the factor from cholesky(); x may alias b. */
+CLSIM_INLINE void chol_solve(const float *c, const float *b, float *x, const int M)
+{
+    for (int i = 0; i < M; ++i) {
+        float v = b[i];
+        for (int k = 0; k < i; ++k) v -= c[i * M + k] * x[k];
+        x[i] = v / c[i * M + i];
+    }
+    for (int i = M - 1; i >= 0; --i) {
+        float v = x[i];
+        for (int k = i + 1; k < M; ++k) v -= c[k * M + i] * x[k];
+        x[i] = v / c[i * M + i];
+    }
+}
+
+#if FIT_BASELINE
+/* Start amplitudes and baseline by linear least squares at the start locations and
+ * widths (clipped samples left out), kept only when every amplitude comes out
+ * positive: the twin of _batch_fit.linear_start. c: (K+1)^2 scratch. */
+CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, const int n,
+                               float *q, float *c)
+{
+#define NL (K + 1)
+    float inv_s[K];
+    for (int k = 0; k < K; ++k) inv_s[k] = 1.0f / q[2 * K + k];
+    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    float8 av[NL * (NL + 1) / 2], bv[NL];
+    for (int i = 0; i < NL * (NL + 1) / 2; ++i) av[i] = (float8)(0.0f);
+    for (int i = 0; i < NL; ++i) bv[i] = (float8)(0.0f);
+    for (int i0 = 0; i0 < n; i0 += 8) {
+        const int8 f = convert_int8(vload8(0, fl + i0));
+        const float8 wf = select((float8)(0.0f), (float8)(1.0f), (f & (USE | CENS)) == USE);
+        const float8 t = (float8)((float)i0) + lane;
+        const float8 yv = vload8(0, y + i0);
+        float8 e[NL];
+        for (int k = 0; k < K; ++k) {
+            const float8 z = (t - q[K + k]) * inv_s[k];
+            e[k] = exp(-0.5f * z * z) * wf;
+        }
+        e[K] = wf;
+        int idx = 0;
+        for (int p = 0; p < NL; ++p) {
+            bv[p] += e[p] * yv;
+            for (int c2 = p; c2 < NL; ++c2) av[idx++] += e[p] * e[c2];
+        }
+    }
+    float x[NL], sc[NL];
+    int idx = 0;
+    for (int p = 0; p < NL; ++p) {
+        x[p] = hsum8(bv[p]);
+        for (int c2 = p; c2 < NL; ++c2) {
+            const float v = hsum8(av[idx++]);
+            c[p * NL + c2] = v;
+            c[c2 * NL + p] = v;
+        }
+    }
+    for (int p = 0; p < NL; ++p) {
+        if (!(c[p * NL + p] > 0.0f)) return;
+        sc[p] = rsqrt(c[p * NL + p]);
+    }
+    for (int p = 0; p < NL; ++p) {
+        for (int c2 = 0; c2 < NL; ++c2) c[p * NL + c2] *= sc[p] * sc[c2];
+        c[p * NL + p] += 1.0e-6f;
+        x[p] *= sc[p];
+    }
+    if (!cholesky(c, NL)) return;
+    chol_solve(c, x, x, NL);
+    for (int p = 0; p < NL; ++p) x[p] *= sc[p];
+    for (int k = 0; k < K; ++k)
+        if (!(x[k] > 0.0f && x[k] < BIG)) return;
+    if (!(fast_abs(x[K]) < BIG)) return;
+    for (int k = 0; k < K; ++k) q[k] = x[k];
+    q[3 * K] = x[K];
+#undef NL
+}
+#endif
+
+/* The damped normal matrix h + lam diag(h) (lam at least 1e-6) into c, scaled to a
+ * unit diagonal (Marquardt 1963: the same step, and float32 factorises it far more
+ * accurately than the raw matrix, whose diagonal spans many orders), with its
+ * right-hand side -g scaled alike; the step is x * sc.  A parameter whose diagonal
+ * is (relatively) zero is frozen: its row and column become the identity, its
+ * right-hand side zero, so it takes no step. */
+CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float *c, float *rhs,
+                         float *sc)
+{
+    float dmax = 0.0f;
+    for (int p = 0; p < NF; ++p) dmax = fast_max(dmax, h[p * NF + p]);
+    const float tiny = 1.0e-7f * dmax;
+    for (int p = 0; p < NF; ++p) sc[p] = h[p * NF + p] > tiny ? rsqrt(h[p * NF + p]) : 0.0f;
+    for (int p = 0; p < NF; ++p) {
+        for (int c2 = 0; c2 < NF; ++c2) c[p * NF + c2] = h[p * NF + c2] * sc[p] * sc[c2];
+        c[p * NF + p] = sc[p] > 0.0f ? 1.0f + fast_max(lam, 1.0e-6f) : 1.0f;
+        rhs[p] = -g[p] * sc[p];
+    }
+}
+
+/* What a work-item returns, one row of OUT (floats): the fit (NP), the residual
+ * sum of squares, the samples that count, the iterations, J^T J at the fit
+ * (NF x NF, for the standard errors, inverted in float64 on the host), and the
+ * samples minus the model at the fit (n; zero where a sample does not count or
+ * is censored).  One row, so one copy back per launch. */
+#define OUT_RSS NP
+#define OUT_NEFF (NP + 1)
+#define OUT_ITER (NP + 2)
+#define OUT_H (NP + 3)
+#define OUT_RES (NP + 3 + NF * NF)
+
+/* One launch: waveform `row[w]` of the uploaded samples for each work-item w,
+ * from the start values Q (G x NP). */
+kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
+                   global const int *row, global const int2 *span,
+                   global const float *noise, global const float *Q, global float *OUT,
+                   const int G, const int max_iter, const float tol, const int linear)
+{
+    const int w = get_global_id(0);
+    if (w >= G) return;
+    global const float *y = Y + (size_t)row[w] * n;
+    global const uchar *fl = FL + (size_t)row[w] * n;
+    global float *out = OUT + (size_t)w * (OUT_RES + n);
+    float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
+    float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
+    for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
+    const float first = (float)span[row[w]].x, last = (float)span[row[w]].y;
+    const float enough_noise = 0.01f * noise[row[w]] * noise[row[w]];
+#if FIT_BASELINE
+    if (linear) linear_start(y, fl, n, q, c);
+#endif
+    float cost = evaluate(y, fl, n, q, 1, h, g);
+    float lam = 1.0e-3f, nu = 2.0f;
+    int it = 0;
+    while (it < max_iter) {
+        ++it;
+        damped(h, g, lam, c, rhs, sc);
+        int done = 0;
+        if (!cholesky(c, NF)) {
+            lam *= nu;
+            nu *= 2.0f;
+            if (lam > 1.0e8f) break;
+            continue;
+        }
+        chol_solve(c, rhs, step, NF);
+        for (int p = 0; p < NF; ++p) step[p] *= sc[p];
+        /* trust region in the natural scales: no location moves more than
+         * 2 sigma + 1 sample, no width more than half of itself + 0.5 sample */
+        float ratio = 1.0f;
+        for (int k = 0; k < K; ++k) {
+            const float s = q[2 * K + k];
+            ratio = fast_max(ratio, fast_abs(step[K + k]) / (2.0f * s + 1.0f));
+            ratio = fast_max(ratio, fast_abs(step[2 * K + k]) / (0.5f * s + 0.5f));
+        }
+        for (int p = 0; p < NF; ++p) step[p] /= ratio;
+        for (int p = 0; p < NP; ++p) qt[p] = q[p] + (p < NF ? step[p] : 0.0f);
+        for (int k = 0; k < K; ++k)
+            qt[2 * K + k] = clamp(fast_abs(qt[2 * K + k]), 0.2f, (float)n);
+        const float ct = evaluate(y, fl, n, qt, 1, ht, gt);
+        /* predicted decrease of the RSS: -2 g.d - d.H.d */
+        float pred = 0.0f;
+        for (int p = 0; p < NF; ++p) {
+            float hd = 0.0f;
+            for (int c2 = 0; c2 < NF; ++c2) hd += h[p * NF + c2] * step[c2];
+            pred -= step[p] * (2.0f * g[p] + hd);
+        }
+        if (ct <= cost && ct < BIG) {
+            const float gain = cost - ct;
+            const float rho = pred > 0.0f ? clamp(gain / pred, 0.0f, 1.0f) : 0.0f;
+            const float x = 2.0f * rho - 1.0f;
+            lam *= fast_max(1.0f / 3.0f, 1.0f - x * x * x);
+            nu = 2.0f;
+            for (int p = 0; p < NP; ++p) q[p] = qt[p];
+            for (int p = 0; p < NF * NF; ++p) h[p] = ht[p];
+            for (int p = 0; p < NF; ++p) g[p] = gt[p];
+            cost = ct;
+            done = gain <= fast_max(tol * cost, enough_noise);
+        } else {
+            lam *= nu;
+            nu *= 2.0f;
+        }
+        /* MINPACK's xtol: the step under tol of the parameters' size */
+        float size2 = 0.0f, step2 = 0.0f;
+        for (int p = 0; p < 3 * K; ++p) {
+            size2 += q[p] * q[p];
+            step2 += step[p] * step[p];
+        }
+        done |= step2 <= tol * tol * size2;
+        done |= lam > 1.0e8f;
+        /* an echo collapsed or left the record: model selection takes over */
+        for (int k = 0; k < K; ++k) {
+            const float s = q[2 * K + k], m = q[K + k];
+            done |= (s <= 0.25f) | (q[k] <= 0.0f) | (m < first - s) | (m > last + s);
+        }
+        if (done) break;
+    }
+    /* J^T J at the solution: the host turns it into standard errors */
+    int n_eff = 0;
+    for (int i = 0; i < n; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);  /* n: padded */
+    for (int p = 0; p < NF * NF; ++p) out[OUT_H + p] = h[p];
+    /* the residual at the fit, for the host's search for further echoes */
+    global float *res = out + OUT_RES;
+    float inv_s[K];
+    for (int k = 0; k < K; ++k) inv_s[k] = 1.0f / q[2 * K + k];
+    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    for (int i0 = 0; i0 < n; i0 += 8) {
+        const float x0 = (float)i0;
+        const float8 t = (float8)(x0) + lane;
+        float8 model = (float8)(q[3 * K]);
+        for (int k = 0; k < K; ++k) {
+            const float reach = REACH * q[2 * K + k];
+            if (x0 >= q[K + k] - reach - 7.0f && x0 <= q[K + k] + reach) {
+                const float8 z = (t - q[K + k]) * inv_s[k];
+                model += q[k] * exp(-0.5f * z * z);
+            }
+        }
+        const int8 f = convert_int8(vload8(0, fl + i0));
+        vstore8(select((float8)(0.0f), vload8(0, y + i0) - model, (f & (USE | CENS)) == USE),
+                0, res + i0);
+    }
+    for (int p = 0; p < NP; ++p) out[p] = q[p];
+    out[OUT_RSS] = cost;
+    out[OUT_NEFF] = (float)n_eff;
+    out[OUT_ITER] = (float)it;
+}
