@@ -88,7 +88,7 @@ def register(subparsers) -> None:
 class _Waveforms:
     """Waveforms of a file: samples, sample spacing, optional geometry per waveform."""
 
-    def __init__(self, kind, waves, dt_ns, geometry, meta, pulse_id=None, gps_time=None):
+    def __init__(self, kind, waves, dt_ns, geometry, meta, pulse_id=None, gps_time=None, volts=None):
         self.kind = kind
         self.waves = waves  # list of 1-D arrays
         self.dt_ns = dt_ns  # list of float
@@ -96,6 +96,8 @@ class _Waveforms:
         self.meta = meta
         self.pulse_id = list(range(len(waves))) if pulse_id is None else pulse_id  # the file's pulse of each
         self.gps_time = [float("nan")] * len(waves) if gps_time is None else gps_time  # s; NaN: none
+        # digitiser calibration per waveform, (gain, offset): volts = offset + gain * counts; None: none
+        self.volts = [None] * len(waves) if volts is None else volts
 
 
 def _read_csv_rows(path: Path) -> list:
@@ -139,19 +141,20 @@ def load_waveforms(path: Path, *, dt_ns=None, geolocation=None) -> _Waveforms:
         first = np.full(w.n_packets, -1)
         valid = np.flatnonzero(w.packet >= 0)
         first[w.packet[valid][::-1]] = valid[::-1]
-        waves, dts, geo, gps = [], [], [], []
+        waves, dts, geo, gps, volts = [], [], [], [], []
         for p in range(w.n_packets):
             i = int(first[p])
             d = w.descriptor_of_point(i)
             waves.append(w.samples(i, volts=False).astype(np.float64))
             dts.append(d.spacing_ps / 1000.0)
+            volts.append((float(d.gain), float(d.offset)) if d.gain != 0 else None)
             geo.append(w.waveform_origin(i))
             gps.append(float(w.gps_time[i]))
         meta = dict(points=len(w), packets=w.n_packets,
                     descriptors={k: vars(v) for k, v in w.descriptors.items()},
                     multi_return_points=int(np.sum(w.number_of_returns > 1)))
         return _Waveforms("LAS waveform packets", waves, dts, geo, meta, pulse_id=list(range(w.n_packets)),
-                          gps_time=gps)
+                          gps_time=gps, volts=volts)
     if suffix == ".pls":
         from clsim.waveforms.io import read_pulsewaves
 
@@ -260,7 +263,7 @@ def cmd_decompose(args) -> int:
                                  false_alarm=args.false_alarm,
                                  pulse_sigma_ns=args.pulse_sigma_ns))
     header = ["waveform", "pulse_id", "gps_time", "echo", "amplitude", "location_ns", "sigma_ns", "amplitude_se",
-              "location_se_ns", "sigma_se_ns", "baseline", "x", "y", "z"]
+              "location_se_ns", "sigma_se_ns", "baseline", "amplitude_v", "baseline_v", "x", "y", "z"]
 
     def write(tmp):
         with open(tmp, "w", newline="") as fh:
@@ -272,12 +275,16 @@ def cmd_decompose(args) -> int:
                 geo = wf.geometry[i]
                 xyz = (echo_positions(c.location_ns, origin=geo[0], direction=geo[1])
                        if geo is not None else np.full((len(c), 3), np.nan))
+                cal = wf.volts[i]
                 for k in range(len(c)):
                     t = wf.gps_time[i]
+                    # volts: the digitiser's gain scales an amplitude above the baseline; the offset is in the baseline
+                    v = ([f"{cal[0] * c.amplitude[k]:.6g}", f"{cal[1] + cal[0] * c.baseline:.6g}"] if cal is not None
+                         else ["", ""])
                     w.writerow([i, wf.pulse_id[i], f"{t:.6f}" if np.isfinite(t) else "", k]
                                + [f"{getattr(c, col)[k]:.6g}" for col in c.COLUMNS]
-                               + [f"{c.baseline:.6g}"]
-                               + [("" if not np.isfinite(v) else f"{v:.4f}") for v in xyz[k]])
+                               + [f"{c.baseline:.6g}"] + v
+                               + [("" if not np.isfinite(xv) else f"{xv:.4f}") for xv in xyz[k]])
 
     with staged([args.output, args.plot]) as tmp:  # the table and its picture: both or neither
         write(tmp[args.output])

@@ -150,4 +150,8 @@ def test_decompose_names_each_pulse_and_its_gps_time(shared_data, tmp_path):
     assert {int(r["pulse_id"]) for r in rows} <= set(range(20))
     for r in rows:
         assert float(r["gps_time"]) == pytest.approx(w.gps_time[first[int(r["pulse_id"])]], abs=1e-6)
+        # volts from the packet's descriptor: gain x counts above the baseline, offset + gain x baseline
+        d = w.descriptor_of_point(first[int(r["pulse_id"])])
+        assert float(r["amplitude_v"]) == pytest.approx(d.gain * float(r["amplitude"]), rel=1e-5)
+        assert float(r["baseline_v"]) == pytest.approx(d.offset + d.gain * float(r["baseline"]), rel=1e-5, abs=1e-9)
     assert (tmp_path / "fit.png").stat().st_size > 1000
