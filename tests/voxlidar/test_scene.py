@@ -106,3 +106,14 @@ def test_npz_write_is_atomic(scene, tmp_path, monkeypatch):
         scene.save(path)
     assert path.read_bytes() == before
     assert [f.name for f in tmp_path.iterdir()] == ["s.npz"]
+
+
+def test_vox_refuses_a_grid_it_would_list_in_gigabytes(tmp_path):
+    """A .vox lists every voxel as text: a 2 cm grid over a tree would be ~10 GB; one line says so instead."""
+    from tlsvox.voxel.amapvox import VOX_MAX_VOXELS
+
+    scene = Scene(origin=(0, 0, 0), voxel_size=0.02, shape=(300, 300, 300), ijk=[[1, 2, 3]], lad=[1.0])
+    assert 300**3 > VOX_MAX_VOXELS
+    with pytest.raises(InputError, match="lists every voxel of the grid: 300 x 300 x 300"):
+        write_vox(scene, tmp_path / "big.vox")
+    assert not (tmp_path / "big.vox").exists()

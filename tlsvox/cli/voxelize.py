@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.errors import VoxlidarError, exit_code
-from voxlidar.safeio import check_distinct, check_outputs, json_text
+from voxlidar.safeio import check_distinct, check_outputs, json_text, staged
 
 from tlsvox.errors import InputError, TlsvoxError
 
@@ -234,9 +234,10 @@ def run(args) -> int:
         if args.strict and res.scene.meta["warnings"]:
             raise TlsvoxError(f"{len(res.scene.meta['warnings'])} quality warning(s) with --strict; "
                               "nothing was written (drop --strict to keep the result)")
-        res.scene.save(args.output)
-        if args.vox:
-            write_vox(res.scene, args.vox)
+        with staged([args.output, args.vox]) as tmp:  # the scene and its .vox: both or neither
+            res.scene.save(tmp[args.output])
+            if args.vox:
+                write_vox(res.scene, tmp[args.vox])
     except VoxlidarError as err:
         print(f"tlsvox voxelize: error: {err}", file=sys.stderr)
         return exit_code(err)

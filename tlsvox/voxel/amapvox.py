@@ -47,6 +47,10 @@ __all__ = ["read_vox", "write_vox"]
 COLUMNS = ("PadBVTotal", "wood", "occluded", "lad_std")
 
 
+#: grids above this many voxels are refused by :func:`write_vox` (the format lists every voxel, as text)
+VOX_MAX_VOXELS = 20_000_000
+
+
 def write_vox(scene: Scene, path: "str | os.PathLike", *, max_pad: float | None = None,
               metadata: bool = True) -> Path:
     """Write ``scene`` as an AMAPVox ``.vox`` file (atomic).
@@ -64,6 +68,11 @@ def write_vox(scene: Scene, path: "str | os.PathLike", *, max_pad: float | None 
     if not isinstance(scene, Scene):
         raise InputError(f"scene must be a tlsvox Scene, got {type(scene).__name__}")
     nx, ny, nz = scene.shape
+    n_cells = int(nx) * int(ny) * int(nz)
+    if n_cells > VOX_MAX_VOXELS:
+        raise InputError(f"a .vox file lists every voxel of the grid: {nx} x {ny} x {nz} = {n_cells:,} lines "
+                         f"(more than {VOX_MAX_VOXELS:,}); keep the scene file (.npz), which stores only the "
+                         "voxels that hold something, or voxelise coarser for the .vox")
     lad = scene.dense("lad")
     wood = scene.dense("wood")
     occ = scene.dense("occluded")
