@@ -62,3 +62,29 @@ def test_bad_input_names_the_parameter():
     with pytest.raises(InputError, match="no pose"):
         scan.pose_true = None
         measure_leaf_angles([scan])
+
+
+def test_cli_voxelize_leaf_angle_measured(tmp_path, capsys):
+    """`tlsvox voxelize --leaf-angle measured`: the fitted model drives G and the scene states it."""
+    from tlsvox.cli.voxelize import main as cli_main
+    from voxlidar.scene import Scene
+
+    _, scan = _scan_of("erectophile", noise=0.0)
+    scan.pose = scan.pose_true
+    path = tmp_path / "slab.laz"
+    scan.write(path)
+    out = tmp_path / "scene.npz"
+    rc = cli_main([str(path), "--voxel-size", "0.5", "--ground", "none", "--leaf-angle", "measured",
+                   "--leaf-angle-layers", "2", "-o", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0 and '"measured"' in text
+    scene = Scene.load(out)
+    assert scene.leaf_angle.kind.value == "beta"
+    measured = scene.meta["leaf_angle_measured"]
+    assert len(measured["layers"]) == 2 and measured["crown"]["leaf_angle"] == scene.leaf_angle.to_dict()
+    assert abs(measured["crown"]["mean_inclination_deg"] - np.degrees(LeafAngle("erectophile").mean_angle())) < 5
+    rc = cli_main([str(path), "--leaf-angle", "measured", "--leaf-angle-layers", "0", "-o",
+                   str(tmp_path / "x.npz"), "-q"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--leaf-angle-layers" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.npz").exists()
