@@ -9,6 +9,7 @@ from tlsvox.voxel.estimators import Estimator
 from tlsvox.classify import PointClass, classify_scan
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.io import read_any
+from tlsvox.leafangles import measure_leaf_angles
 from tlsvox.register import RegistrationError, register_pair, register_scans
 from voxlidar.leafangle import LeafAngle, LeafAngleKind
 from voxlidar.materials import Material, Optics
@@ -24,6 +25,7 @@ __all__ = [
     "RegistrationError",
     "classify_scan",
     "read_any",
+    "measure_leaf_angles",
     "register_pair",
     "register_scans",
     "Estimator",

@@ -38,6 +38,11 @@ nominal reflectance of a full hit; 'threshold' is the paper's rule (drop
 returns under half the nominal leaf reflectance, then 1/n). The summary
 states the rule used per scan (docs/voxelize.md compares them).
 
+Leaf angles (--leaf-angle): a named distribution, or 'measured' from the scans'
+leaf echoes (truth material or the leaf class of 'tlsvox classify'): plane fits
+at leaf scale, weighted for visibility, corrected for range noise, per crown
+layer (docs/voxelize.md, docs/bench/leaf_angles.md for its accuracy).
+
 Output: the scene NPZ (docs/formats.md) and, with --vox, an AMAPVox .vox file.
 """
 
@@ -72,9 +77,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="scene file to write (.npz)")
     p.add_argument("--vox", help="also write an AMAPVox .vox file")
     p.add_argument("--voxel-size", type=float, default=0.2, help="voxel edge in metres (default 0.2)")
-    p.add_argument("--leaf-angle", default=None, choices=[k.value for k in LeafAngleKind],
+    p.add_argument("--leaf-angle", default=None, choices=[k.value for k in LeafAngleKind] + ["measured"],
                    help="leaf inclination distribution for G(theta) (default uniform, the paper; the "
-                        "summary and the scene say which was used)")
+                        "summary and the scene say which was used); 'measured': from the leaf echoes' plane "
+                        "fits (tlsvox.leafangles), a beta distribution fitted to the whole crown, the per-layer "
+                        "histograms kept in the scene's meta")
+    p.add_argument("--leaf-angle-layers", type=int, default=4,
+                   help="crown layers of --leaf-angle measured (default 4)")
     p.add_argument("--estimator", default="bcmle", choices=[e.value for e in Estimator],
                    help="LAD estimator (default bcmle, Pimont et al. 2018)")
     p.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
@@ -220,7 +229,16 @@ def run(args) -> int:
                            max_range=args.max_range, progress=not args.quiet, layout=args.layout,
                            tracer=Tracer(args.device) if args.device else None, plan_only=True).describe())
             return 0
-        res = voxelize(scans, voxel_size=args.voxel_size, leaf_angle=args.leaf_angle or "uniform",
+        measured = None
+        leaf_angle = args.leaf_angle or "uniform"
+        if args.leaf_angle == "measured":
+            from tlsvox.leafangles import measure_leaf_angles
+
+            if args.leaf_angle_layers < 1:
+                raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
+            measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
+            leaf_angle = measured.leaf_angle
+        res = voxelize(scans, voxel_size=args.voxel_size, leaf_angle=leaf_angle,
                        estimator=args.estimator, snap=args.snap, layout=args.layout,
                        wood=args.wood, fill=args.fill, n_min=args.n_min, min_explored=args.min_explored,
                        leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
@@ -234,6 +252,8 @@ def run(args) -> int:
         if args.strict and res.scene.meta["warnings"]:
             raise TlsvoxError(f"{len(res.scene.meta['warnings'])} quality warning(s) with --strict; "
                               "nothing was written (drop --strict to keep the result)")
+        if measured is not None:
+            res.scene.meta["leaf_angle_measured"] = measured.to_dict()
         with staged([args.output, args.vox]) as tmp:  # the scene and its .vox: both or neither
             res.scene.save(tmp[args.output])
             if args.vox:
@@ -246,7 +266,12 @@ def run(args) -> int:
         summary = {"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,
                    "voxels_stored": s.n_voxels, "leaf_area_m2": round(s.total_leaf_area(), 3),
                    "leaf_angle": s.leaf_angle.to_dict() | ({} if args.leaf_angle else {"note": "the default; "
-                                                                            "set it with --leaf-angle"}),
+                                                                            "set it with --leaf-angle"})
+                   | ({} if measured is None else {"measured": {
+                       "method": measured.method.value,
+                       "mean_inclination_deg": round(float(np.degrees(measured.crown.mean_inclination)), 1),
+                       "layers_mean_inclination_deg": [round(float(np.degrees(lay.mean_inclination)), 1)
+                                                       for lay in measured.layers]}}),
                    "layout": s.meta["layout"], "grid_origin": [round(v, 6) for v in res.grid.origin],
                    "estimator": s.meta["estimator"], "echo_weights": s.meta["echo_weights"],
                    "flags": s.meta["flags"], "beams": s.meta["beams"],
