@@ -21,7 +21,7 @@ Times are medians of ``--repeats`` runs for the simulations (errors: medians
 over the same runs, different seeds); scene building is timed once per size.
 Writes docs/bench/pipeline.md and docs/img/pipeline_speed_accuracy.png.
 
-    .venv/bin/python benchmarks/bench_pipeline.py           # 9-11 min on 2 shared cores
+    .venv/bin/python benchmarks/bench_pipeline.py           # about 15 min on 2 shared cores (2 cm scenes included)
     .venv/bin/python benchmarks/bench_pipeline.py --quick   # fewer points and photons, about 4 min
     .venv/bin/python benchmarks/bench_pipeline.py --replot  # table + chart again from the last run's figures
 
