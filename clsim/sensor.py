@@ -17,7 +17,7 @@ Examples
 >>> Sensor.preset("nope")
 Traceback (most recent call last):
 ...
-voxlidar.errors.InputError: sensor preset 'nope' is unknown; choose one of: ahab-chiroptera-i, or pass a path to a .toml file
+voxlidar.errors.InputError: sensor preset 'nope' is unknown; choose one of: ahab-chiroptera-i, riegl-lms-q680i, or pass a path to a .toml file
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import numpy as np
 
 from clsim.errors import InputError
 
-__all__ = ["Sensor", "list_presets", "C_M_PER_NS"]
+__all__ = ["Sensor", "list_presets", "read_preset", "C_M_PER_NS"]
 
 #: Speed of light in vacuum, metres per nanosecond (air: 0.03 % slower, ignored).
 C_M_PER_NS = 0.299792458
@@ -43,6 +43,28 @@ def list_presets() -> list[str]:
     """Names of the built-in sensor presets."""
     folder = resources.files("clsim") / "presets"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+#: The table of a preset that holds the survey geometry (read by :mod:`clsim.survey`).
+SURVEY_TABLE = "survey"
+
+
+def read_preset(name) -> tuple[dict, str]:
+    """The parsed TOML of a built-in preset (by name) or of a ``.toml`` file
+    (by path), and a label for error messages."""
+    path = Path(str(name))
+    if path.suffix == ".toml":
+        try:
+            return tomllib.loads(path.read_text()), str(path)
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise InputError(f"cannot read sensor file {str(path)!r}: {err}") from err
+    if name not in list_presets():
+        raise InputError(
+            f"sensor preset {name!r} is unknown; choose one of: "
+            f"{', '.join(list_presets())}, or pass a path to a .toml file"
+        )
+    text = (resources.files("clsim") / "presets" / f"{name}.toml").read_text()
+    return tomllib.loads(text), f"preset {name!r}"
 
 
 @dataclass(frozen=True)
@@ -124,30 +146,22 @@ class Sensor:
     # -- construction ---------------------------------------------------------
     @classmethod
     def preset(cls, name: str, **overrides) -> "Sensor":
-        """A built-in preset by name, or a TOML file by path, with overrides."""
-        path = Path(str(name))
-        if path.suffix == ".toml" and path.exists():
-            return cls.from_toml(path, **overrides)
-        if name not in list_presets():
-            raise InputError(
-                f"sensor preset {name!r} is unknown; choose one of: "
-                f"{', '.join(list_presets())}, or pass a path to a .toml file"
-            )
-        text = (resources.files("clsim") / "presets" / f"{name}.toml").read_text()
-        return cls._from_mapping(tomllib.loads(text), f"preset {name!r}", overrides)
+        """A built-in preset by name, or a TOML file by path, with overrides.
+
+        The preset's ``[survey]`` table (scan pattern, typical flight) is read
+        by :class:`clsim.survey.ScanPattern`, not here."""
+        data, where = read_preset(name)
+        return cls._from_mapping(data, where, overrides)
 
     @classmethod
     def from_toml(cls, path, **overrides) -> "Sensor":
         """Read a sensor from a TOML file (keys are the field names)."""
-        path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except (OSError, tomllib.TOMLDecodeError) as err:
-            raise InputError(f"cannot read sensor file {str(path)!r}: {err}") from err
-        return cls._from_mapping(data, str(path), overrides)
+        data, where = read_preset(Path(path))
+        return cls._from_mapping(data, where, overrides)
 
     @classmethod
     def _from_mapping(cls, data: dict, where: str, overrides: dict) -> "Sensor":
+        data = {k: v for k, v in data.items() if k != SURVEY_TABLE}
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted((set(data) | set(overrides)) - names)
         if unknown:
