@@ -52,7 +52,10 @@ def plot_footprints(pulses, path, *, title: str | None = None, max_points: int =
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    cb = fig.colorbar(sc, ax=ax, shrink=0.85)
+    from mpl_toolkits.axes_grid1 import make_axes_locatable
+
+    cax = make_axes_locatable(ax).append_axes("right", size="4%", pad=0.1)   # as tall as the map
+    cb = fig.colorbar(sc, cax=cax)
     cb.set_label("scan angle across track (deg, + right of flight)")
     dur = float(pulses.time_s[-1] - pulses.time_s[0])
     ax.set_title(title or f"{len(pulses):,} footprints over {dur:.2f} s", fontsize=10)

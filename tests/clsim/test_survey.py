@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import re
 import time
+from pathlib import Path
 from importlib import resources
 
 import numpy as np
@@ -229,3 +230,14 @@ def test_preset_file_without_survey_table(tmp_path):
     with pytest.raises(InputError, match=r"no \[survey\] table"):
         ScanPattern.preset(f)
     assert Sensor.preset(f).name == "mine"
+
+
+def test_example_prints_the_closed_forms(tmp_path, capsys):
+    import runpy
+
+    example = runpy.run_path(str(Path(__file__).parents[2] / "examples" / "survey_footprints.py"))
+    example["main"](tmp_path)
+    out = capsys.readouterr().out
+    assert "2 H tan(fov/2) = 692.82 m" in out and "ellipse semi-axes 89.76, 131.03 m" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"survey_footprints_{k}.png"
+                                                          for k in ("mirror", "palmer", "polygon")]
