@@ -238,6 +238,24 @@ def test_example_prints_the_closed_forms(tmp_path, capsys):
     example = runpy.run_path(str(Path(__file__).parents[2] / "examples" / "survey_footprints.py"))
     example["main"](tmp_path)
     out = capsys.readouterr().out
-    assert "2 H tan(fov/2) = 692.82 m" in out and "ellipse semi-axes 89.76, 131.03 m" in out
+    assert "2 H tan(fov/2) = 692.82 m" in out and "ellipse semi-axes 99.73, 145.59 m" in out
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"survey_footprints_{k}.png"
                                                           for k in ("mirror", "palmer", "polygon")]
+
+
+def test_survey_pulses_run_through_the_simulator_oracle():
+    """The NumPy oracle places the sensor at the platform and returns the
+    Lambertian ground's A/R^2 rho cos(theta)/pi for each pulse of a Palmer scan."""
+    from clsim import ReferenceSimulator, testscenes
+
+    scene = testscenes.ground_only(width=40.0, voxel_size=2.0)
+    p = survey_pulses(line(), pattern("palmer", fov_deg=30.0), first=7, count=2, seed=11)
+    base = Sensor.preset("ahab-chiroptera-i", fov_mrad=3.0)
+    rho, _ = scene.optics("ground", base.wavelength_nm)
+    for i in range(len(p)):
+        res = ReferenceSimulator().run(scene, p.sensor(i, base), photons=1000, seed=int(p.seed[i]),
+                                       target=p.target[i], max_order=1)
+        np.testing.assert_allclose(res.settings["sensor_position"], p.position[i], atol=1e-8)
+        e, se = res.energy(kind="ground")
+        expect = base.aperture_area_m2 / p.range_m[i] ** 2 * rho / np.pi * math.cos(math.radians(15.0))
+        assert abs(e - expect) < 5 * se + 1e-5 * expect
