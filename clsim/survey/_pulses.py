@@ -127,8 +127,11 @@ def _hit_ground(origin, d, ground, z_range, step_m):
     if callable(ground):
         if z_range is None:
             raise InputError("a DEM ground(x, y) needs z_range=(zmin, zmax), the heights that bound it")
-        zlo, zhi = (float(z) for z in z_range)
-        if not zlo <= zhi:
+        try:
+            zlo, zhi = (float(z) for z in z_range)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"z_range must be (zmin, zmax) in metres, got {z_range!r}") from err
+        if not (math.isfinite(zlo) and math.isfinite(zhi) and zlo <= zhi):
             raise InputError(f"z_range must be (zmin, zmax) with zmin <= zmax, got {z_range!r}")
         if np.any(origin[:, 2] <= zhi):
             raise InputError(f"the platform must fly above the DEM's top z_range[1]={zhi!r}; lowest platform "
@@ -165,6 +168,8 @@ def _hit_ground(origin, d, ground, z_range, step_m):
         zg = float(ground)
     except (TypeError, ValueError) as err:
         raise InputError(f"ground must be a height (m) or a callable DEM (x, y) -> z, got {ground!r}") from err
+    if not math.isfinite(zg):
+        raise InputError(f"ground must be a finite height (m) or a callable DEM (x, y) -> z, got {ground!r}")
     if np.any(origin[:, 2] <= zg):
         raise InputError(f"the platform must fly above the ground z={zg!r}; lowest platform height "
                          f"{origin[:, 2].min()!r}")
@@ -217,6 +222,8 @@ def survey_pulses(trajectory: Trajectory, pattern: ScanPattern, sensor: Sensor |
     if not isinstance(pattern, ScanPattern):
         raise InputError(f"pattern must be a clsim.survey.ScanPattern, got {type(pattern).__name__}")
     sensor = Sensor() if sensor is None else sensor
+    if not isinstance(sensor, Sensor):
+        raise InputError(f"sensor must be a clsim.Sensor (for its beam divergence), got {type(sensor).__name__}")
     try:
         seed = int(seed)
     except (TypeError, ValueError) as err:

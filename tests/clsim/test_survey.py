@@ -213,6 +213,14 @@ BAD = {
     "ground above platform": (lambda: survey_pulses(line(), pattern("mirror"), count=5, ground=600.0), "above"),
     "negative seed": (lambda: survey_pulses(line(), pattern("mirror"), count=5, seed=-1), "seed"),
     "no survey table": (lambda: ScanPattern.preset("nope"), "unknown"),
+    "bad z_range": (lambda: survey_pulses(line(), pattern("mirror"), count=5, ground=np.hypot, z_range=(5, 1)),
+                    "z_range"),
+    "DEM over the platform": (lambda: survey_pulses(line(), pattern("mirror"), count=5, ground=np.hypot,
+                                                    z_range=(0, 900)), "above the DEM"),
+    "DEM outside z_range": (lambda: survey_pulses(line(), pattern("mirror"), count=5,
+                                                  ground=lambda x, y: x * 0 - 50.0, z_range=(0, 10)), "widen"),
+    "ground not a number": (lambda: survey_pulses(line(), pattern("mirror"), count=5, ground="flat"), "ground"),
+    "sensor not a Sensor": (lambda: survey_pulses(line(), pattern("mirror"), "ahab", count=5), "Sensor"),
 }
 
 
