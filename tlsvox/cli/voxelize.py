@@ -84,6 +84,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "histograms kept in the scene's meta")
     p.add_argument("--leaf-angle-layers", type=int, default=4,
                    help="crown layers of --leaf-angle measured (default 4)")
+    p.add_argument("--leaf-azimuth", default="uniform", choices=["uniform", "outward"],
+                   help="leaf normal azimuths: any (default), or facing away from the crown axis, which then "
+                        "gives each voxel the G of outward leaves for each beam (and the simulator uses it)")
     p.add_argument("--estimator", default="bcmle", choices=[e.value for e in Estimator],
                    help="LAD estimator (default bcmle, Pimont et al. 2018)")
     p.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
@@ -240,6 +243,7 @@ def run(args) -> int:
             leaf_angle = measured.leaf_angle
         res = voxelize(scans, voxel_size=args.voxel_size, leaf_angle=leaf_angle,
                        estimator=args.estimator, snap=args.snap, layout=args.layout,
+                       leaf_azimuth=args.leaf_azimuth,
                        wood=args.wood, fill=args.fill, n_min=args.n_min, min_explored=args.min_explored,
                        leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
                        bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,

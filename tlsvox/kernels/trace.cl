@@ -77,10 +77,12 @@
     __global const double *gval, \
     const double lx, const double ly, const double lz, const double h, \
     const int nx, const int ny, const int nz, const double fx_scale, \
-    __global const int *brick_start, __global const ushort *brick_key
+    __global const int *brick_start, __global const ushort *brick_key, \
+    __global const double *gout, const int gout_nt, const int gout_nc, \
+    const double ccx, const double ccy, const int outward
 #define TRACE_INPUT_NAMES \
     origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail, max_range, gval, \
-    lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key
+    lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key, gout, gout_nt, gout_nc, ccx, ccy, outward
 
 inline void trace_one(const long b, TRACE_INPUTS,
                       __global double *acc, __global double *bacc, __global ulong *steps)
@@ -145,12 +147,25 @@ inline void trace_one(const long b, TRACE_INPUTS,
         }
     }
 
+    /* outward-facing leaves: G depends on the beam's zenith and on the cosine c of the
+     * angle between its horizontal direction and the voxel's outward direction from the
+     * crown axis; gout is G on a (gout_nt zenith rows over [0, pi]) x (gout_nc c over
+     * [-1, 1]) table, interpolated bilinearly (the per-beam g where c is undefined) */
+    const double dh = sqrt(dx * dx + dy * dy);
+    int t_i = 0;
+    double t_f = 0.0;
+    if (outward) {
+        const double u = acos(clamp(dz, -1.0, 1.0)) / 3.14159265358979323846 * (gout_nt - 1);
+        t_i = min((int)floor(u), gout_nt - 2);
+        t_f = u - t_i;
+    }
+
     double t = t0;
     ulong nsteps = 0;
 #ifdef SPARSE
     const int bny = (ny + BRICK - 1) >> BRICK_BITS, bnz = (nz + BRICK - 1) >> BRICK_BITS;
     long brick = -1;
-    double b_w = 0.0, b_path = 0.0, b_chord = 0.0, b_visits = 0.0;
+    double b_w = 0.0, b_path = 0.0, b_chord = 0.0, b_visits = 0.0, b_pathg = 0.0;
 #endif
     while (t < t1 && w > 1e-12) {
         int a = 0;
@@ -166,10 +181,10 @@ inline void trace_one(const long b, TRACE_INPUTS,
                 if (brick >= 0) {
                     __global double *brow = bacc + brick * NB;
                     ADD(brow + 0, 1.0); ADD(brow + 1, b_visits); ADD(brow + 2, b_w); ADD(brow + 3, b_path);
-                    ADD(brow + 4, b_chord); ADD(brow + 5, g * b_path);
+                    ADD(brow + 4, b_chord); ADD(brow + 5, b_pathg);
                 }
                 brick = vb;
-                b_w = w; b_path = 0.0; b_chord = 0.0; b_visits = 0.0;
+                b_w = w; b_path = 0.0; b_chord = 0.0; b_visits = 0.0; b_pathg = 0.0;
             }
             /* this voxel's row, if it holds an echo: binary search in its brick */
             const ushort key = (ushort)((((ijk[0] & (BRICK - 1)) << BRICK_BITS | (ijk[1] & (BRICK - 1)))
@@ -185,6 +200,19 @@ inline void trace_one(const long b, TRACE_INPUTS,
             const long v = ((long)ijk[0] * ny + ijk[1]) * nz + ijk[2];
             __global double *row = acc + v * NF;
 #endif
+            double gv = g;
+            if (outward && dh > 1e-9) {
+                const double rx = lx + (ijk[0] + 0.5) * h - ccx, ry = ly + (ijk[1] + 0.5) * h - ccy;
+                const double rr = sqrt(rx * rx + ry * ry);
+                if (rr > 1e-9) {
+                    const double v = (clamp((rx * dx + ry * dy) / (rr * dh), -1.0, 1.0) + 1.0) * 0.5 * (gout_nc - 1);
+                    const int c_i = min((int)floor(v), gout_nc - 2);
+                    const double c_f = v - c_i;
+                    __global const double *r0 = gout + (long)t_i * gout_nc + c_i, *r1 = r0 + gout_nc;
+                    gv = fmax((1.0 - t_f) * ((1.0 - c_f) * r0[0] + c_f * r0[1])
+                              + t_f * ((1.0 - c_f) * r1[0] + c_f * r1[1]), 1e-6);
+                }
+            }
             const double w_in = w;
             double tp = t, path = 0.0, lz_ = 0.0, wz_ = 0.0, lw = 0.0, ww = 0.0, ow = 0.0;
             /* echoes in [t, tex); the last segment also takes an echo at t1 */
@@ -205,6 +233,7 @@ inline void trace_one(const long b, TRACE_INPUTS,
 #ifdef SPARSE
             b_path += path;
             b_chord += w_in * chord;
+            b_pathg += gv * path;
             b_visits += 1.0;
             if (row) {
 #else
@@ -212,11 +241,11 @@ inline void trace_one(const long b, TRACE_INPUTS,
 #endif
             ADD(row + 0, 1.0);
             ADD(row + 1, w_in);
-            if (lw > 0.0) { ADD(row + 2, lw); ADD(row + 7, lz_); ADD(row + 8, g * lz_); ADD(row + 15, lw / g); }
+            if (lw > 0.0) { ADD(row + 2, lw); ADD(row + 7, lz_); ADD(row + 8, gv * lz_); ADD(row + 15, lw / gv); }
             if (ww > 0.0) { ADD(row + 3, ww); ADD(row + 9, wz_); }
             if (ow > 0.0) ADD(row + 4, ow);
             ADD(row + 5, path);
-            ADD(row + 6, g * path);
+            ADD(row + 6, gv * path);
             ADD(row + 10, w_in * chord);
             ADD(row + 11, w_in * chord * chord);
             ADD(row + 12, w_in * dx);
@@ -234,7 +263,7 @@ inline void trace_one(const long b, TRACE_INPUTS,
     if (brick >= 0) {
         __global double *brow = bacc + brick * NB;
         ADD(brow + 0, 1.0); ADD(brow + 1, b_visits); ADD(brow + 2, b_w); ADD(brow + 3, b_path);
-        ADD(brow + 4, b_chord); ADD(brow + 5, g * b_path);
+        ADD(brow + 4, b_chord); ADD(brow + 5, b_pathg);
     }
 #endif
 #ifdef USE_ATOMICS

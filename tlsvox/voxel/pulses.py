@@ -287,6 +287,35 @@ def g_table(leaf_angle, theta, *, nodes: int = 4097) -> np.ndarray:
     return np.interp(theta, grid, leaf_angle.G(grid))
 
 
+def outward_g_table(leaf_angle, *, n_theta: int = 181, n_c: int = 129, nodes: int = 2048) -> np.ndarray:
+    """G of outward-facing leaves: (n_theta, n_c) over beam zenith [0, pi] x c in [-1, 1].
+
+    A leaf whose normal has inclination theta_L and the azimuth of its
+    outward direction from the crown axis (``leaf_azimuth="outward"``)
+    projects ``|sin theta_L sin theta c + cos theta_L cos theta|`` of its area
+    on a beam of zenith theta, c being the cosine of the angle between the
+    beam's horizontal direction and that outward direction.  Averaged over
+    the leaf inclinations (``nodes`` quantiles of the model), this is G for
+    that beam in that part of the crown; averaged over c uniform in angle it
+    is the model's usual G(theta).
+
+    Examples
+    --------
+    >>> from voxlidar.leafangle import LeafAngle
+    >>> t = outward_g_table(LeafAngle("horizontal"), n_theta=3, n_c=3)   # flat leaves: |cos theta|
+    >>> np.round(t, 6).tolist()
+    [[1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]
+    """
+    tl = np.asarray(leaf_angle.ppf((np.arange(nodes) + 0.5) / nodes), dtype=np.float64)
+    theta = np.linspace(0.0, np.pi, n_theta)
+    c = np.linspace(-1.0, 1.0, n_c)
+    sin_l, cos_l = np.sin(tl), np.cos(tl)
+    out = np.empty((n_theta, n_c))
+    for i, th in enumerate(theta):
+        out[i] = np.abs(np.outer(c * np.sin(th), sin_l) + np.cos(th) * cos_l).mean(axis=1)
+    return out
+
+
 def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_range: float | None = None,
                     angular_grid: AngularGrid | None = None, socs_rotation=None,
                     reconstruct: bool = True, echo_weights="auto",

@@ -432,8 +432,8 @@ class Tracer:
         """Sparse traces: the coarse sums of one brick, with the host result, plus its row offset."""
         return len(BRICK_FIELDS) * 8 * (self.copies + 1) + 4
 
-    def trace(self, grid: VoxelGrid, beams: Beams, *, rows: Bricks | None = None, chunk: int = 262144,
-              progress: bool = False, max_bytes: int | None = None) -> VoxelStats:
+    def trace(self, grid: VoxelGrid, beams: Beams, *, rows: Bricks | None = None, outward=None,
+              chunk: int = 262144, progress: bool = False, max_bytes: int | None = None) -> VoxelStats:
         """Trace ``beams`` through ``grid``; see the module docstring.
 
         Parameters
@@ -444,6 +444,12 @@ class Tracer:
             Trace sparsely: full sums for these voxels only, coarse sums per
             brick (see the module docstring).  Every voxel holding a leaf or
             wood echo must be listed (:func:`echo_rows` makes such a list).
+        outward : (table, (x, y)), optional
+            Leaves facing outward from a vertical crown axis through (x, y):
+            G per voxel from ``table``
+            (:func:`tlsvox.voxel.pulses.outward_g_table`) at the beam's zenith
+            and the cosine between its horizontal direction and the voxel
+            centre's outward direction, instead of the beam's ``g``.
         chunk : int
             Beams per kernel launch (the progress bar advances per chunk).
         progress : bool
@@ -475,19 +481,32 @@ class Tracer:
                 f"device {self.device.name.strip()!r} allows at most {format_bytes(limit)}; "
                 "use a larger voxel_size or a smaller region"
             )
-        fx_scale = fixed_point_scale(beams, grid.voxel_size, sparse=rows is not None) if self.atomics else 1.0
+        gout = None
+        if outward is not None:
+            table, centre = outward
+            gout = np.ascontiguousarray(np.maximum(np.asarray(table, dtype=np.float64), 1e-6))
+            centre = np.asarray(centre, dtype=np.float64).reshape(-1)
+            if gout.ndim != 2 or min(gout.shape) < 2 or not np.all(np.isfinite(gout)) or centre.shape != (2,) \
+                    or not np.all(np.isfinite(centre)):
+                raise InputError("outward must be (table of G, at least 2 x 2, finite; crown centre x, y)")
+            outward = (gout, centre)
+        bound = beams
+        if self.atomics and gout is not None:  # the smallest G bounds leaf_w / G
+            bound = Beams(beams.origin, beams.direction, beams.echo_start, beams.echo_range, beams.echo_weight,
+                          beams.echo_kind, beams.tail, beams.max_range, g=np.minimum(beams.g, gout.min()))
+        fx_scale = fixed_point_scale(bound, grid.voxel_size, sparse=rows is not None) if self.atomics else 1.0
         if self.atomics and fx_scale < 2.0**20:
             raise InputError(f"the atomic tracer's fixed-point sums would keep only 2^{np.log2(fx_scale):.0f} "
                              "steps per unit for these beams (weights or 1/G very large); "
                              "fix: Tracer(atomics=False), which sums in float64")
         try:
-            return self._trace(grid, beams, rows, copies=copies, n_rows=n_rows, fx_scale=fx_scale,
+            return self._trace(grid, beams, rows, outward, copies=copies, n_rows=n_rows, fx_scale=fx_scale,
                                chunk=chunk, progress=progress)
         except cl.Error as err:
             raise DeviceError(f"the tracer failed on {self.info.label}: {short_reason(err)}; fix: a larger "
                               "voxel_size or a smaller region, or another device (clsim devices)") from err
 
-    def _trace(self, grid, beams, rows, *, copies, n_rows, fx_scale, chunk, progress) -> VoxelStats:
+    def _trace(self, grid, beams, rows, outward, *, copies, n_rows, fx_scale, chunk, progress) -> VoxelStats:
         import pyopencl as cl
 
         mf = cl.mem_flags
@@ -509,6 +528,9 @@ class Tracer:
         n_bricks = rows.n_bricks if sparse else 1
         layout = [buf(rows.start if sparse else np.zeros(2, np.int32)),
                   buf(rows.key if sparse else np.zeros(1, np.uint16))]
+        gout, centre = outward if outward is not None else (np.zeros((2, 2)), np.zeros(2))
+        leaves = [buf(gout), np.int32(gout.shape[0]), np.int32(gout.shape[1]), np.float64(centre[0]),
+                  np.float64(centre[1]), np.int32(outward is not None)]
 
         def accumulators(shape):
             """Zeroed sums: on the device (atomics), or host memory the CPU kernel writes in place."""
@@ -541,7 +563,7 @@ class Tracer:
                 kernel(q, gsize, lsize, np.int64(b0), np.int64(b1), *bufs,
                        np.float64(lo[0]), np.float64(lo[1]), np.float64(lo[2]),
                        np.float64(grid.voxel_size), np.int32(nx), np.int32(ny), np.int32(nz),
-                       np.float64(fx_scale), *layout, np.int64(n_rows), np.int64(n_bricks),
+                       np.float64(fx_scale), *layout, *leaves, np.int64(n_rows), np.int64(n_bricks),
                        acc_dev, bacc_dev, steps_dev)
                 q.finish()
                 if bar is not None:

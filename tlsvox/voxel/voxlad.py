@@ -34,7 +34,7 @@ from tlsvox.voxel.estimators import Estimator, FillMode, LadEstimate, estimate_l
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle
-from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass
+from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass, outward_g_table
 from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
 from tlsvox.voxel.grid import format_bytes
@@ -50,6 +50,13 @@ __all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "voxelize", 
 _ESTIMATE_BYTES = 24 * 8
 #: ``layout="auto"`` traces densely up to this many bytes (small grids: every voxel's own sums)
 DENSE_AUTO_MAX = 1024**3
+
+
+class LeafAzimuth(str, Choice):
+    """Azimuths of the leaf normals."""
+
+    UNIFORM = "uniform"  #: any azimuth, equally likely: G depends on the beam's zenith only
+    OUTWARD = "outward"  #: facing away from the crown axis (the paper's oak)
 
 
 class Layout(str, Choice):
@@ -175,7 +182,12 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     leaf_angle : str, dict or LeafAngle
         Leaf inclination model used for G(theta) (default uniform, the paper).
     leaf_azimuth : {"uniform", "outward"}
-        Stored in the scene for the simulator.
+        The leaves' azimuth, stored in the scene for the simulator.
+        ``outward`` (leaves facing away from a vertical crown axis through
+        ``crown_center``) also enters the estimate: each voxel's G is that of
+        outward leaves for the beam crossing it
+        (:func:`tlsvox.voxel.pulses.outward_g_table`), not G(theta) of
+        azimuthally uniform ones.
     estimator : {"bcmle", "voxlad", "beer_lambert", "contact_frequency"}
     wood : {"count_stretch", "voxlad"}
     wood_percentile : float
@@ -200,7 +212,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     scanner_frame : bool
         Allow a single scan without a pose: the world is its own frame.
     crown_center : (2,) float, optional
-        Default: the LAD-weighted centroid.
+        Default: with ``leaf_azimuth="outward"`` the middle of the leaf echoes'
+        extent in x and y (their 0.1 and 99.9 percentiles), else the
+        LAD-weighted centroid of the voxels.
     layout : {"auto", "dense", "sparse"}
         How the tracer keeps its sums (:class:`Layout`): ``sparse`` keeps
         full sums only for voxels holding echoes and judges the others' occlusion
@@ -246,6 +260,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         raise InputError(f"max_range={max_range!r} must be a positive distance in metres (how far empty "
                          "pulses are followed), or None for the scanner's range")
     est = Estimator.parse(estimator, "estimator")
+    azimuth = LeafAzimuth.parse(leaf_azimuth, "leaf_azimuth")
     weights = EchoWeights.parse(echo_weights, "echo_weights")
     for s in scans:
         resolve_rule(weights, s)  # the inputs the rule needs, checked before any work
@@ -355,8 +370,18 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
     del voxels
 
+    outward = None
+    if azimuth is LeafAzimuth.OUTWARD:  # G per voxel, from the beam's angle to the leaves' outward direction
+        if crown_center is None:
+            leaves = np.vstack([w[k == EchoKind.LEAF] for w, k in zip(world, kinds)])
+            # the middle of the leaves' extent: the scans see the near side of the crown best, so the
+            # echoes' mean lies off the axis towards the scanners
+            crown_center = (0.5 * (np.percentile(leaves[:, :2], 0.1, axis=0) + np.percentile(leaves[:, :2], 99.9, axis=0))
+                            if len(leaves) else 0.5 * (grid.lower + grid.upper)[:2])
+        outward = (outward_g_table(la), np.asarray(crown_center, dtype=np.float64).reshape(2))
+
     t2 = time.perf_counter()
-    stats = tracer.trace(grid, beams, rows=rows, progress=progress,
+    stats = tracer.trace(grid, beams, rows=rows, outward=outward, progress=progress,
                          max_bytes=None if max_bytes is None else max_bytes - plan.beams)
     timings["trace"] = time.perf_counter() - t2
 
@@ -386,7 +411,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         meta["occluded_bricks"] = {"brick_voxels": 8, "occluded": int(lad.brick_occluded.sum()),
                                    "total": int(lad.brick_occluded.size)}
     scene = Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=lad_v,
-                  wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la, leaf_azimuth=leaf_azimuth, crown_center=cc,
+                  wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la, leaf_azimuth=azimuth.value, crown_center=cc,
                   ground_z=None if plane is None else plane.z_center, meta=meta)
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
 

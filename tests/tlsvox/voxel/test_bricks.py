@@ -130,3 +130,54 @@ def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
         memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
     with pytest.raises(InputError, match="voxel_size of at least"):
         memory_plan(grid, beams, tracer, max_bytes=1024)
+
+
+def test_outward_leaves_take_g_per_voxel(tracer):
+    """With outward leaves each voxel's G comes from the table at the beam's zenith and the cosine c between
+    the beam's horizontal direction and the voxel's outward direction: a table linear in both is
+    interpolated exactly, so path_wg / path_w is known in every voxel crossed, dense and sparse alike."""
+    grid = VoxelGrid((-2.0, -2.0, 0.0), 0.25, (16, 16, 8))
+    rng = np.random.default_rng(3)
+    n = 400
+    o = np.column_stack([rng.uniform(-6, -3, n), rng.uniform(-1.5, 1.5, n), rng.uniform(0.2, 1.8, n)])
+    d = np.column_stack([np.ones(n), rng.uniform(-0.5, 0.5, n), rng.uniform(-0.3, 0.3, n)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    beams = Beams(o, d, np.zeros(n + 1, np.int64), np.zeros(0), np.zeros(0), np.zeros(0, np.uint8), np.ones(n),
+                  np.full(n, 20.0))
+    theta, c = np.linspace(0, np.pi, 181), np.linspace(-1, 1, 129)
+    table = 0.3 + 0.1 * theta[:, None] + 0.2 * c[None, :]
+    centre = np.array([0.1, -0.2])
+    stats = tracer.trace(grid, beams, outward=(table, centre))
+    path = stats.field("path_w")
+    assert (path > 0).sum() > 200
+    # expected G of every voxel for every beam: average over the beams crossing it, weighted by their path
+    expect = np.zeros(grid.shape)
+    for b in range(n):
+        one = tracer.trace(grid, Beams(o[b:b + 1], d[b:b + 1], np.zeros(2, np.int64), np.zeros(0), np.zeros(0),
+                                       np.zeros(0, np.uint8), np.ones(1), np.full(1, 20.0)))
+        p = one.field("path_w")
+        ijk = np.argwhere(p > 0)
+        r = grid.centers(ijk)[:, :2] - centre
+        h = d[b, :2] / np.linalg.norm(d[b, :2])
+        cv = (r @ h) / np.linalg.norm(r, axis=1)
+        expect[tuple(ijk.T)] += p[tuple(ijk.T)] * (0.3 + 0.1 * np.arccos(d[b, 2]) + 0.2 * cv)
+    seen = path > 0
+    np.testing.assert_allclose(stats.field("path_wg")[seen] / path[seen], expect[seen] / path[seen], rtol=1e-9)
+    rows = Bricks.from_ijk(grid, np.argwhere(seen))
+    sparse = tracer.trace(grid, beams, rows=rows, outward=(table, centre))
+    np.testing.assert_array_equal(sparse.acc, stats.acc[grid.flat(rows.ijk)])
+    np.testing.assert_allclose(sparse.bricks[:, 5].sum(), stats.field("path_wg").sum(), rtol=1e-12)
+
+
+def test_outward_g_table_averages_to_g():
+    """Averaged over the beam's azimuth against the outward direction, outward leaves project as G(theta)."""
+    from tlsvox.voxel.pulses import outward_g_table
+    from voxlidar.leafangle import LeafAngle
+
+    for name in ("uniform", "planophile", "erectophile"):
+        la = LeafAngle(name)
+        phi = np.linspace(0, np.pi, 2001)
+        table = outward_g_table(la, n_theta=7, n_c=4001)
+        c = np.linspace(-1, 1, 4001)
+        mean = np.array([np.trapezoid(np.interp(np.cos(phi), c, row), phi) / np.pi for row in table])
+        np.testing.assert_allclose(mean, la.G(np.linspace(0, np.pi, 7)), atol=2e-3)

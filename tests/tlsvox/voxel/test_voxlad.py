@@ -229,8 +229,10 @@ def test_cli_plan_layout_and_leaf_angle_note(box_files, tmp_path, capsys):
     text = capsys.readouterr().out
     assert rc == 0 and not out.exists()
     assert "hold echoes; dense layout" in text and "the dense layout needs" in text
-    rc = cli_main(paths + ["--voxel-size", "0.25", "--ground", "none", "--layout", "sparse", "-o", str(out)])
+    rc = cli_main(paths + ["--voxel-size", "0.25", "--ground", "none", "--layout", "sparse", "--leaf-azimuth",
+                           "outward", "-o", str(out)])
     summary = capsys.readouterr().out
     assert rc == 0 and '"layout": "sparse"' in summary
     assert '"note": "the default; set it with --leaf-angle"' in summary and '"name": "uniform"' in summary
-    assert Scene.load(out).meta["layout"] == "sparse"
+    scene = Scene.load(out)
+    assert scene.meta["layout"] == "sparse" and scene.leaf_azimuth == "outward"
