@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from clsim.errors import InputError
+from voxlidar.errors import finite_number
 
 __all__ = ["Sensor", "list_presets", "read_preset", "C_M_PER_NS"]
 
@@ -120,13 +121,7 @@ class Sensor:
         for f in dataclasses.fields(self):
             if f.name in ("name", "description"):
                 continue
-            v = getattr(self, f.name)
-            try:
-                v = float(v)
-            except (TypeError, ValueError) as err:
-                raise InputError(f"sensor {f.name} must be a number, got {v!r}") from err
-            if not math.isfinite(v):
-                raise InputError(f"sensor {f.name} must be finite, got {v!r}")
+            v = finite_number(getattr(self, f.name), f"sensor {f.name}")
             object.__setattr__(self, f.name, v)
             if f.name in positive and v <= 0:
                 hint = " (the sensor must be above the ground)" if f.name == "altitude_m" else ""

@@ -7,7 +7,9 @@ them all.
 
 from __future__ import annotations
 
-__all__ = ["DeviceError", "InputError", "VoxlidarError", "exit_code"]
+import math
+
+__all__ = ["DeviceError", "InputError", "VoxlidarError", "exit_code", "finite_number"]
 
 
 class VoxlidarError(Exception):
@@ -34,3 +36,22 @@ def exit_code(err: BaseException) -> int:
     working device, a kernel or a registration that failed: a ``RuntimeError``),
     2 for a usage or input error (everything else)."""
     return 1 if isinstance(err, RuntimeError) else 2
+
+
+def finite_number(value, what: str) -> float:
+    """``value`` as a finite float, or an :class:`InputError` that names ``what``.
+
+    >>> finite_number("2.5", "sensor altitude_m")
+    2.5
+    >>> finite_number(float("nan"), "scan fov_deg")
+    Traceback (most recent call last):
+    ...
+    voxlidar.errors.InputError: scan fov_deg must be finite, got nan
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"{what} must be a number, got {value!r}") from err
+    if not math.isfinite(v):
+        raise InputError(f"{what} must be finite, got {value!r}")
+    return v

@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 from voxlidar.choices import Choice
+from voxlidar.errors import finite_number
 
 from clsim.errors import InputError
 from clsim.sensor import SURVEY_TABLE, read_preset
@@ -84,13 +85,7 @@ class ScanPattern:
             v = getattr(self, name)
             if v is None and name == "along_fov_deg":
                 continue
-            try:
-                v = float(v)
-            except (TypeError, ValueError) as err:
-                raise InputError(f"scan {name} must be a number, got {v!r}") from err
-            if not math.isfinite(v):
-                raise InputError(f"scan {name} must be finite, got {v!r}")
-            object.__setattr__(self, name, v)
+            object.__setattr__(self, name, finite_number(v, f"scan {name}"))
         for name in ("pulse_rate_hz", "scan_rate_hz"):
             if getattr(self, name) <= 0:
                 raise InputError(f"scan {name} must be > 0 Hz, got {getattr(self, name)!r}")

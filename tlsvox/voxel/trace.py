@@ -384,8 +384,6 @@ class Tracer:
     """
 
     def __init__(self, device=None, *, atomics: bool | None = None, copies: int | None = None):
-        import pyopencl as cl
-
         try:
             self.info = choose_device(device, kernels=("tlsvox",))
         except AnyDeviceError as err:
