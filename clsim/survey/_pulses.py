@@ -8,6 +8,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from clsim.errors import InputError
+from voxlidar.errors import finite_number
 from clsim.sensor import Sensor
 from clsim.survey._pattern import ScanPattern
 from clsim.survey._trajectory import Trajectory
@@ -164,12 +165,7 @@ def _hit_ground(origin, d, ground, z_range, step_m):
             b = above(mid, rows) <= 0
             hi, lo = np.where(b, mid, hi), np.where(b, lo, mid)
         return hi
-    try:
-        zg = float(ground)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"ground must be a height (m) or a callable DEM (x, y) -> z, got {ground!r}") from err
-    if not math.isfinite(zg):
-        raise InputError(f"ground must be a finite height (m) or a callable DEM (x, y) -> z, got {ground!r}")
+    zg = finite_number(ground, "ground (a height in m, or a callable DEM (x, y) -> z)")
     if np.any(origin[:, 2] <= zg):
         raise InputError(f"the platform must fly above the ground z={zg!r}; lowest platform height "
                          f"{origin[:, 2].min()!r}")

@@ -287,7 +287,7 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
                 raise InputError("fill_mask is for dense traces; a sparse trace fills inside the hull of its "
                                  "leaf bricks")
             out, filled, sparse["extra_ijk"], sparse["extra_lad"] = _fill_bricks(
-                out, occluded, hits > _TINY, stats, sparse["brick_occluded"], hits, small_voxel_factor)
+                out, occluded, stats, sparse["brick_occluded"], hits, small_voxel_factor)
             flags[filled] |= np.uint8(Flag.FILLED)
     elif fill is FillMode.LAYER:
         mask = hull_mask(hits > _TINY, stats.grid) if fill_mask is None else np.asarray(fill_mask, bool)
@@ -317,7 +317,7 @@ def brick_occlusion(stats: VoxelStats, *, n_min: int = 5, min_explored: float = 
     return (per_voxel < n_min) | (explored < min_explored)
 
 
-def _fill_bricks(lad, occluded, seed, stats, brick_occluded, hits, small_voxel_factor):
+def _fill_bricks(lad, occluded, stats, brick_occluded, hits, small_voxel_factor):
     """The layer fill on a sparse trace, by bricks.
 
     The crown is the hull of the bricks holding leaf echoes.  Each brick layer
@@ -337,7 +337,7 @@ def _fill_bricks(lad, occluded, seed, stats, brick_occluded, hits, small_voxel_f
     row_brick = rows.brick_of_rows()
     occ = brick_occluded.reshape(-1)
     seed_bricks = np.zeros(rows.n_bricks, bool)
-    seed_bricks[row_brick[seed]] = True
+    seed_bricks[row_brick[hits > _TINY]] = True
     crown = hull_mask(seed_bricks.reshape(rows.shape), None).reshape(-1)
     bz = np.unravel_index(np.arange(rows.n_bricks), rows.shape)[2]
     seen = crown & ~occ

@@ -30,7 +30,7 @@ import numpy as np
 
 from tlsvox.errors import InputError
 
-__all__ = ["VoxelGrid", "available_memory_bytes", "format_bytes"]
+__all__ = ["VoxelGrid", "available_memory_bytes", "format_bytes", "memory_limit"]
 
 
 def available_memory_bytes() -> int:
@@ -50,6 +50,11 @@ def available_memory_bytes() -> int:
         return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
     except (ValueError, OSError, AttributeError):
         return 16 * 1024**3
+
+
+def memory_limit(max_bytes: int | None = None, *, fraction: float = 0.8) -> int:
+    """The bytes a computation may take: ``max_bytes`` when given, else ``fraction`` of what is available."""
+    return int(max_bytes) if max_bytes is not None else int(fraction * available_memory_bytes())
 
 
 def format_bytes(n: float) -> str:
@@ -218,7 +223,7 @@ class VoxelGrid:
             With the bytes needed, the limit, and how to fix it.
         """
         need = self.bytes_needed(bytes_per_voxel)
-        limit = int(max_bytes) if max_bytes is not None else int(fraction * available_memory_bytes())
+        limit = memory_limit(max_bytes, fraction=fraction)
         if need > limit:
             nx, ny, nz = self.shape
             factor = (need / max(limit, 1)) ** (1 / 3)

@@ -76,7 +76,7 @@ from voxlidar.errors import DeviceError as AnyDeviceError
 
 from tlsvox.errors import DeviceError, InputError
 from tlsvox.voxel.bricks import BRICK, BRICK_FIELDS, Bricks
-from tlsvox.voxel.grid import VoxelGrid, format_bytes
+from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 
 __all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "echo_rows", "echo_voxels", "trace", "trace_reference"]
 
@@ -598,9 +598,7 @@ class Tracer:
 
 def check_bytes(need: int, max_bytes: int | None, what: str, *, fraction: float = 0.8) -> int:
     """Raise before allocating ``need`` bytes beyond ``max_bytes`` (default: ``fraction`` of what is available)."""
-    from tlsvox.voxel.grid import available_memory_bytes
-
-    limit = int(max_bytes) if max_bytes is not None else int(fraction * available_memory_bytes())
+    limit = memory_limit(max_bytes, fraction=fraction)
     if need > limit:
         raise InputError(f"{what} needs {format_bytes(need)} but only {format_bytes(limit)} is available; "
                          "use a larger voxel_size or a smaller region (bounds=...)")

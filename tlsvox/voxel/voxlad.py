@@ -31,14 +31,13 @@ import numpy as np
 
 from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, FillMode, LadEstimate, estimate_lad
-from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle
 from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass, outward_g_table
 from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
-from tlsvox.voxel.grid import format_bytes
-from tlsvox.voxel.bricks import Bricks
+from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from voxlidar.choices import Choice
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
@@ -83,12 +82,16 @@ class MemoryPlan:
     def need(self) -> int:
         return self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse)
 
-    def describe(self) -> str:
+    def sizes(self) -> str:
+        """The grid and what each layout costs."""
         nx, ny, nz = self.grid.shape
         return (f"grid {nx} x {ny} x {nz} = {self.grid.n_voxels:,} voxels of {self.grid.voxel_size:g} m; "
                 f"{self.rows:,} hold echoes; dense layout {format_bytes(self.dense)}, sparse "
-                f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}; the {self.layout.value} layout "
-                f"needs {format_bytes(self.need)} of the {format_bytes(self.limit)} available")
+                f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}")
+
+    def describe(self) -> str:
+        return (f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
+                f"{format_bytes(self.limit)} available")
 
 
 def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
@@ -99,10 +102,8 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
     when the chosen layout does not fit ``max_bytes`` (default: 80 % of the
     available memory).
     """
-    from tlsvox.voxel.grid import available_memory_bytes
-
     layout = Layout.parse(layout, "layout")
-    limit = int(max_bytes) if max_bytes is not None else int(0.8 * available_memory_bytes())
+    limit = memory_limit(max_bytes)
     n_rows = len(echo_voxels(grid, beams) if voxels is None else voxels)
     n_bricks = int(np.prod(Bricks.shape_of(grid)))
     per_row = tracer.bytes_per_voxel() + _ESTIMATE_BYTES
@@ -118,7 +119,8 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
         fix = ("layout='sparse' (CLI --layout sparse), " if layout is Layout.DENSE and sparse + beam_bytes <= limit
                else "")
         factor = (plan.need / max(limit, 1)) ** (1 / 3)
-        raise InputError(f"{plan.describe().replace(' of the ', ' but only ').replace(' available', ' is available')}; use {fix}a voxel_size of at least "
+        raise InputError(f"{plan.sizes()}; the {layout.value} layout needs {format_bytes(plan.need)} but only "
+                         f"{format_bytes(limit)} is available; use {fix}a voxel_size of at least "
                          f"{grid.voxel_size * factor:.3g} m, or a smaller region (bounds=...)")
     return plan
 
@@ -389,8 +391,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
                        small_voxel_factor=small_voxel_factor, fill=fill)
     wood_est = estimate_wood(stats, method=wood_m, percentile=wood_percentile, n_min=n_min)
-    voxels = _stored_voxels(grid, lad, wood_est, plane)
-    ijk, lad_v, wood_v, occ_v, std_v = voxels
+    ijk, lad_v, wood_v, occ_v, std_v = _stored_voxels(grid, lad, wood_est, plane)
     if crown_center is None:
         cc = (grid.centers(ijk)[:, :2] * lad_v[:, None]).sum(axis=0) / lad_v.sum() if lad_v.sum() > 0 else np.zeros(2)
     else:
@@ -408,7 +409,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
     }
     if stats.sparse:
-        meta["occluded_bricks"] = {"brick_voxels": 8, "occluded": int(lad.brick_occluded.sum()),
+        meta["occluded_bricks"] = {"brick_voxels": BRICK, "occluded": int(lad.brick_occluded.sum()),
                                    "total": int(lad.brick_occluded.size)}
     scene = Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=lad_v,
                   wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la, leaf_azimuth=azimuth.value, crown_center=cc,
