@@ -118,8 +118,9 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
                 bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
                 hotspot: bool = False) -> RunSetup:
     """Check the inputs and build the run's parameters (see :meth:`clsim.transport.simulator.Simulator.run`)."""
-    if not isinstance(scene, Scene):
-        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)), got {type(scene).__name__}")
+    if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
+        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)) or a clsim.scenes.PlotScene, "
+                         f"got {type(scene).__name__}")
     if not isinstance(sensor, Sensor):
         raise InputError(f"sensor must be a clsim.Sensor (Sensor.preset(name)), got {type(sensor).__name__}")
     mode = Mode.parse(mode, "mode")
@@ -144,7 +145,8 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
                 f"Fix scene.materials[{mat!r}][{str(int(round(wl)))!r}]"
             )
         optics[mat] = (r, t)
-    bricks = build_bricks(scene, leaf_off=leaf_off)
+    # a plot of many trees brings its own bricks (shared between the instances of a tree)
+    bricks = scene.brick_grid(leaf_off=leaf_off) if hasattr(scene, "brick_grid") else build_bricks(scene, leaf_off=leaf_off)
     if bricks.flags.get("wood_probability_capped"):
         flags.append(f"wood probability 1 capped at 1-1e-6 in {bricks.flags['wood_probability_capped']} voxels")
 
