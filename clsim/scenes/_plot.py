@@ -25,6 +25,7 @@ waveform (same seed, same device).
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +34,7 @@ import numpy as np
 from voxlidar.choices import Choice
 from voxlidar.errors import InputError, finite_number
 from voxlidar.leafangle import LeafAngle
+from voxlidar.safeio import atomic_write, json_text
 from voxlidar.scene import Scene
 
 from clsim.transport.bricks import BRICK, WOOD_P_MAX, BrickGrid, build_bricks
@@ -45,6 +47,9 @@ TABLE_DTYPE = np.dtype([
     ("height_m", "<f8"), ("crown_radius_m", "<f8"), ("leaf_area_m2", "<f8"), ("n_voxels", "<i8"),
     ("on_lattice", "?"),
 ])
+
+
+PLOT_FORMAT_VERSION = 1
 
 
 class Snap(str, Choice):
@@ -570,6 +575,70 @@ class PlotScene:
                     copied_pool_bytes=occupied * per_brick, bricks=g.n_bricks, occupied_cells=occupied,
                     merged_bricks=int(g.flags.get("merged_bricks", 0)), models=self.n_models,
                     trees=self.n_trees)
+
+    # -- files -------------------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write the plot as compressed NPZ (atomic): each model's voxels once, the
+        instance table and the plot's settings; :meth:`load` reads it back."""
+        head = dict(format="voxlidar-plot", version=PLOT_FORMAT_VERSION, width_m=self.width_m,
+                    length_m=self.length_m, voxel_size=self.voxel_size, origin_xy=self.origin_xy.tolist(),
+                    ground_z=self.ground_z, share=self.share, wood_kind=self.wood_kind, notes=self.notes,
+                    meta=self.meta, materials=self.materials,
+                    leaf_angle=None if self.leaf_angle is None else self.leaf_angle.to_dict(),
+                    leaf_angle_given=self._leaf_angle_given, materials_given=self._materials_given,
+                    models=[dict(name=m.name, source=m.source, frac_xy=m.frac_xy.tolist(),
+                                 leaf_area=m.leaf_area, params=m.params) for m in self._models])
+        arrays = {"plot": np.str_(json_text(head)), "instances": self._inst}
+        for k, m in enumerate(self._models):
+            arrays.update({f"m{k}_rel": m.rel, f"m{k}_lad": m.lad, f"m{k}_wood": m.wood,
+                           f"m{k}_occluded": m.occluded})
+            if m.lad_std is not None:
+                arrays[f"m{k}_lad_std"] = m.lad_std
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+
+        return atomic_write(path, write)
+
+    @classmethod
+    def load(cls, path) -> "PlotScene":
+        """Read a plot written by :meth:`save`."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"plot file {str(path)!r} does not exist (or is a folder)")
+        try:
+            z = np.load(path, allow_pickle=False)
+        except Exception as err:  # noqa: BLE001 - re-raised with the file named
+            raise InputError(f"{str(path)!r} is not a readable NPZ plot file: {err}") from err
+        with z:
+            if "plot" not in z:
+                raise InputError(f"{str(path)!r} is not a plot file (PlotScene.save); a single tree's scene "
+                                 "is read with voxlidar.scene.Scene.load")
+            head = json.loads(str(z["plot"]))
+            if head.get("version", 0) > PLOT_FORMAT_VERSION:
+                raise InputError(f"{str(path)!r} has plot format {head['version']}; this voxlidar reads up to "
+                                 f"{PLOT_FORMAT_VERSION}. Upgrade voxlidar.")
+            plot = cls(head["width_m"], head["length_m"], voxel_size=head["voxel_size"],
+                       origin_xy=head["origin_xy"], ground_z=head["ground_z"], share=head["share"],
+                       leaf_angle=head["leaf_angle"], materials=head["materials"])
+            plot._leaf_angle_given, plot._materials_given = head["leaf_angle_given"], head["materials_given"]
+            plot.wood_kind, plot.notes, plot.meta = head["wood_kind"], head["notes"], head["meta"]
+            for k, m in enumerate(head["models"]):
+                plot._models.append(_Model(
+                    name=m["name"], source=m["source"], rel=z[f"m{k}_rel"].astype(np.int64), lad=z[f"m{k}_lad"],
+                    wood=z[f"m{k}_wood"], occluded=z[f"m{k}_occluded"],
+                    lad_std=z[f"m{k}_lad_std"] if f"m{k}_lad_std" in z else None,
+                    frac_xy=np.asarray(m["frac_xy"], dtype=np.float64), leaf_area=float(m["leaf_area"]),
+                    obj=None, params=m["params"]))
+            plot._inst = z["instances"].astype(np.int64).reshape(-1, 3)
+        return plot
+
+    def __getstate__(self):
+        """Pickle (e.g. to a Dask worker) without caches and without the objects the trees came from."""
+        state = dict(self.__dict__, _cache={}, _keys={})
+        state["_models"] = [_Model(**dict(vars(m), obj=None, bricks={})) for m in self._models]
+        return state
 
     def __repr__(self) -> str:
         return (f"PlotScene({self.width_m:g} x {self.length_m:g} m, voxel {self.voxel_size:g} m, "

@@ -61,7 +61,9 @@ def plot_canopy(plot, path, *, title: str | None = None, footprints=None) -> Pat
             ax.plot(tab["x_m"][sel], tab["y_m"][sel], marker, color=colour, ms=6, ls="none", label=label)
     if footprints is not None:
         fp = np.asarray(footprints, dtype=float).reshape(-1, 2)
-        ax.plot(fp[:, 0], fp[:, 1], ".", color="orange", ms=1.5, label="footprints")
+        few = len(fp) <= 100
+        ax.plot(fp[:, 0], fp[:, 1], "o" if few else ".", color="orange", ms=7 if few else 1.5, mec="black",
+                mew=0.5 if few else 0.0, ls="none", label="pulse targets")
     ax.plot([], [], "o", mfc="none", mec="grey", label="crown (disc of its projected area)")
     ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2, fontsize=8, frameon=False)
     ax.set_xlim(extent[0], extent[1])

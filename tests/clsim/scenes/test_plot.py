@@ -6,6 +6,7 @@ overlapping crowns add, and bad input is one line."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -261,3 +262,39 @@ def test_canopy_picture_has_title_units_legend_and_colorbar(plot, tmp_path):
         plot_canopy(PlotScene(10.0, voxel_size=H), tmp_path / "empty.png")
     chm = plot.canopy_height()
     assert np.nanmax(chm) == pytest.approx(plot.table()["height_m"].max())
+
+
+def test_save_load_and_pickle_keep_the_plot(plot, tmp_path):
+    import pickle
+
+    path = plot.save(tmp_path / "plot.npz")
+    for back in (type(plot).load(path), pickle.loads(pickle.dumps(plot))):
+        assert np.array_equal(back.table(), plot.table())
+        assert back.total_leaf_area() == plot.total_leaf_area()
+        assert back.shape == plot.shape and np.array_equal(back.origin, plot.origin)
+        assert np.array_equal(back.brick_grid().pool, plot.brick_grid().pool)
+        assert np.array_equal(back.brick_grid().index, plot.brick_grid().index)
+    with pytest.raises(InputError) as excinfo:
+        PlotScene.load(Scene(origin=(0, 0, 0), voxel_size=H, shape=(1, 1, 1), ijk=[[0, 0, 0]],
+                             lad=[1.0]).save(tmp_path / "tree.npz"))
+    assert "Scene.load" in _one_line(excinfo)
+    with pytest.raises(InputError) as excinfo:
+        PlotScene.load(tmp_path / "missing.npz")
+    assert "does not exist" in _one_line(excinfo)
+
+
+def test_example_prints_the_known_leaf_area_and_identical_waveforms(tmp_path, capsys):
+    import runpy
+    from pathlib import Path
+
+    scanned = Scene(origin=(-2.0, -2.0, 0.0), voxel_size=H, shape=(8, 8, 12),
+                    ijk=[[a, b, c] for a in range(2, 6) for b in range(2, 6) for c in range(4, 10)],
+                    lad=np.full(96, 0.7), ground_z=0.0, crown_center=(0.0, 0.0)).save(tmp_path / "scanned.npz")
+    example = runpy.run_path(str(Path(__file__).parents[3] / "examples" / "plot_scene.py"))
+    example["main"](tmp_path, scanned)
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x.startswith("leaf area"))
+    plot_area, trees_area, copied_area = (float(v) for v in re.findall(r"([\d.]+) m2", line))
+    assert plot_area == trees_area == pytest.approx(copied_area, abs=1e-6)
+    assert "31 trees of 7 models" in out and "waveforms identical: True" in out
+    assert (tmp_path / "plot_canopy.png").stat().st_size > 0
