@@ -42,7 +42,8 @@ def register(subparsers) -> None:
                     "scene (NPZ, docs/formats.md); writes time_ns, waveform, by_order (orders x "
                     "samples), the fine histograms and the run's settings to an NPZ file.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("scene", help="scene file: .npz written by tlsvox or clsim.validation.testscenes, or an AMAPVox "
+    p.add_argument("scene", help="scene file: .npz written by tlsvox or clsim.validation.testscenes, a plot of many "
+                                 "trees (clsim.scenes.PlotScene.save), or an AMAPVox "
                                  ".vox (its PadBVTotal as LAD; no wood, no ground)")
     p.add_argument("--target", default=None, metavar="X,Y[,Z]",
                    help="where the beam axis meets the ground, metres in the scene's frame "
@@ -193,7 +194,9 @@ def cmd_simulate(args) -> int:
 
         scene = read_vox(args.scene)
     else:
-        scene = Scene.load(args.scene)
+        from clsim.scenes import PlotScene
+
+        scene = PlotScene.load(scene_path) if PlotScene.is_plot_file(scene_path) else Scene.load(args.scene)
     over = {}
     if args.off_nadir is not None:
         over["off_nadir_deg"] = args.off_nadir
@@ -224,7 +227,7 @@ def cmd_simulate(args) -> int:
         if args.plot:
             plot_result(res, tmp[args.plot])
         if args.trace_plot:
-            plot_traces(res, scene, tmp[args.trace_plot])
+            plot_traces(res, scene if isinstance(scene, Scene) else scene.to_scene(), tmp[args.trace_plot])
     e, se = res.energy()
     print(f"{args.photons:,} photons in {res.elapsed_s:.2f} s on {res.settings['device']}: "
           f"received energy {e:.4g} +- {se:.2g} of the emitted pulse; wrote {args.output}")

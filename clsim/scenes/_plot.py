@@ -601,6 +601,15 @@ class PlotScene:
 
         return atomic_write(path, write)
 
+    @staticmethod
+    def is_plot_file(path) -> bool:
+        """True when ``path`` is an NPZ written by :meth:`save` (False for anything else)."""
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return "plot" in z.files
+        except Exception:  # noqa: BLE001 - not a readable NPZ: not a plot file
+            return False
+
     @classmethod
     def load(cls, path) -> "PlotScene":
         """Read a plot written by :meth:`save`."""

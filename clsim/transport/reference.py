@@ -21,6 +21,8 @@ import time
 
 import numpy as np
 
+from voxlidar.scene import Scene
+
 from clsim.transport.bricks import extinction
 from clsim.errors import InputError
 from clsim.transport.rng import uniforms
@@ -91,6 +93,8 @@ class _Transport:
         self.s = setup
         p = setup.p
         sc = setup.scene
+        if not isinstance(sc, Scene):           # a clsim.scenes.PlotScene: its copied scene, same values
+            sc = sc.to_scene()
         if int(np.prod(sc.shape)) > MAX_DENSE_VOXELS:
             raise InputError(
                 f"the NumPy oracle uses a dense grid; shape {sc.shape} has more than "

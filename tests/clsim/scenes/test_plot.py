@@ -209,6 +209,26 @@ def test_pulse_over_shared_plot_equals_pulse_over_copies(sim, plot):
     assert e > 10 * se > 0                                        # the beam met the canopy
 
 
+@pytest.fixture(scope="module")
+def oracle_over_plot(plot):
+    from clsim.transport.reference import ReferenceSimulator
+
+    tab = plot.table()
+    target = (tab["x_m"][0] + 0.7, tab["y_m"][0] - 0.4)
+    return target, ReferenceSimulator().run(plot, Sensor.preset("ahab-chiroptera-i"), photons=3000, seed=1,
+                                            target=target)
+
+
+def test_kernel_over_shared_plot_matches_the_float64_oracle(sim, plot, oracle_over_plot):
+    """The NumPy oracle reads the copied scene in float64; the kernel the shared bricks.
+    Independent seeds: |a - b| < 4 sqrt(se_a^2 + se_b^2) for canopy and ground energy."""
+    target, ref = oracle_over_plot
+    res = sim.run(plot, Sensor.preset("ahab-chiroptera-i"), photons=100_000, seed=2, target=target)
+    for kind in ("vegetation", "ground"):
+        (a, sa), (b, sb) = res.energy(kind=kind), ref.energy(kind=kind)
+        assert b > 0 and abs(a - b) < 4 * math.hypot(sa, sb), (kind, a, sa, b, sb)
+
+
 # -- bad input and the picture -------------------------------------------------------------------
 def _one_line(excinfo):
     msg = str(excinfo.value)
@@ -298,3 +318,20 @@ def test_example_prints_the_known_leaf_area_and_identical_waveforms(tmp_path, ca
     assert plot_area == trees_area == pytest.approx(copied_area, abs=1e-6)
     assert "31 trees of 7 models" in out and "waveforms identical: True" in out
     assert (tmp_path / "plot_canopy.png").stat().st_size > 0
+
+
+def test_clsim_simulate_reads_a_plot_file(plot, tmp_path, capsys, cl_device):
+    """`clsim simulate plot.npz` runs the shared plot: the waveform file equals an in-process run."""
+    from clsim.cli.app import main
+    from clsim.transport.simulator import Simulator
+
+    path = plot.save(tmp_path / "plot.npz")
+    tab = plot.table()
+    target = f"{tab['x_m'][1]:g},{tab['y_m'][1]:g}"
+    rc = main(["simulate", str(path), "--photons", "5000", "--seed", "4", "--target", target, "--device",
+               cl_device.key, "--quiet", "-o", str(tmp_path / "wf.npz")])
+    assert rc == 0 and "received energy" in capsys.readouterr().out
+    ref = Simulator(device=cl_device).run(plot, Sensor.preset("ahab-chiroptera-i"), photons=5000, seed=4,
+                                           target=(tab["x_m"][1], tab["y_m"][1]))
+    with np.load(tmp_path / "wf.npz") as z:
+        assert np.array_equal(z["waveform"], ref.waveform)
