@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -77,14 +77,12 @@ class _Model:
     obj: object                # what was added (kept so that its id stays unique)
     params: dict | None = None
     bricks: dict = field(default_factory=dict)   # (residual, leaf_off) -> (BrickGrid, pad)
+    lo: np.ndarray = field(init=False)           # (3,) lowest rel index per axis
+    hi: np.ndarray = field(init=False)           # (3,) highest
 
-    @property
-    def lo(self):
-        return self.rel.min(axis=0) if len(self.rel) else np.zeros(3, np.int64)
-
-    @property
-    def hi(self):
-        return self.rel.max(axis=0) if len(self.rel) else np.full(3, -1, np.int64)
+    def __post_init__(self):
+        self.lo = self.rel.min(axis=0) if len(self.rel) else np.zeros(3, np.int64)
+        self.hi = self.rel.max(axis=0) if len(self.rel) else np.full(3, -1, np.int64)
 
 
 def _ceil_div(a, b):
@@ -219,8 +217,10 @@ class PlotScene:
     @property
     def _ground_k(self) -> int:
         """Voxel layer of the ground (a multiple of BRICK, room for voxels below the ground)."""
-        below = max([0] + [int(-m.lo[2]) for m in self._models])
-        return int(BRICK * _ceil_div(below, BRICK))
+        if "ground_k" not in self._cache:
+            below = max([0] + [int(-m.lo[2]) for m in self._models])
+            self._cache["ground_k"] = int(BRICK * _ceil_div(below, BRICK))
+        return self._cache["ground_k"]
 
     @property
     def origin(self) -> np.ndarray:
@@ -244,7 +244,9 @@ class PlotScene:
 
     def optics(self, material: str, wavelength_nm: float) -> tuple[float, float]:
         """(R, T) of ``material`` at ``wavelength_nm`` (as :meth:`voxlidar.scene.Scene.optics`)."""
-        return self._header().optics(material, wavelength_nm)
+        if "header" not in self._cache:
+            self._cache["header"] = self._header()
+        return self._cache["header"].optics(material, wavelength_nm)
 
     def _header(self, **arrays) -> Scene:
         """A Scene over the plot's grid holding ``arrays`` (none: an empty scene)."""
@@ -488,7 +490,7 @@ class PlotScene:
         ``share=False``: ``build_bricks(self.to_scene())``.  Cached until a
         tree is added.
         """
-        key = ("bricks", bool(leaf_off))
+        key = ("bricks", bool(leaf_off), self.share)
         if key not in self._cache:
             if self.share:
                 self._cache[key] = self._shared_bricks(bool(leaf_off))
@@ -646,7 +648,7 @@ class PlotScene:
     def __getstate__(self):
         """Pickle (e.g. to a Dask worker) without caches and without the objects the trees came from."""
         state = dict(self.__dict__, _cache={}, _keys={})
-        state["_models"] = [_Model(**dict(vars(m), obj=None, bricks={})) for m in self._models]
+        state["_models"] = [replace(m, obj=None, bricks={}) for m in self._models]
         return state
 
     def __repr__(self) -> str:
