@@ -127,6 +127,14 @@ def test_off_lattice_trees_get_their_own_copy_and_same_values(small_tree):
     assert mem["pool_bytes"] == mem["copied_pool_bytes"] - alone.memory()["copied_pool_bytes"]
 
 
+def test_voxel_snapped_plot_matches_its_copies():
+    p = make_plot(30.0, 6, seed=5, n_models=2, kinds=("small",), snap="voxel", min_spacing_m=5.0)
+    xy = np.column_stack([p.table()["x_m"], p.table()["y_m"]])
+    assert not p.table()["on_lattice"].all()
+    np.testing.assert_allclose(np.mod(xy + 1e-9, H), 1e-9, atol=1e-8)           # on voxel corners
+    assert np.array_equal(dense(p.brick_grid()), dense(build_bricks(p.to_scene())))
+
+
 def test_lattice_instances_share_one_copy(small_tree):
     """N instances of one tree on the brick lattice, apart: the pool is one tree's bricks."""
     p = PlotScene(64.0, voxel_size=H)
@@ -164,7 +172,8 @@ def test_merge_keeps_single_voxels_bit_for_bit():
 
 def test_scanned_tree_from_a_file_with_other_wood_kind(tmp_path, small_tree):
     scanned = Scene(origin=(100.0, 200.0, 50.0), voxel_size=H, shape=(6, 6, 10),
-                    ijk=[[2, 3, 4], [3, 3, 6], [3, 3, 2]], lad=[0.8, 1.2, 0.0], wood=[0.0, 0.0, 0.6],
+                    ijk=[[2, 3, 4], [3, 3, 6], [3, 3, 2], [4, 4, 1]], lad=[0.8, 1.2, 0.0, 0.3],
+                    wood=[0.0, 0.0, 0.6, 0.0],
                     wood_kind="area_density", ground_z=51.0, crown_center=(101.5, 201.5),
                     leaf_angle=small_tree.leaf_angle, leaf_azimuth="outward", materials=small_tree.materials)
     path = scanned.save(tmp_path / "scanned.npz")
@@ -178,6 +187,9 @@ def test_scanned_tree_from_a_file_with_other_wood_kind(tmp_path, small_tree):
     assert any("outward" in n for n in p.notes) and any("converted" in n for n in p.notes)
     s = p.to_scene()
     assert s.ground_z == 3.0 and s.wood_kind == "probability"
+    # a voxel one layer below the scanned tree's ground: the grid reaches one brick below the plot's ground
+    assert s.origin[2] == 3.0 - BRICK * H and s.n_voxels == p.n_voxels
+    assert s.total_leaf_area() == pytest.approx(p.total_leaf_area(), rel=1e-12)
     # the wood voxel sits one voxel above the plot ground, its extinction kept: p = 1 - exp(-WAD h / 2)
     k_ground = int(round((3.0 - s.origin[2]) / H))
     for x, y in ((14.0, 14.0), (14.0, 6.0)):
