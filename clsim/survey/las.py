@@ -86,10 +86,12 @@ def _check(pulses, waveforms, t0_ns, bin_ns, sensor):
                          f"{type(sensor).__name__}")
     n = len(pulses)
     try:
-        w = np.asarray(waveforms, dtype=np.float64)
+        w = np.asarray(waveforms)                      # no float64 copy of a float32 survey
         t0 = np.asarray(t0_ns, dtype=np.float64)
     except (TypeError, ValueError) as err:
         raise InputError(f"waveforms and t0_ns must be arrays of numbers: {err}") from None
+    if not (np.issubdtype(w.dtype, np.floating) or np.issubdtype(w.dtype, np.integer)):
+        raise InputError(f"waveforms must be an array of numbers; got dtype {w.dtype}")
     if n == 0:
         raise InputError("no pulses to write; pass at least one pulse")
     if w.ndim != 2 or w.shape[0] != n or w.shape[1] < 4:
@@ -98,7 +100,9 @@ def _check(pulses, waveforms, t0_ns, bin_ns, sensor):
     if t0.shape not in ((), (n,)):
         raise InputError(f"t0_ns must be one number or one per pulse ({n},); got shape {t0.shape}")
     t0 = np.broadcast_to(t0, (n,)).copy()
-    bad = np.flatnonzero(~np.isfinite(w).all(axis=1) | ~np.isfinite(t0))
+    bad = np.flatnonzero(~np.isfinite(t0))
+    if np.issubdtype(w.dtype, np.floating):
+        bad = np.union1d(bad, np.flatnonzero(~np.isfinite(w).all(axis=1)))
     if bad.size:
         raise InputError(f"pulses {bad[:5].tolist()} have NaN or inf in their waveform or t0_ns; "
                          "fill or drop them before writing")
@@ -168,7 +172,8 @@ def write_survey_las(path: "str | os.PathLike", pulses, waveforms, *, t0_ns, bin
     device : optional
         Where the decomposition's fits run (see :func:`clsim.decompose_batch`).
     chunk : int
-        Waveforms decomposed together.
+        Waveforms quantised and decomposed together (memory: besides the
+        input and its raw samples, about ``chunk * n_bins * 100`` bytes).
 
     Returns
     -------
@@ -203,33 +208,38 @@ def write_survey_las(path: "str | os.PathLike", pulses, waveforms, *, t0_ns, bin
     n, n_bins = w.shape
     dtype, gain, offset = _quantiser(w, int(bits), gain, offset)
     info = np.iinfo(dtype)
-    raw = np.clip(np.rint((w - offset) / gain), info.min, info.max).astype(dtype)
     spacing_ps = max(1, int(round(b * 1000.0)))
     desc = WavePacketDescriptor(1, int(bits), int(n_bins), spacing_ps, float(gain), float(offset))
     desc.check()
-    stored = offset + gain * raw.astype(np.float64)
+    step = max(1, int(chunk))
+    raw = np.empty((n, n_bins), dtype)
+    for lo in range(0, n, step):                      # memory: the raw samples and one chunk
+        raw[lo:lo + step] = np.clip(np.rint((w[lo:lo + step].astype(np.float64) - offset) / gain),
+                                    info.min, info.max)
 
     # returns: (pulse, time after emission ns, amplitude, sigma ns, synthetic)
+    pulse, tau, amp, sig = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
     if returns:
         from clsim.waveforms.decompose import decompose_batch
 
-        table = decompose_batch(stored, dt_ns=b, t0_ns=t0, pulse_sigma_ns=sensor.pulse_sigma_ns,
-                                false_alarm=false_alarm, max_components=int(max_returns),
-                                device=device, chunk=chunk)
-        pulse = table.waveform
-        tau, amp, sig = table.location_ns, table.amplitude, table.sigma_ns
+        parts = []
+        for lo in range(0, n, step):
+            # the quantised waveforms (what the file keeps); the sensor's pulse for every
+            # chunk, so the echoes do not depend on the chunking
+            table = decompose_batch(offset + gain * raw[lo:lo + step].astype(np.float64), dt_ns=b,
+                                    t0_ns=t0[lo:lo + step], pulse_sigma_ns=sensor.pulse_sigma_ns,
+                                    false_alarm=false_alarm, max_components=int(max_returns),
+                                    device=device, chunk=step)
+            parts.append((table.waveform + lo, table.location_ns, table.amplitude, table.sigma_ns))
+        pulse, tau, amp, sig = (np.concatenate(c) for c in zip(*parts))
         keep = ((amp > float(min_amplitude)) & (tau >= t0[pulse])
                 & (tau <= t0[pulse] + (n_bins - 1) * b))
         pulse, tau, amp, sig = pulse[keep], tau[keep], amp[keep], sig[keep]
-        synthetic = np.zeros(pulse.size, bool)
-    else:
-        pulse = np.zeros(0, np.int64)
-        tau = amp = sig = np.zeros(0)
-        synthetic = np.zeros(0, bool)
+    synthetic = np.zeros(pulse.size, bool)
     withheld = np.zeros(pulse.size, bool)
     lonely = np.setdiff1d(np.arange(n), pulse)
     if lonely.size and (empty == "withheld" or not returns):
-        j = np.argmax(stored[lonely], axis=1)
+        j = np.argmax(raw[lonely], axis=1)                 # gain > 0: the strongest sample
         pulse = np.concatenate([pulse, lonely])
         tau = np.concatenate([tau, t0[lonely] + j * b])
         amp = np.concatenate([amp, np.zeros(lonely.size)])

@@ -526,6 +526,11 @@ def write_las_waveforms(path: "str | os.PathLike", data: LasWaveforms, *, point_
     def write_wdp(tmp):
         with open(tmp, "wb") as fh:
             fh.write(_wdp_header(total))
+            if len(data.descriptors) == 1:                # one descriptor: the packets in one go
+                (d,) = data.descriptors.values()
+                dt = np.dtype(_SAMPLE_DTYPES[d.bits_per_sample]).newbyteorder("<")
+                fh.write(np.ascontiguousarray(data.raw[:, :d.n_samples], dtype=dt).tobytes())
+                return
             for p in range(n_packets):
                 d = data.descriptors[int(data.packet_descriptor[p])]
                 dt = np.dtype(_SAMPLE_DTYPES[d.bits_per_sample]).newbyteorder("<")
