@@ -143,6 +143,9 @@ def plot_radargram(survey, path, *, max_scan_angle_deg: float | None = 0.5, n_co
     s = _survey(survey)
     if int(n_columns) < 1:
         raise InputError(f"n_columns must be >= 1; got {n_columns!r}")
+    if s.n_pulses == 0:
+        raise InputError("the survey has no waveform to draw (every pulse was written without a "
+                         "point: write_survey_las(..., empty='withheld') keeps them)")
     sel = np.arange(s.n_pulses)
     if max_scan_angle_deg is not None:
         sel = np.flatnonzero(np.abs(s.pulse_scan_angle_deg) <= float(max_scan_angle_deg))
