@@ -467,7 +467,9 @@ def _wdp_header(n_bytes: int) -> bytes:
                              b"clsim waveform data packets".ljust(32, b"\0"))
 
 
-def write_las_waveforms(path: "str | os.PathLike", data: LasWaveforms) -> tuple[Path, Path]:
+def write_las_waveforms(path: "str | os.PathLike", data: LasWaveforms, *, point_fields=None,
+                        extra_bytes=None, system_identifier: str | None = None
+                        ) -> tuple[Path, Path]:
     """Write LAS 1.4 point format 9 plus an external ``.wdp`` with the packets.
 
     The points (laspy opens them) carry the descriptor index, byte offset and
@@ -483,14 +485,24 @@ def write_las_waveforms(path: "str | os.PathLike", data: LasWaveforms) -> tuple[
         Destination ``.las``; the packets go to the same name with ``.wdp``.
     data : LasWaveforms
         From :func:`read_las_waveforms` or :meth:`LasWaveforms.from_arrays`.
+    point_fields : dict[str, (N,) array], optional
+        Further standard point format 9 fields that ``data`` does not hold
+        (``scan_angle`` in 0.006 degree steps, ``point_source_id``,
+        ``synthetic``, ``withheld``, ``user_data``...), by their laspy name.
+    extra_bytes : dict[str, tuple[(N,) array, str]], optional
+        Extra byte dimensions (LAS 1.4 extra bytes VLR): name to values (their
+        dtype is the stored type) and a description of at most 32 characters.
+    system_identifier : str, optional
+        The header's system identifier (32 characters at most).
 
     Returns
     -------
     (las_path, wdp_path)
+        Both written or neither (temporary names renamed at the end).
     """
     import laspy
 
-    from voxlidar.safeio import atomic_write
+    from voxlidar.safeio import staged
 
     path = Path(path)
     if path.suffix.lower() != ".las":
@@ -514,12 +526,39 @@ def write_las_waveforms(path: "str | os.PathLike", data: LasWaveforms) -> tuple[
     def write_wdp(tmp):
         with open(tmp, "wb") as fh:
             fh.write(_wdp_header(total))
+            if len(data.descriptors) == 1:                # one descriptor: the packets in one go
+                (d,) = data.descriptors.values()
+                dt = np.dtype(_SAMPLE_DTYPES[d.bits_per_sample]).newbyteorder("<")
+                fh.write(np.ascontiguousarray(data.raw[:, :d.n_samples], dtype=dt).tobytes())
+                return
             for p in range(n_packets):
                 d = data.descriptors[int(data.packet_descriptor[p])]
                 dt = np.dtype(_SAMPLE_DTYPES[d.bits_per_sample]).newbyteorder("<")
                 fh.write(np.ascontiguousarray(data.raw[p, :d.n_samples], dtype=dt).tobytes())
 
+    point_fields = dict(point_fields or {})
+    extra_bytes = dict(extra_bytes or {})
+    standard = set(laspy.PointFormat(9).dimension_names)
+    for name, values in list(point_fields.items()) + [(k, v[0]) for k, v in extra_bytes.items()]:
+        if np.shape(values) != (n,):
+            raise InputError(f"point field {name!r} has shape {np.shape(values)}; expected ({n},), "
+                             "one value per point")
+    unknown = sorted(set(point_fields) - standard)
+    if unknown:
+        raise InputError(f"point fields {unknown} are not in point format 9; pass them as "
+                         "extra_bytes")
+    clash = sorted(set(extra_bytes) & standard)
+    if clash:
+        raise InputError(f"extra bytes {clash} have the names of point format 9 fields; "
+                         "rename them")
     header = laspy.LasHeader(version="1.4", point_format=9)
+    if extra_bytes:
+        header.add_extra_dims([laspy.ExtraBytesParams(name, np.asarray(v).dtype,
+                                                      description=str(desc)[:31])
+                               for name, (v, desc) in extra_bytes.items()])
+    if system_identifier is not None:
+        header.system_identifier = str(system_identifier)[:31]
+    header.generating_software = "clsim"
     header.scales = np.asarray(data.scales, dtype=np.float64)
     header.offsets = np.asarray(data.offsets, dtype=np.float64)
     header.global_encoding.waveform_data_packets_external = True
@@ -548,7 +587,12 @@ def write_las_waveforms(path: "str | os.PathLike", data: LasWaveforms) -> tuple[
     las.x_t = data.xyz_t[:, 0].astype(np.float32)
     las.y_t = data.xyz_t[:, 1].astype(np.float32)
     las.z_t = data.xyz_t[:, 2].astype(np.float32)
+    for name, values in point_fields.items():
+        las[name] = np.asarray(values)
+    for name, (values, _) in extra_bytes.items():
+        las[name] = np.asarray(values)
     wdp_path = path.with_suffix(".wdp")
-    atomic_write(wdp_path, write_wdp)
-    atomic_write(path, lambda tmp: las.write(str(tmp)))
+    with staged([wdp_path, path]) as tmp:
+        write_wdp(tmp[wdp_path])
+        las.write(str(tmp[path]))
     return path, wdp_path
