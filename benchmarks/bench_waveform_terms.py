@@ -1,0 +1,89 @@
+"""Where the exact-LAD scene's waveform error comes from: leaves, wood and the hot spot, pulse by pulse.
+
+The four budget pulses of :func:`clsim.validation.budget.default_pulses` over the
+default synthetic oak (``make_tree(seed=1)``), sensor ``ahab-chiroptera-i``:
+the explicit-geometry mesh reference against the exact-LAD voxel twin
+(``tree.truth_scene``), leaf-on and leaf-off (wood and ground only), with and
+without the hot-spot option.  Leaf-off isolates the wood term: the twin turns
+bark into a turbid medium of randomly oriented facets (sigma = bark area / 4V),
+while the mesh's trunk and scaffolds are solid cylinders, mostly upright.
+
+Writes docs/bench/waveform_terms.md.
+
+    .venv/bin/python benchmarks/bench_waveform_terms.py      # about 3 min on 2 cores
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--voxel", type=float, default=0.1, help="voxel size of the exact-LAD twin, m")
+    ap.add_argument("--photons", type=int, default=300_000, help="photons per run (mesh and voxels)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "waveform_terms.md"))
+    args = ap.parse_args(argv)
+    from clsim import Sensor, Simulator
+    from clsim.sensor import C_M_PER_NS
+    from clsim.validation.budget import default_pulses, waveform_metrics
+    from clsim.validation.meshref import MeshReferenceSimulator
+    from tlsvox.truth.synthetic import make_tree
+    from voxlidar.safeio import atomic_write
+
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    tree = make_tree(seed=1)
+    base = Sensor.preset("ahab-chiroptera-i")
+    twin = tree.truth_scene(args.voxel)
+    sim, mesh = Simulator(), MeshReferenceSimulator()
+    rows = []
+    for pulse in default_pulses(crown_center=tree.crown_center[:2], crown_radius=tree.params.crown_radius):
+        sensor = pulse.sensor(base)
+        tg = 2.0 * sensor.range_m / C_M_PER_NS
+        for leaf_off in (False, True):
+            ref = mesh.run(tree, sensor, photons=args.photons, seed=args.seed, max_order=3, target=pulse.target,
+                           twin=twin, leaf_off=leaf_off)
+            for hotspot in (True, False):
+                res = sim.run(twin, sensor, photons=args.photons, seed=args.seed, max_order=3, target=pulse.target,
+                              leaf_off=leaf_off, hotspot=hotspot)
+                m = waveform_metrics(res, ref, ground_time_ns=tg)
+                rows.append((pulse.name, leaf_off, hotspot, m))
+                print(f"{pulse.name} {'leaf-off' if leaf_off else 'leaf-on'} hotspot={hotspot}: r {m['r']:.3f} "
+                      f"E {m['total']:.3f} veg {m['vegetation']:.3f} ground {m['ground']:.3f}", flush=True)
+    minutes = (time.perf_counter() - t0) / 60
+    lines = ["# Where the exact-LAD waveform error comes from (leaves, wood, hot spot)", "",
+             f"Command: `.venv/bin/python benchmarks/bench_waveform_terms.py --voxel {args.voxel:g} --photons "
+             f"{args.photons}` ({minutes:.1f} min). Machine: {platform.machine()}, {os.cpu_count()} CPU(s); load "
+             f"average before {', '.join(f'{v:.2f}' for v in load0)}. Device: {sim.device_name}.", "",
+             f"Default oak, sensor `ahab-chiroptera-i`, the four budget pulses; mesh reference against the "
+             f"exact-LAD twin at {args.voxel * 100:g} cm, {args.photons:,} photons each, 3 orders. r: Pearson "
+             "correlation of the waveforms; E: received energy, twin / mesh (total, from vegetation, from the "
+             "ground; ± one standard error from the 16 batches).", "",
+             "| pulse | leaves | hot spot | r | E total | E vegetation | E ground |",
+             "|---|---|---|---:|---:|---:|---:|"]
+    for name, leaf_off, hotspot, m in rows:
+        lines.append(f"| {name} | {'off' if leaf_off else 'on'} | {'on' if hotspot else 'off'} | {m['r']:.3f} | "
+                     f"{m['total']:.3f} ± {m['total_se']:.3f} | {m['vegetation']:.3f} ± {m['vegetation_se']:.3f} | "
+                     f"{m['ground']:.3f} ± {m['ground_se']:.3f} |")
+    lines += ["", "Leaf-off, the twin's wood alone returns about 2.5 times the mesh's energy for the oblique pulse "
+              "through the crown centre (the trunk and the main scaffolds), and about 1.2 times at nadir; near the "
+              "crown's edge (thin, randomly oriented twigs) the two agree. Random facets (the turbid model) face "
+              "a beam far more squarely than the side of an upright cylinder seen 15 degrees off its axis, so "
+              "their backscatter is larger; their projected area is also the random-orientation mean, not the "
+              "cylinder's. The remedy is directional wood per voxel (a bark axis, or the bark normals' second "
+              "moment, from the mesh or from the wood echoes), not built yet.", ""]
+    out = Path(args.out)
+    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
