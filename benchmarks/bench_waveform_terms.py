@@ -10,7 +10,7 @@ while the mesh's trunk and scaffolds are solid cylinders, mostly upright.
 
 Writes docs/bench/waveform_terms.md.
 
-    .venv/bin/python benchmarks/bench_waveform_terms.py      # about 3 min on 2 cores
+    .venv/bin/python benchmarks/bench_waveform_terms.py      # about 1 min on 2 cores
 """
 
 from __future__ import annotations
@@ -74,12 +74,14 @@ def main(argv=None):
                      f"{m['total']:.3f} ± {m['total_se']:.3f} | {m['vegetation']:.3f} ± {m['vegetation_se']:.3f} | "
                      f"{m['ground']:.3f} ± {m['ground_se']:.3f} |")
     lines += ["", "Leaf-off, the twin's wood alone returns about 2.5 times the mesh's energy for the oblique pulse "
-              "through the crown centre (the trunk and the main scaffolds), and about 1.2 times at nadir; near the "
-              "crown's edge (thin, randomly oriented twigs) the two agree. Random facets (the turbid model) face "
-              "a beam far more squarely than the side of an upright cylinder seen 15 degrees off its axis, so "
-              "their backscatter is larger; their projected area is also the random-orientation mean, not the "
-              "cylinder's. The remedy is directional wood per voxel (a bark axis, or the bark normals' second "
-              "moment, from the mesh or from the wood echoes), not built yet.", ""]
+              "through the crown centre (the trunk and the main scaffolds) and about 1.2 times at nadir; near the "
+              "crown's edge (thin twigs) the two agree. Two things differ. Random facets (the turbid model) face a "
+              "beam far more squarely than the side of an upright cylinder seen 15 degrees off its axis, so they "
+              "backscatter more; and bark is a surface, so the voxels inside the trunk hold no wood: light that "
+              "crosses the trunk's shell of turbid voxels goes on through the hollow to the ground, which the "
+              "solid trunk hides (the ground column: many times the mesh's ground energy for the centre pulses). "
+              "The remedies are directional wood per voxel (a bark axis from the bark normals) and solid trunk "
+              "voxels; see docs/method.md for what is built.", ""]
     out = Path(args.out)
     atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
     print(f"wrote {out}")
