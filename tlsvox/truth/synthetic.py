@@ -193,7 +193,33 @@ class SyntheticTree:
         shape = np.ceil((hi + margin - origin) / voxel_size).astype(int) + 1
         return origin, tuple(int(v) for v in shape)
 
-    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None):
+    def solid_wood_voxels(self, *, origin, voxel_size: float, shape) -> np.ndarray:
+        """(N, 3) int indices of the voxels whose centre lies inside a bark cylinder.
+
+        Bark is a surface, so :meth:`bark_area_per_voxel` leaves the inside of
+        a trunk or scaffold empty; these voxels are solid wood.
+        """
+        h = float(voxel_size)
+        origin = np.asarray(origin, dtype=float)
+        shape = np.asarray(shape, dtype=int)
+        out = []
+        for a, b, r in zip(self.cylinders[:, :3], self.cylinders[:, 3:6], self.cylinders[:, 6]):
+            lo = np.maximum(np.floor((np.minimum(a, b) - r - origin) / h).astype(int), 0)
+            hi = np.minimum(np.ceil((np.maximum(a, b) + r - origin) / h).astype(int), shape - 1)
+            if np.any(hi < lo):
+                continue
+            axes = [np.arange(lo[k], hi[k] + 1) for k in range(3)]
+            ijk = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+            c = origin + (ijk + 0.5) * h
+            ab = b - a
+            t = np.clip((c - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+            inside = np.linalg.norm(a + t[:, None] * ab - c, axis=1) < r
+            out.append(ijk[inside])
+        if not out:
+            return np.zeros((0, 3), dtype=int)
+        return np.unique(np.concatenate(out), axis=0)
+
+    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, solid_wood: bool = False):
         """The voxel scene of the mesh's exact leaf area and wood (the turbid-medium twin).
 
         LAD = leaf area in the voxel / voxel volume.  Wood becomes a crossing
@@ -201,6 +227,22 @@ class SyntheticTree:
         projected area over random directions is a quarter of their surface
         (Cauchy), so sigma_wood = A_bark / (4 V) and the chance that a beam
         crossing the whole voxel is stopped is ``1 - exp(-sigma_wood h)``.
+        With ``solid_wood`` the voxels whose centre lies inside a cylinder
+        (:meth:`solid_wood_voxels`) are opaque wood (probability 1): without
+        them a trunk is a shell of turbid voxels around an empty core, and
+        light crosses it to the ground that a solid trunk hides.  It is off by
+        default because the mesh's cylinders are open tubes: a beam down a
+        trunk's axis reaches the ground through the tube in the mesh
+        reference, so a solid twin would disagree with it there
+        (docs/bench/waveform_terms.md measures both).
+
+        Parameters
+        ----------
+        voxel_size : float, metres
+        wavelength_nm : float, optional
+            Unused: the scene's materials table covers every wavelength (kept for old calls).
+        solid_wood : bool
+            Fill the inside of trunks and branches thicker than a voxel (default off).
 
         Returns
         -------
@@ -213,9 +255,13 @@ class SyntheticTree:
         leaf = self.leaf_area_per_voxel(**kw)
         bark = self.bark_area_per_voxel(**kw)
         vol = voxel_size**3
-        ijk = np.argwhere((leaf > 0) | (bark > 0))
+        solid = np.zeros(leaf.shape, dtype=bool)
+        if solid_wood:
+            solid[tuple(self.solid_wood_voxels(**kw).T)] = True
+        ijk = np.argwhere((leaf > 0) | (bark > 0) | solid)
         lad = leaf[tuple(ijk.T)] / vol
         wood = 1.0 - np.exp(-bark[tuple(ijk.T)] / (4.0 * vol) * voxel_size)
+        wood[solid[tuple(ijk.T)]] = 1.0
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
                      wood_kind="probability", leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
                      crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,

@@ -138,3 +138,26 @@ def test_truth_scene_holds_the_leaf_area_and_wood():
     # trunk voxel at the base: bark surface of the trunk segment inside it
     i, j, k = np.floor((np.array([0.0, 0.0, 0.1]) - scene.origin) / 0.25).astype(int)
     assert scene.dense("wood")[i, j, k] > 0
+
+
+def test_solid_wood_voxels_are_the_centres_inside_the_cylinders():
+    tree = small_tree(trunk_radius=0.3)
+    h = 0.1
+    origin, shape = tree.truth_grid(h)
+    solid = tree.solid_wood_voxels(origin=origin, voxel_size=h, shape=shape)
+    # brute force over every voxel centre of the grid: distance to each cylinder's segment below its radius
+    ijk = np.argwhere(np.ones(shape, dtype=bool))
+    c = origin + (ijk + 0.5) * h
+    inside = np.zeros(len(c), dtype=bool)
+    for a, b, r in zip(tree.cylinders[:, :3], tree.cylinders[:, 3:6], tree.cylinders[:, 6]):
+        ab = b - a
+        t = np.clip((c - a) @ ab / (ab @ ab), 0.0, 1.0)
+        inside |= np.linalg.norm(a + t[:, None] * ab - c, axis=1) < r
+    assert sorted(map(tuple, solid)) == sorted(map(tuple, ijk[inside]))
+    assert len(solid) > 20  # the 0.3 m trunk holds whole 0.1 m voxels
+
+    hollow, filled = tree.truth_scene(h), tree.truth_scene(h, solid_wood=True)
+    assert filled.total_leaf_area() == pytest.approx(hollow.total_leaf_area(), rel=1e-12)
+    dense = filled.dense("wood")
+    assert np.all(dense[tuple(solid.T)] == 1.0)
+    assert hollow.dense("wood")[tuple(solid.T)].min() < 1.0  # the core of the hollow twin is not opaque
