@@ -4,9 +4,11 @@ The four budget pulses of :func:`clsim.validation.budget.default_pulses` over th
 default synthetic oak (``make_tree(seed=1)``), sensor ``ahab-chiroptera-i``:
 the explicit-geometry mesh reference against the exact-LAD voxel twin
 (``tree.truth_scene``), leaf-on and leaf-off (wood and ground only), with and
-without the hot-spot option.  Leaf-off isolates the wood term: the twin turns
-bark into a turbid medium of randomly oriented facets (sigma = bark area / 4V),
-while the mesh's trunk and scaffolds are solid cylinders, mostly upright.
+without the hot-spot option, and with solid or hollow wood on both sides (the
+mesh's bark cylinders closed at their ends or open tubes; the twin's trunks
+filled or a shell).  Leaf-off isolates the wood terms: the twin turns bark into
+a turbid medium of randomly oriented facets (sigma = bark area / 4V), while the
+mesh's trunk and scaffolds are cylinders, mostly upright.
 
 Writes docs/bench/waveform_terms.md.
 
@@ -35,30 +37,39 @@ def main(argv=None):
     from clsim.sensor import C_M_PER_NS
     from clsim.validation.budget import default_pulses, waveform_metrics
     from clsim.validation.meshref import MeshReferenceSimulator
-    from tlsvox.truth.synthetic import make_tree
+    from tlsvox.truth.synthetic import TreeParams, make_tree
     from voxlidar.safeio import atomic_write
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
-    tree = make_tree(seed=1)
+    tree = make_tree(seed=1)  # bark cylinders closed at their ends (TreeParams.capped_wood)
+    tubes = make_tree(TreeParams(capped_wood=False), seed=1)  # open tubes, as until 2026-11
     base = Sensor.preset("ahab-chiroptera-i")
-    twin = tree.truth_scene(args.voxel)
-    solid = tree.truth_scene(args.voxel, solid_wood=True)  # trunks and scaffolds filled (centre pulses)
+    twin = tree.truth_scene(args.voxel)  # trunks and scaffolds filled (solid_wood)
+    hollow = tubes.truth_scene(args.voxel, solid_wood=False)  # the twin as it was: bark area of open tubes
+    tubes_solid = tubes.truth_scene(args.voxel)
     sim, mesh = Simulator(), MeshReferenceSimulator()
     rows = []
     for pulse in default_pulses(crown_center=tree.crown_center[:2], crown_radius=tree.params.crown_radius):
         sensor = pulse.sensor(base)
         tg = 2.0 * sensor.range_m / C_M_PER_NS
         for leaf_off in (False, True):
-            ref = mesh.run(tree, sensor, photons=args.photons, seed=args.seed, max_order=3, target=pulse.target,
-                           twin=twin, leaf_off=leaf_off)
-            twins = [("hollow", twin)] + ([("solid", solid)] if "centre" in pulse.name else [])
-            for (trunk, scene), hotspot in ((t, hs) for t in twins for hs in (True, False)):
+            # (mesh, twin): solid on both sides (the default), then the old pair, open tubes against a hollow
+            # twin, and the solid twin against the tubes (centre pulses: where the beam meets the trunk)
+            pairs = [("capped", "solid", tree, twin), ("open tubes", "hollow", tubes, hollow)]
+            if "centre" in pulse.name:
+                pairs.append(("open tubes", "solid", tubes, tubes_solid))
+            refs = {}
+            for (mesh_name, trunk, t, scene), hotspot in ((p, hs) for p in pairs for hs in (True, False)):
+                if mesh_name not in refs:
+                    refs[mesh_name] = mesh.run(t, sensor, photons=args.photons, seed=args.seed, max_order=3,
+                                               target=pulse.target, twin=twin, leaf_off=leaf_off)
+                ref = refs[mesh_name]
                 res = sim.run(scene, sensor, photons=args.photons, seed=args.seed, max_order=3, target=pulse.target,
                               leaf_off=leaf_off, hotspot=hotspot)
                 m = waveform_metrics(res, ref, ground_time_ns=tg)
-                rows.append((pulse.name, leaf_off, trunk, hotspot, m))
-                print(f"{pulse.name} {'leaf-off' if leaf_off else 'leaf-on'} {trunk} hotspot={hotspot}: r {m['r']:.3f} "
+                rows.append((pulse.name, leaf_off, mesh_name, trunk, hotspot, m))
+                print(f"{pulse.name} {'leaf-off' if leaf_off else 'leaf-on'} {mesh_name} {trunk} hotspot={hotspot}: r {m['r']:.3f} "
                       f"E {m['total']:.3f} veg {m['vegetation']:.3f} ground {m['ground']:.3f}", flush=True)
     minutes = (time.perf_counter() - t0) / 60
     lines = ["# Where the exact-LAD waveform error comes from (leaves, wood, hot spot)", "",
@@ -69,25 +80,22 @@ def main(argv=None):
              f"exact-LAD twin at {args.voxel * 100:g} cm, {args.photons:,} photons each, 3 orders. r: Pearson "
              "correlation of the waveforms; E: received energy, twin / mesh (total, from vegetation, from the "
              "ground; ± one standard error from the 16 batches).", "",
-             "| pulse | leaves | twin's trunks | hot spot | r | E total | E vegetation | E ground |",
-             "|---|---|---|---|---:|---:|---:|---:|"]
-    for name, leaf_off, trunk, hotspot, m in rows:
-        lines.append(f"| {name} | {'off' if leaf_off else 'on'} | {trunk} | {'on' if hotspot else 'off'} | {m['r']:.3f} | "
+             "| pulse | leaves | mesh's cylinders | twin's trunks | hot spot | r | E total | E vegetation | E ground |",
+             "|---|---|---|---|---|---:|---:|---:|---:|"]
+    for name, leaf_off, mesh_name, trunk, hotspot, m in rows:
+        lines.append(f"| {name} | {'off' if leaf_off else 'on'} | {mesh_name} | {trunk} | {'on' if hotspot else 'off'} | "
+                     f"{m['r']:.3f} | "
                      f"{m['total']:.3f} ± {m['total_se']:.3f} | {m['vegetation']:.3f} ± {m['vegetation_se']:.3f} | "
                      f"{m['ground']:.3f} ± {m['ground_se']:.3f} |")
-    lines += ["", "Leaf-off, the twin's wood alone returns about 2.5 times the mesh's energy for the oblique pulse "
-              "through the crown centre (the trunk and the main scaffolds) and about 1.2 times at nadir; near the "
-              "crown's edge (thin twigs) the two agree. Two things differ. Random facets (the turbid model) face a "
-              "beam far more squarely than the side of an upright cylinder seen 15 degrees off its axis, so they "
-              "backscatter more; and bark is a surface, so the voxels inside the trunk hold no wood: light that "
-              "crosses the trunk's shell of turbid voxels goes on through the hollow to the ground, which the "
-              "solid trunk hides (the ground column: many times the mesh's ground energy for the centre pulses). "
-              "With the trunks filled (`truth_scene(solid_wood=True)`, rows 'solid') the oblique-centre pulse's "
-              "ground energy comes down to the mesh's order, but the nadir-centre pulse loses its ground return: "
-              "the mesh's cylinders are open tubes, and a beam down the trunk's axis reaches the ground through "
-              "the tube. Both sides need the same solid wood (capped cylinders in the mesh) before this term can "
-              "be closed; the brightness term needs directional wood per voxel (a bark axis from the bark "
-              "normals).", ""]
+    lines += ["", "Two wood terms show here. (1) Solid wood: bark is a surface, so a twin built from bark area alone "
+              "holds no wood inside a trunk, and light that crosses the trunk's shell of turbid voxels goes on "
+              "through the hollow to the ground; and a mesh of open tubes lets a beam down a trunk's axis reach "
+              "the ground inside it. Rows 'open tubes / hollow' are how the figures were made until 2026-11; "
+              "'capped / solid' (now the default: `TreeParams.capped_wood`, `truth_scene(solid_wood=True)`) "
+              "close both. (2) Brightness: leaf-off, the twin's wood returns about 2.5 times the mesh's energy "
+              "for the oblique pulse through the crown centre: random facets (the turbid model) face a beam far "
+              "more squarely than the side of an upright cylinder seen 15 degrees off its axis, so they "
+              "backscatter more. That needs directional wood per voxel (a bark axis from the bark normals).", ""]
     out = Path(args.out)
     atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
     print(f"wrote {out}")

@@ -43,6 +43,9 @@ class TreeParams:
 
     The defaults give a broad oak-like crown 13.6 m tall with a leaf area
     index of about 4.4 over the crown's projection (a dense crown).
+    ``capped_wood`` (default) closes each bark cylinder's ends, so wood is
+    solid: with open tubes a beam down a trunk's axis reaches the ground
+    inside it.
     """
 
     height: float = 13.6
@@ -65,6 +68,7 @@ class TreeParams:
     target_distance: float = 8.0
     target_radius: float = 0.05
     target_height: float = 0.20
+    capped_wood: bool = True
 
     def __post_init__(self):
         positive = ("height", "crown_radius", "trunk_radius", "leaf_length", "leaf_width",
@@ -219,7 +223,7 @@ class SyntheticTree:
             return np.zeros((0, 3), dtype=int)
         return np.unique(np.concatenate(out), axis=0)
 
-    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, solid_wood: bool = False):
+    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, solid_wood: bool = True):
         """The voxel scene of the mesh's exact leaf area and wood (the turbid-medium twin).
 
         LAD = leaf area in the voxel / voxel volume.  Wood becomes a crossing
@@ -227,14 +231,12 @@ class SyntheticTree:
         projected area over random directions is a quarter of their surface
         (Cauchy), so sigma_wood = A_bark / (4 V) and the chance that a beam
         crossing the whole voxel is stopped is ``1 - exp(-sigma_wood h)``.
-        With ``solid_wood`` the voxels whose centre lies inside a cylinder
-        (:meth:`solid_wood_voxels`) are opaque wood (probability 1): without
-        them a trunk is a shell of turbid voxels around an empty core, and
-        light crosses it to the ground that a solid trunk hides.  It is off by
-        default because the mesh's cylinders are open tubes: a beam down a
-        trunk's axis reaches the ground through the tube in the mesh
-        reference, so a solid twin would disagree with it there
-        (docs/bench/waveform_terms.md measures both).
+        With ``solid_wood`` (default) the voxels whose centre lies inside a
+        cylinder (:meth:`solid_wood_voxels`) are opaque wood (probability 1):
+        without them a trunk is a shell of turbid voxels around an empty
+        core, and light crosses it to the ground that the solid trunk hides.
+        The mesh's cylinders are closed at both ends (``TreeParams.capped_wood``)
+        to match; docs/bench/waveform_terms.md measures both.
 
         Parameters
         ----------
@@ -242,7 +244,7 @@ class SyntheticTree:
         wavelength_nm : float, optional
             Unused: the scene's materials table covers every wavelength (kept for old calls).
         solid_wood : bool
-            Fill the inside of trunks and branches thicker than a voxel (default off).
+            Fill the inside of trunks and branches thicker than a voxel.
 
         Returns
         -------
@@ -366,8 +368,12 @@ def _orthonormal(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(d, u)
 
 
-def _cylinders_mesh(cyl: np.ndarray, sides: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Open cylinders (C, 7) -> vertices (C*2*sides, 3), triangles (C*2*sides, 3)."""
+def _cylinders_mesh(cyl: np.ndarray, sides: int = 8, *, caps: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Cylinders (C, 7) -> vertices (C*2*sides, 3), triangles (C*2*sides [+ C*2*(sides-2)], 3).
+
+    Open tubes, or with ``caps`` closed by a fan of ``sides - 2`` triangles at
+    each end (solid wood: a beam down a tube's axis cannot reach the ground).
+    """
     a, b, r = cyl[:, :3], cyl[:, 3:6], cyl[:, 6]
     d = b - a
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -379,6 +385,10 @@ def _cylinders_mesh(cyl: np.ndarray, sides: int = 8) -> tuple[np.ndarray, np.nda
     i = np.arange(sides)
     j = (i + 1) % sides
     quad = np.concatenate([np.stack([i, j, sides + i], 1), np.stack([j, sides + j, sides + i], 1)])
+    if caps:
+        k = np.arange(1, sides - 1)
+        fan = np.stack([np.zeros_like(k), k + 1, k], 1)  # facing -d at the start ring
+        quad = np.concatenate([quad, fan, sides + fan[:, [0, 2, 1]]])
     base = (np.arange(len(cyl)) * 2 * sides)[:, None, None]
     tris = (quad[None] + base).reshape(-1, 3)
     return verts.reshape(-1, 3), tris
@@ -480,7 +490,7 @@ def make_tree(params: TreeParams | None = None, *, seed: int = 0) -> SyntheticTr
     rows = _branches(p, rng)
     cyl = np.array([np.r_[s, e, r] for s, e, r, _ in rows])
     levels = np.array([lv for *_, lv in rows])
-    bark_v, bark_t = _cylinders_mesh(cyl)
+    bark_v, bark_t = _cylinders_mesh(cyl, caps=p.capped_wood)
 
     # leaves clustered around the terminal shoots, kept inside the crown envelope
     terminal = cyl[levels == levels.max()]

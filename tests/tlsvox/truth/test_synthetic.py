@@ -156,7 +156,7 @@ def test_solid_wood_voxels_are_the_centres_inside_the_cylinders():
     assert sorted(map(tuple, solid)) == sorted(map(tuple, ijk[inside]))
     assert len(solid) > 20  # the 0.3 m trunk holds whole 0.1 m voxels
 
-    hollow, filled = tree.truth_scene(h), tree.truth_scene(h, solid_wood=True)
+    hollow, filled = tree.truth_scene(h, solid_wood=False), tree.truth_scene(h)
     assert filled.total_leaf_area() == pytest.approx(hollow.total_leaf_area(), rel=1e-12)
     dense = filled.dense("wood")
     assert np.all(dense[tuple(solid.T)] == 1.0)
