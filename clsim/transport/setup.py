@@ -124,8 +124,9 @@ class SceneSetup:
 def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False) -> SceneSetup:
     """The scene's part of :func:`prepare_run`: optics at the wavelength (checked),
     the bricks, the leaf angle tables (inverse CDF and G)."""
-    if not isinstance(scene, Scene):
-        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)), got {type(scene).__name__}")
+    if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
+        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)) or a clsim.scenes.PlotScene, "
+                         f"got {type(scene).__name__}")
     wl = float(wavelength_nm)
     optics = {}
     for mat in ("leaf", "bark", "ground"):
@@ -136,7 +137,8 @@ def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False)
                 f"Fix scene.materials[{mat!r}][{str(int(round(wl)))!r}]"
             )
         optics[mat] = (r, t)
-    bricks = build_bricks(scene, leaf_off=leaf_off)
+    # a plot of many trees brings its own bricks (shared between the instances of a tree)
+    bricks = scene.brick_grid(leaf_off=leaf_off) if hasattr(scene, "brick_grid") else build_bricks(scene, leaf_off=leaf_off)
     flags = []
     if bricks.flags.get("wood_probability_capped"):
         flags.append(f"wood probability 1 capped at 1-1e-6 in {bricks.flags['wood_probability_capped']} voxels")
@@ -165,8 +167,9 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     ``scene_setup`` (from :func:`prepare_scene`) skips rebuilding what depends
     only on the scene, the wavelength and ``leaf_off`` (bricks, leaf angle
     tables, optics): a survey runs many pulses over one scene."""
-    if not isinstance(scene, Scene):
-        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)), got {type(scene).__name__}")
+    if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
+        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)) or a clsim.scenes.PlotScene, "
+                         f"got {type(scene).__name__}")
     if not isinstance(sensor, Sensor):
         raise InputError(f"sensor must be a clsim.Sensor (Sensor.preset(name)), got {type(sensor).__name__}")
     mode = Mode.parse(mode, "mode")

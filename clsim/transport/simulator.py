@@ -266,7 +266,7 @@ class Simulator:
                                     hotspot=hotspot, scene_setup=scene_setup)
                 if bufs is None:
                     bufs = self._scene_buffers(setup)
-                hist, _, _, elapsed = self._launch(setup, bufs, chunk=chunk)
+                hist, _, _, elapsed = self._launch(setup, bufs, chunk=chunk, hist_only=True)
                 kernel_s += elapsed
                 time_ns, by_order, fine = digitized(setup, hist.astype(np.float64) / FIXED_SCALE)
                 rows.append(by_order.sum(axis=0))
@@ -311,9 +311,11 @@ class Simulator:
         return assemble_result(setup, hist.astype(np.float64) / FIXED_SCALE, stats, tr, elapsed,
                                self.device_name)
 
-    def _launch(self, setup: RunSetup, bufs: dict, *, chunk: int = 1 << 20, progress: bool = False):
+    def _launch(self, setup: RunSetup, bufs: dict, *, chunk: int = 1 << 20, progress: bool = False,
+                hist_only: bool = False):
         """Run the kernel over the scene buffers ``bufs`` (:meth:`_scene_buffers`): the raw tallies
-        ``hist`` (B, K, 2, F) uint64, ``stats``, ``traces`` and the seconds the kernel took."""
+        ``hist`` (B, K, 2, F) uint64, ``stats``, ``traces`` (not read back with ``hist_only``)
+        and the seconds the kernel took."""
         cl = self._cl
         _, kern = self.program(setup.mode, setup.detect)
         ctx, q = self.context, self.queue
@@ -349,9 +351,10 @@ class Simulator:
                 if bar is not None:
                     q.finish()
                     bar.update(n)
-            cl.enqueue_copy(q, hist, hist_buf)
-            cl.enqueue_copy(q, stats, stats_buf)
-            cl.enqueue_copy(q, traces, trace_buf)
+            cl.enqueue_copy(q, hist, hist_buf, is_blocking=not hist_only)
+            if not hist_only:
+                cl.enqueue_copy(q, stats, stats_buf)
+                cl.enqueue_copy(q, traces, trace_buf)
             q.finish()
         except cl.Error as err:
             raise DeviceError(f"transport kernel failed on {self.device_name}: {err}") from err
