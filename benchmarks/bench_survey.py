@@ -7,6 +7,9 @@ that the swath spans the scene's width (the pulses hit the trees rather than
 file, e.g. a plot's ``to_scene()``), by default the synthetic oak
 ``make_tree(seed=1).truth_scene(0.2)`` (cached under ``out/bench_cache``).
 
+0. **Per pulse**: ``Simulator.run`` once per pulse against
+   :meth:`Simulator.run_pulses` (the scene built and uploaded once), with the
+   kernel's share.
 1. **Rate**: the same pulses (``--pulses``, in batches of ``--batch``) with
    ``--photons`` photons each, by the direct loop (:func:`run_survey` with
    ``direct=True``, no Dask), a local cluster of 1 worker and one of 2 workers
@@ -90,7 +93,7 @@ def start_cluster(n: int):
 
     t0 = time.perf_counter()
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           scheduler_port=0)
+                           scheduler_port=0, silence_logs=logging.ERROR)
     client = Client(cluster)
     return client, cluster, time.perf_counter() - t0
 
@@ -128,6 +131,7 @@ def main(argv=None) -> int:
     ap.add_argument("--batch", type=int, default=50, help="pulses per task in the rate runs")
     ap.add_argument("--photons", default="1000,5000", help="photons per pulse of the rate runs (comma list)")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--overhead-pulses", type=int, default=100, help="pulses of the per-pulse cost runs")
     ap.add_argument("--noop-tasks", type=int, default=400)
     ap.add_argument("--line-pulses", type=int, default=100_000)
     ap.add_argument("--line-photons", type=int, default=100)
@@ -137,7 +141,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.pulses, args.batch, args.photons, args.repeats = 120, 20, "1000", 1
-        args.noop_tasks, args.line_pulses, args.line_batch = 100, 2000, 250
+        args.noop_tasks, args.line_pulses, args.line_batch, args.overhead_pulses = 100, 2000, 250, 20
     photon_list = [int(x) for x in args.photons.split(",")]
     logging.getLogger("distributed").setLevel(logging.WARNING)      # no INFO lines of clusters closing
     command = "flock /tmp/voxlidar-bench.lock .venv/bin/python benchmarks/bench_survey.py" + (
@@ -154,6 +158,33 @@ def main(argv=None) -> int:
     device = sim.device_name
     tmp = Path(tempfile.mkdtemp(prefix="bench_survey_"))
     log(f"scene {scene_path}; device {device}; load average {load0:.1f}")
+
+    # -- 0. one pulse at a time (Simulator.run) against run_pulses, per pulse ----------------------
+    from voxlidar.scene import Scene
+    from clsim.transport.setup import prepare_scene
+
+    scene = Scene.load(scene_path)
+    per_pulse = {}
+    for ph in photon_list:
+        job0, _ = make_job(scene_path, count=args.overhead_pulses, photons=ph, batch=args.overhead_pulses)
+        pulses, base = job0.pulses(), job0.sensor
+        sim.run_pulses(scene, pulses[:2], base, photons=ph)                    # warm
+        t_run, t_many, k_many = [], [], []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            for i in range(len(pulses)):
+                sim.run(scene, pulses.sensor(i, base), photons=ph, seed=int(pulses.seed[i]), target=pulses.target[i],
+                        batches=1)
+            t_run.append((time.perf_counter() - t0) / len(pulses))
+            t0 = time.perf_counter()
+            wf0 = sim.run_pulses(scene, pulses, base, photons=ph,
+                                 scene_setup=prepare_scene(scene, wavelength_nm=base.wavelength_nm))
+            t_many.append((time.perf_counter() - t0) / len(pulses))
+            k_many.append(wf0.kernel_s / len(pulses))
+        per_pulse[ph] = dict(run=statistics.median(t_run), many=statistics.median(t_many),
+                             kernel=statistics.median(k_many))
+        log(f"{ph} photons: Simulator.run {per_pulse[ph]['run'] * 1e3:.1f} ms/pulse, run_pulses "
+            f"{per_pulse[ph]['many'] * 1e3:.1f} ms/pulse (kernel {per_pulse[ph]['kernel'] * 1e3:.1f} ms)")
 
     # -- 1. rates: direct loop, 1 worker, 2 workers, taking turns --------------------------------
     c1, k1, start1 = start_cluster(1)
@@ -235,6 +266,23 @@ def main(argv=None) -> int:
         f"60 m/s), field of view narrowed to {fov:.2f} deg so that the swath spans the scene; `max_order=3`, "
         "1 photon batch per pulse. Each pulse has its own seed, so every mode writes the same bits (tested in "
         "tests/clsim/survey/test_survey_run.py).",
+        "",
+        "## 0. One pulse at a time against `run_pulses`",
+        "",
+        f"{args.overhead_pulses} pulses, each by `Simulator.run` (which rebuilds the scene's bricks and leaf angle "
+        "tables and uploads them, per pulse) and all by `Simulator.run_pulses` (built and uploaded once; the "
+        "same bits); milliseconds per pulse, medians of "
+        f"{args.repeats} runs. `host` = `run_pulses` minus its kernel time: the per-pulse set-up, launch, "
+        "read-back and digitising.",
+        "",
+        "| photons/pulse | `run` ms/pulse | `run_pulses` ms/pulse | kernel | host | speed-up |",
+        "|---:|---:|---:|---:|---:|---:|",
+    ]
+    for ph in photon_list:
+        d = per_pulse[ph]
+        lines.append(f"| {ph:,} | {d['run'] * 1e3:.2f} | {d['many'] * 1e3:.2f} | {d['kernel'] * 1e3:.2f} | "
+                     f"{(d['many'] - d['kernel']) * 1e3:.2f} | {d['run'] / d['many']:.1f}x |")
+    lines += [
         "",
         "## 1. Pulses per second: direct loop against Dask",
         "",

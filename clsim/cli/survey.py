@@ -144,9 +144,11 @@ def cmd_survey(args) -> int:
     run = run_survey(job, out, workers=max(args.workers, 1), scheduler=args.scheduler,
                      direct=args.workers == 0 and not args.scheduler, in_flight=args.in_flight,
                      progress=not args.quiet)
-    rate = run.pulses / run.seconds if run.seconds > 0 and run.pulses else float("nan")
-    say(f"survey: {run.computed} batches computed ({run.pulses:,} pulses, {rate:,.0f} pulses/s), "
-        f"{run.skipped} already on disk")
+    if run.computed:
+        say(f"survey: {run.computed} batches computed ({run.pulses:,} pulses, {run.pulses / run.seconds:,.0f} "
+            f"pulses/s), {run.skipped} already on disk")
+    else:
+        say(f"survey: nothing to compute: all {run.n_batches} batches are on disk")
     if args.no_las:
         say(f"survey: waveforms in {out / 'batches'} (one .npz per batch; clsim.survey.load_survey reads them)")
         return 0

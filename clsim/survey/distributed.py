@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import os
 import re
@@ -315,7 +316,7 @@ def _cluster(workers: int, scheduler: str | None):
             n = len(client.scheduler_info().get("workers", {}))
         return client, None, max(1, n)
     cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                           dashboard_address=None, scheduler_port=0)
+                           dashboard_address=None, scheduler_port=0, silence_logs=logging.ERROR)
     return Client(cluster), cluster, int(workers)
 
 
