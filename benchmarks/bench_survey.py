@@ -88,11 +88,19 @@ def make_job(scene_path, *, count: int, photons: int, batch: int, seed: int = 1,
                      photons=photons, first=first, count=count, batch_size=batch, seed=seed, device=device), fov
 
 
+def quiet_dask():
+    """No INFO lines from Dask's scheduler and nannies (clusters closing)."""
+    import distributed  # noqa: F401 - creates its loggers
+
+    for name in ["distributed"] + [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]:
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
 def start_cluster(n: int):
     from dask.distributed import Client, LocalCluster
 
     t0 = time.perf_counter()
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                            scheduler_port=0, silence_logs=logging.ERROR)
     client = Client(cluster)
     return client, cluster, time.perf_counter() - t0
@@ -143,7 +151,7 @@ def main(argv=None) -> int:
         args.pulses, args.batch, args.photons, args.repeats = 120, 20, "1000", 1
         args.noop_tasks, args.line_pulses, args.line_batch, args.overhead_pulses = 100, 2000, 250, 20
     photon_list = [int(x) for x in args.photons.split(",")]
-    logging.getLogger("distributed").setLevel(logging.WARNING)      # no INFO lines of clusters closing
+    quiet_dask()
     command = "flock /tmp/voxlidar-bench.lock .venv/bin/python benchmarks/bench_survey.py" + (
         " " + shlex.join(argv if argv is not None else sys.argv[1:]) if (argv or sys.argv[1:]) else "")
 

@@ -316,7 +316,7 @@ def _cluster(workers: int, scheduler: str | None):
             n = len(client.scheduler_info().get("workers", {}))
         return client, None, max(1, n)
     cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                           dashboard_address=None, scheduler_port=0, silence_logs=logging.ERROR)
+                           dashboard_address=":0", scheduler_port=0, silence_logs=logging.ERROR)
     return Client(cluster), cluster, int(workers)
 
 
@@ -332,7 +332,9 @@ def run_survey(job: SurveyJob, out_dir, *, workers: int = 1, scheduler: str | No
         Gets ``survey.json`` (the job; a folder holding another job is refused)
         and ``batches/{a:09d}-{b:09d}.npz``.
     workers : int
-        Worker processes of the local cluster (one thread each).
+        Worker processes of the local cluster (one thread each).  They are
+        started with ``spawn``: a script that calls this must guard its main
+        code with ``if __name__ == "__main__":``.
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``) instead of a
         local cluster; its workers need voxlidar and the scene file at the
