@@ -296,10 +296,10 @@ def main(argv=None) -> int:
         "",
         f"{args.pulses} pulses in tasks of {args.batch}; medians of {args.repeats} runs taking turns. Clusters "
         f"started and warmed before timing (start-up: 1 worker {start1:.1f} s, 2 workers {start2:.1f} s). "
-        "`per worker` = pulses/s / workers; `Dask overhead` = wall time against the direct loop's, minus 1; "
-        "`s/task` = median seconds a worker spent in one task.",
+        "`per worker` = pulses/s / workers; `wall vs loop` = wall time against the direct loop's, minus 1 "
+        "(Dask's overhead with 1 worker); `s/task` = median seconds a worker spent in one task.",
         "",
-        "| photons/pulse | mode | pulses/s | per worker | Dask overhead | s/task |",
+        "| photons/pulse | mode | pulses/s | per worker | wall vs loop | s/task |",
         "|---:|---|---:|---:|---:|---:|",
     ]
     for ph in photon_list:
@@ -311,6 +311,15 @@ def main(argv=None) -> int:
             lines.append(f"| {ph:,} | {name} | {r['rate']:.0f} | {r['rate'] / n:.0f} | {over} | {r['task']:.3f} |")
     pulse_bytes = disk / args.line_pulses
     mem_bytes = wf.waveform.shape[1] * 8
+    lines += [""]
+    for ph in photon_list:
+        d, o = rates[(ph, "direct loop")], rates[(ph, "Dask, 1 worker")]
+        lines.append(
+            f"At {ph:,} photons/pulse the 1-worker overhead is {o['wall'] / d['wall'] - 1:+.0%}: the scheduler's "
+            f"cost per task (section 2, {cost * 1e3:.0f} ms) is {cost / o['task']:.0%} of a {o['task']:.2f} s task, "
+            f"and the worker spends {o['task'] / d['task'] - 1:+.0%} of the loop's time on a task (workers undo "
+            "the `MALLOC_TRIM_THRESHOLD_` Dask's nanny sets, which had cost 1.8 times the host time per pulse; "
+            "`clsim.survey.distributed._relax_malloc`).")
     lines += [
         "",
         "Two workers share the machine's 2 cores with each other, the driver, the scheduler and the other "
@@ -335,7 +344,7 @@ def main(argv=None) -> int:
         for n in (1, 2, 8, 32, 128, 512):
             a = projected_rate(n, r1[ph], cost, 50)
             b = projected_rate(n, r1[ph], cost, 1000)
-            lines.append(f"| {ph:,} | {r1[ph]:.0f} | {n} | {a:,.0f} | {b:,.0f} | {b * pulse_bytes / 2**20:.1f} MiB/s |")
+            lines.append(f"| {ph:,} | {r1[ph]:.0f} | {n} | {a:,.0f} | {b:,.0f} | {b * pulse_bytes / 2**20:.2f} MiB/s |")
     sat = {ph: 1000 / (cost * r1[ph]) for ph in photon_list}
     lines += [
         "",

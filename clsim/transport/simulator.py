@@ -22,10 +22,9 @@ from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe
                               open_queue, short_reason)
 from voxlidar.errors import DeviceError as AnyDeviceError
 from clsim.transport.bricks import BRICK
-from clsim.errors import DeviceError
+from clsim.errors import DeviceError, InputError
 from clsim.transport.rng import split_seed
 from clsim.sensor import Sensor
-from clsim.errors import InputError
 from clsim.transport.result import PulseWaveforms, SimulationResult, assemble_result, digitized
 from clsim.transport.setup import (COUNT_STATS, Detect, FIXED_SCALE, Mode, NG, NTAB, RunSetup, STAT_NAMES,
                                    TRACE_EVENTS, SceneSetup, prepare_run, prepare_scene)
