@@ -63,6 +63,18 @@ CASES = {
     "simulate: .vox with a bad header": C("simulate {d}/bad.vox -o {d}/out/w.npz", "vox"),
     "simulate: .vox with negative PAD": C("simulate {d}/neg.vox -o {d}/out/w.npz", "negative"),
     "simulate: .vox empty": C("simulate {d}/empty.vox -o {d}/out/w.npz", "vox"),
+    # ---- clsim survey
+    "survey: scene missing": C("survey {d}/nope.npz -o {d}/out/sv -q", "does not exist"),
+    "survey: scene is text": C("survey {d}/notnpz.npz -o {d}/out/sv -q", "not a readable npz"),
+    "survey: photons 0": C("survey {d}/scene.npz -o {d}/out/sv --photons 0 -q", "--photons"),
+    "survey: workers negative": C("survey {d}/scene.npz -o {d}/out/sv --workers -1 -q", "--workers"),
+    "survey: start not X,Y": C("survey {d}/scene.npz -o {d}/out/sv --start 3 -q", "--start"),
+    "survey: start equals end": C("survey {d}/scene.npz -o {d}/out/sv --start 1,1 --end 1,1 -q", "same point"),
+    "survey: more pulses than the line": C("survey {d}/scene.npz -o {d}/out/sv --pulses 100000000 -q",
+                                           "do not fit the trajectory"),
+    "survey: sensor unknown": C("survey {d}/scene.npz -o {d}/out/sv --sensor nope -q", "nope"),
+    "survey: pulses and duration": C("survey {d}/scene.npz -o {d}/out/sv --pulses 5 --duration 1 -q",
+                                     "not allowed with"),
     # ---- clsim simulate: the numbers
     "simulate: photons 0": C(SIM + " --photons 0 -o {d}/out/w.npz", "photons"),
     "simulate: photons negative": C(SIM + " --photons -5 -o {d}/out/w.npz", "photons"),

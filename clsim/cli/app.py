@@ -4,6 +4,7 @@ Run ``clsim COMMAND --help`` for each command.
 
 Examples:
   clsim simulate out/scene.npz --sensor ahab-chiroptera-i --photons 1000000 --seed 1 -o out/wf.npz --plot out/wf.png
+  clsim survey out/scene.npz -o out/survey --pulses 100000 --photons 1000 --workers 2
   clsim devices
   clsim waveforms info fwf.las
   clsim decompose fwf.las -o echoes.csv --plot echoes.png
@@ -14,7 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from clsim.cli import pick, simulate, waveforms
+from clsim.cli import pick, simulate, survey, waveforms
 from voxlidar.cli import Parser, run, with_debug
 
 
@@ -28,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.register(sub)
     waveforms.register(sub)
     pick.register(sub)
+    survey.register(sub)
     return parser
 
 

@@ -186,17 +186,10 @@ def cmd_simulate(args) -> int:
         if args.target is not None or args.trace_plot:
             raise InputError("--targets runs one pulse per row: drop --target and --trace-plot")
         targets = read_targets(args.targets)
-    from voxlidar.safeio import file_kind
 
-    scene_path = Path(args.scene)
-    if scene_path.suffix.lower() == ".vox" or (scene_path.is_file() and file_kind(scene_path) == "vox"):
-        from tlsvox.voxel.amapvox import read_vox
+    from clsim.scenes import load_scene
 
-        scene = read_vox(args.scene)
-    else:
-        from clsim.scenes import PlotScene
-
-        scene = PlotScene.load(scene_path) if PlotScene.is_plot_file(scene_path) else Scene.load(args.scene)
+    scene = load_scene(args.scene)
     over = {}
     if args.off_nadir is not None:
         over["off_nadir_deg"] = args.off_nadir

@@ -7,5 +7,21 @@ from clsim.scenes._make import TREE_KINDS, make_plot, random_tree_params, synthe
 from clsim.scenes._plot import TABLE_DTYPE, PlotScene, Snap, merge_voxels
 from clsim.scenes.pictures import plot_canopy
 
-__all__ = ["PlotScene", "Snap", "TABLE_DTYPE", "TREE_KINDS", "make_plot", "merge_voxels", "plot_canopy",
-           "random_tree_params", "synthetic_tree_scene"]
+__all__ = ["PlotScene", "Snap", "TABLE_DTYPE", "TREE_KINDS", "load_scene", "make_plot", "merge_voxels",
+           "plot_canopy", "random_tree_params", "synthetic_tree_scene"]
+
+
+def load_scene(path):
+    """A scene file as the simulator takes it: an AMAPVox ``.vox`` (by suffix or content), a
+    :class:`PlotScene` written by :meth:`PlotScene.save`, else a :class:`voxlidar.scene.Scene` NPZ."""
+    from pathlib import Path
+
+    from voxlidar.safeio import file_kind
+    from voxlidar.scene import Scene
+
+    path = Path(path)
+    if path.suffix.lower() == ".vox" or (path.is_file() and file_kind(path) == "vox"):
+        from tlsvox.voxel.amapvox import read_vox
+
+        return read_vox(path)
+    return PlotScene.load(path) if PlotScene.is_plot_file(path) else Scene.load(path)

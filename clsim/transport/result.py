@@ -122,6 +122,19 @@ class SimulationResult:
         return atomic_write(path, write)
 
 
+def digitized(setup: RunSetup, hist) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sensor's waveform from the tallies ``hist`` (B, K, 2, F) of a run:
+    ``time_ns`` (S,), ``by_order`` (K, S) (sum over the first axis: the waveform)
+    and the fine energies ``fine`` (K, 2, F).  One computation for
+    :func:`assemble_result` and :meth:`clsim.Simulator.run_pulses`, so that both
+    give the same bits."""
+    scale = setup.sensor.aperture_area_m2 / setup.range_ref_m**2
+    fine = hist.sum(axis=0) * scale / setup.photons
+    time_ns, by_order = digitize(setup.edges_ns, fine.sum(axis=1), sampling_ghz=setup.sensor.sampling_ghz,
+                                 pulse_fwhm_ns=setup.sensor.pulse_fwhm_ns)
+    return time_ns, by_order, fine
+
+
 def assemble_result(setup: RunSetup, hist, stats, traces, elapsed: float, device: str) -> SimulationResult:
     """Turn raw tallies into a :class:`SimulationResult`.
 
@@ -134,14 +147,12 @@ def assemble_result(setup: RunSetup, hist, stats, traces, elapsed: float, device
     with np.errstate(invalid="ignore", divide="ignore"):
         inv = np.where(n_b > 0, 1.0 / np.maximum(n_b, 1), 0.0)
     fine_b = hist * scale * inv[:, None, None, None]
-    fine = hist.sum(axis=0) * scale / setup.photons
+    time_ns, by_order, fine = digitized(setup, hist)
     st = {}
     for i, name in enumerate(STAT_NAMES):
         v = stats[:, i].astype(np.float64)
         st[name] = v if name in COUNT_STATS else v * inv
     st["outside_window"] = st["outside_window"] * scale
-    time_ns, by_order = digitize(setup.edges_ns, fine.sum(axis=1), sampling_ghz=setup.sensor.sampling_ghz,
-                                 pulse_fwhm_ns=setup.sensor.pulse_fwhm_ns)
     flags = list(setup.flags)
     res = SimulationResult(time_ns=time_ns, waveform=by_order.sum(axis=0), by_order=by_order,
                            fine_edges_ns=setup.edges_ns, fine=fine, fine_batches=fine_b,
@@ -188,3 +199,90 @@ def save_results(results, targets, path) -> Path:
             np.savez_compressed(fh, **arrays)
 
     return atomic_write(path, write)
+
+
+@dataclass
+class PulseWaveforms:
+    """The waveforms of many pulses (:meth:`clsim.Simulator.run_pulses`), one row each.
+
+    Attributes
+    ----------
+    index : (N,) int64
+        Pulse numbers (``Pulses.index``).
+    waveform : (N, S) float64
+        Received power in the sensor's samples, fraction of the emitted energy
+        per ns; row ``i`` holds ``n_samples[i]`` samples, then zeros (no
+        energy reaches the receiver outside a pulse's time window).
+    n_samples : (N,) int64
+        Samples of each pulse's own time window.
+    t0_ns : (N,) float64
+        Time of each row's first sample after emission, ns.
+    bin_ns : float
+        Sample spacing, ns (``1 / sampling_ghz``).
+    energy : (N,) float64
+        Received energy, fraction of the emitted (before sampling).
+    kernel_s : float
+        Seconds spent in the transport kernel.
+    """
+
+    index: np.ndarray
+    waveform: np.ndarray
+    n_samples: np.ndarray
+    t0_ns: np.ndarray
+    bin_ns: float
+    energy: np.ndarray
+    kernel_s: float = 0.0
+
+    ARRAYS = ("index", "waveform", "n_samples", "t0_ns", "energy")
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    @classmethod
+    def from_rows(cls, index, rows, *, t0_ns, bin_ns: float, energy, kernel_s: float = 0.0) -> "PulseWaveforms":
+        """Rows of different lengths, padded with zeros to the longest."""
+        n_s = np.array([len(r) for r in rows], dtype=np.int64)
+        wf = np.zeros((len(rows), int(n_s.max()) if len(rows) else 0))
+        for i, r in enumerate(rows):
+            wf[i, :len(r)] = r
+        return cls(index=np.asarray(index, dtype=np.int64), waveform=wf, n_samples=n_s,
+                   t0_ns=np.asarray(t0_ns, dtype=np.float64), bin_ns=float(bin_ns),
+                   energy=np.asarray(energy, dtype=np.float64), kernel_s=float(kernel_s))
+
+    @classmethod
+    def concat(cls, parts) -> "PulseWaveforms":
+        """Several in order (batches of one survey), padded to the longest row."""
+        parts = list(parts)
+        if not parts:
+            raise InputError("nothing to concatenate: no PulseWaveforms given")
+        bins = {p.bin_ns for p in parts}
+        if len(bins) != 1:
+            raise InputError(f"cannot concatenate waveforms sampled at different spacings {sorted(bins)} ns")
+        width = max(p.waveform.shape[1] for p in parts)
+        wf = np.zeros((sum(len(p) for p in parts), width))
+        row = 0
+        for p in parts:
+            wf[row:row + len(p), :p.waveform.shape[1]] = p.waveform
+            row += len(p)
+        cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in cls.ARRAYS if k != "waveform"}
+        return cls(waveform=wf, bin_ns=parts[0].bin_ns, kernel_s=sum(p.kernel_s for p in parts), **cat)
+
+    def save(self, path) -> Path:
+        """Write the arrays to an NPZ, atomically (a temporary name renamed)."""
+        arrays = {k: getattr(self, k) for k in self.ARRAYS}
+        arrays.update(bin_ns=np.float64(self.bin_ns), kernel_s=np.float64(self.kernel_s))
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+
+        return atomic_write(path, write)
+
+    @classmethod
+    def load(cls, path) -> "PulseWaveforms":
+        """Read what :meth:`save` wrote."""
+        try:
+            with np.load(path) as z:
+                return cls(**{k: z[k] for k in cls.ARRAYS}, bin_ns=float(z["bin_ns"]), kernel_s=float(z["kernel_s"]))
+        except (OSError, KeyError, ValueError) as err:
+            raise InputError(f"{path}: not a batch of pulse waveforms ({err}); fix: delete it and run again") from err

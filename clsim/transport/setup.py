@@ -103,6 +103,51 @@ class RunSetup:
         return self.params[0]
 
 
+@dataclass
+class SceneSetup:
+    """What a run needs from the scene alone, built once for many pulses (:func:`prepare_scene`)."""
+
+    scene: Scene
+    wavelength_nm: float
+    leaf_off: bool
+    optics: dict  # material -> (R, T) at the wavelength
+    bricks: BrickGrid
+    ppf: np.ndarray
+    gtab: np.ndarray
+    flags: list
+
+    def matches(self, scene: Scene, wavelength_nm: float, leaf_off: bool) -> bool:
+        """Whether this set-up was built for ``scene`` (the same object), the wavelength and ``leaf_off``."""
+        return scene is self.scene and float(wavelength_nm) == self.wavelength_nm and bool(leaf_off) == self.leaf_off
+
+
+def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False) -> SceneSetup:
+    """The scene's part of :func:`prepare_run`: optics at the wavelength (checked),
+    the bricks, the leaf angle tables (inverse CDF and G)."""
+    if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
+        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)) or a clsim.scenes.PlotScene, "
+                         f"got {type(scene).__name__}")
+    wl = float(wavelength_nm)
+    optics = {}
+    for mat in ("leaf", "bark", "ground"):
+        r, t = scene.optics(mat, wl)
+        if min(r, t) < 0 or r + t > 1 + 1e-9:
+            raise InputError(
+                f"scene optics of {mat} at {wl:g} nm: R={r}, T={t}; need R, T >= 0 and R + T <= 1. "
+                f"Fix scene.materials[{mat!r}][{str(int(round(wl)))!r}]"
+            )
+        optics[mat] = (r, t)
+    # a plot of many trees brings its own bricks (shared between the instances of a tree)
+    bricks = scene.brick_grid(leaf_off=leaf_off) if hasattr(scene, "brick_grid") else build_bricks(scene, leaf_off=leaf_off)
+    flags = []
+    if bricks.flags.get("wood_probability_capped"):
+        flags.append(f"wood probability 1 capped at 1-1e-6 in {bricks.flags['wood_probability_capped']} voxels")
+    ppf = scene.leaf_angle.ppf(np.linspace(0.0, 1.0, NTAB)).astype(np.float64)
+    gtab = np.asarray(scene.leaf_angle.G(np.arccos(np.linspace(0.0, 1.0, NG))), dtype=np.float64)
+    return SceneSetup(scene=scene, wavelength_nm=wl, leaf_off=bool(leaf_off), optics=optics, bricks=bricks,
+                      ppf=ppf, gtab=gtab, flags=flags)
+
+
 def _int_arg(name, value, lo, hi):
     try:
         v = int(value)
@@ -116,8 +161,12 @@ def _int_arg(name, value, lo, hi):
 def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
                 detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
                 bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
-                hotspot: bool = False) -> RunSetup:
-    """Check the inputs and build the run's parameters (see :meth:`clsim.transport.simulator.Simulator.run`)."""
+                hotspot: bool = False, scene_setup: "SceneSetup | None" = None) -> RunSetup:
+    """Check the inputs and build the run's parameters (see :meth:`clsim.transport.simulator.Simulator.run`).
+
+    ``scene_setup`` (from :func:`prepare_scene`) skips rebuilding what depends
+    only on the scene, the wavelength and ``leaf_off`` (bricks, leaf angle
+    tables, optics): a survey runs many pulses over one scene."""
     if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
         raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)) or a clsim.scenes.PlotScene, "
                          f"got {type(scene).__name__}")
@@ -134,21 +183,13 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
         raise InputError(f"bin_ns must lie in [0.001, 1] ns, got {bin_ns!r}")
     if not (np.isfinite(step_m) and 1e-4 <= step_m <= scene.voxel_size * 10):
         raise InputError(f"step_m (paper-mode step) must lie in [1e-4, 10 voxels] m, got {step_m!r}")
-    flags = []
-    wl = sensor.wavelength_nm
-    optics = {}
-    for mat in ("leaf", "bark", "ground"):
-        r, t = scene.optics(mat, wl)
-        if min(r, t) < 0 or r + t > 1 + 1e-9:
-            raise InputError(
-                f"scene optics of {mat} at {wl:g} nm: R={r}, T={t}; need R, T >= 0 and R + T <= 1. "
-                f"Fix scene.materials[{mat!r}][{str(int(round(wl)))!r}]"
-            )
-        optics[mat] = (r, t)
-    # a plot of many trees brings its own bricks (shared between the instances of a tree)
-    bricks = scene.brick_grid(leaf_off=leaf_off) if hasattr(scene, "brick_grid") else build_bricks(scene, leaf_off=leaf_off)
-    if bricks.flags.get("wood_probability_capped"):
-        flags.append(f"wood probability 1 capped at 1-1e-6 in {bricks.flags['wood_probability_capped']} voxels")
+    if scene_setup is None:
+        scene_setup = prepare_scene(scene, wavelength_nm=sensor.wavelength_nm, leaf_off=leaf_off)
+    elif not isinstance(scene_setup, SceneSetup) or not scene_setup.matches(scene, sensor.wavelength_nm, leaf_off):
+        raise InputError("scene_setup was prepared for another scene, wavelength or leaf_off; "
+                         "fix: prepare_scene(scene, wavelength_nm=sensor.wavelength_nm, leaf_off=leaf_off)")
+    optics, bricks = scene_setup.optics, scene_setup.bricks
+    flags = list(scene_setup.flags)
 
     lo = scene.origin
     hi = scene.origin + scene.voxel_size * np.asarray(scene.shape)
@@ -217,8 +258,7 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     r["n_trace"] = trace
     r["hotspot"] = bool(hotspot)
 
-    ppf = scene.leaf_angle.ppf(np.linspace(0.0, 1.0, NTAB)).astype(np.float64)
-    gtab = np.asarray(scene.leaf_angle.G(np.arccos(np.linspace(0.0, 1.0, NG))), dtype=np.float64)
+    ppf, gtab = scene_setup.ppf, scene_setup.gtab
     if sensor.fov_mrad < sensor.divergence_mrad:
         flags.append(f"receiver FOV ({sensor.fov_mrad} mrad) is narrower than the beam divergence "
                      f"({sensor.divergence_mrad} mrad): part of the footprint is not seen")

@@ -22,14 +22,15 @@ from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe
                               open_queue, short_reason)
 from voxlidar.errors import DeviceError as AnyDeviceError
 from clsim.transport.bricks import BRICK
-from clsim.errors import DeviceError
+from clsim.errors import DeviceError, InputError
 from clsim.transport.rng import split_seed
 from clsim.sensor import Sensor
-from clsim.transport.result import SimulationResult, assemble_result
-from clsim.transport.setup import COUNT_STATS, Detect, FIXED_SCALE, Mode, NG, NTAB, RunSetup, STAT_NAMES, TRACE_EVENTS, prepare_run
+from clsim.transport.result import PulseWaveforms, SimulationResult, assemble_result, digitized
+from clsim.transport.setup import (COUNT_STATS, Detect, FIXED_SCALE, Mode, NG, NTAB, RunSetup, STAT_NAMES,
+                                   TRACE_EVENTS, SceneSetup, prepare_run, prepare_scene)
 
-__all__ = ["Detect", "Mode", "RunSetup", "SimulationResult", "Simulator", "build_options", "list_devices",
-           "prepare_run", "working_devices"]
+__all__ = ["Detect", "Mode", "PulseWaveforms", "RunSetup", "SceneSetup", "SimulationResult", "Simulator",
+           "build_options", "list_devices", "prepare_run", "prepare_scene", "working_devices"]
 
 
 # -- devices -----------------------------------------------------------------------
@@ -204,22 +205,123 @@ class Simulator:
                             step_m=step_m, target=target, trace=trace, hotspot=hotspot)
         return self.run_setup(setup, chunk=chunk, progress=progress)
 
+    def run_pulses(self, scene: Scene, pulses, base: Sensor, *, photons: int, mode="exact", detect="nee",
+                   max_order: int = 3, leaf_off: bool = False, batches: int = 1, bin_ns: float = 0.05,
+                   step_m: float = 0.02, hotspot: bool = False, chunk: int = 1 << 20,
+                   progress: bool = False, scene_setup: SceneSetup | None = None) -> PulseWaveforms:
+        """Simulate every pulse of a survey over one scene: the waveforms in the sensor's samples.
+
+        Pulse ``i`` is ``base`` placed by ``pulses.sensor(i, base)``, aimed at
+        ``pulses.target[i]`` and seeded with ``pulses.seed[i]``: its waveform is
+        bit for bit the ``waveform`` of :meth:`run` with those arguments (and
+        the same ``batches``).  What depends on the scene alone (bricks, leaf
+        angle tables, optics; :func:`~clsim.transport.setup.prepare_scene`) is
+        built and uploaded to the device once.
+
+        Parameters
+        ----------
+        scene : voxlidar.scene.Scene
+        pulses : clsim.survey.Pulses
+        base : Sensor
+            The instrument; its angles and altitude are replaced per pulse.
+        photons : int
+            Photons per pulse.
+        batches : int
+            Photon batches per pulse (see :meth:`run`); 1 by default since a
+            survey keeps no per-pulse standard errors, and the tallies are
+            ``batches`` times smaller.
+        scene_setup : SceneSetup, optional
+            Reuse one built by :func:`~clsim.transport.setup.prepare_scene` (a
+            worker running many batches over the same scene).
+        mode, detect, max_order, leaf_off, bin_ns, step_m, hotspot, chunk
+            As :meth:`run`.
+        progress : bool
+            A tqdm bar over the pulses.
+
+        Returns
+        -------
+        PulseWaveforms
+        """
+        from clsim.survey import Pulses
+
+        if not isinstance(pulses, Pulses):
+            raise InputError(f"pulses must be clsim.survey.Pulses (survey_pulses(...)), got {type(pulses).__name__}")
+        if not isinstance(base, Sensor):
+            raise InputError(f"base must be a clsim.Sensor (Sensor.preset(name)), got {type(base).__name__}")
+        if scene_setup is None:
+            scene_setup = prepare_scene(scene, wavelength_nm=base.wavelength_nm, leaf_off=leaf_off)
+        n = len(pulses)
+        rows, t0, energy = [], np.zeros(n), np.zeros(n)
+        bufs, bar, kernel_s = None, None, 0.0
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n, unit="pulse", desc="clsim")
+        try:
+            for i in range(n):
+                setup = prepare_run(scene, pulses.sensor(i, base), photons=photons, seed=int(pulses.seed[i]),
+                                    mode=mode, detect=detect, max_order=max_order, leaf_off=leaf_off,
+                                    batches=batches, bin_ns=bin_ns, step_m=step_m, target=pulses.target[i],
+                                    hotspot=hotspot, scene_setup=scene_setup)
+                if bufs is None:
+                    bufs = self._scene_buffers(setup)
+                hist, _, _, elapsed = self._launch(setup, bufs, chunk=chunk, hist_only=True)
+                kernel_s += elapsed
+                time_ns, by_order, fine = digitized(setup, hist.astype(np.float64) / FIXED_SCALE)
+                rows.append(by_order.sum(axis=0))
+                t0[i] = time_ns[0]
+                energy[i] = fine.sum()
+                if bar is not None:
+                    bar.update(1)
+        finally:
+            if bar is not None:
+                bar.close()
+        return PulseWaveforms.from_rows(pulses.index, rows, t0_ns=t0, bin_ns=1.0 / base.sampling_ghz,
+                                        energy=energy, kernel_s=kernel_s)
+
+    def _scene_buffers(self, setup: RunSetup) -> dict:
+        """Device copies of what the kernel reads from the scene (sparse bricks, leaf angle tables)."""
+        cl = self._cl
+        mf = cl.mem_flags
+        g = setup.bricks
+        pool = g.pool if len(g.pool) else np.zeros((1, 2), np.float32)
+        try:
+            return dict(
+                index=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g.index),
+                pool=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(pool)),
+                ppf=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.ppf.astype(np.float32)),
+                gtab=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.gtab.astype(np.float32)),
+            )
+        except cl.Error as err:
+            raise DeviceError(f"cannot upload the scene ({g.nbytes / 2**20:.0f} MiB of bricks) to "
+                              f"{self.device_name}: {short_reason(err)}") from err
+
     def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False) -> SimulationResult:
+        B = setup.batches
+        hist, stats, traces, elapsed = self._launch(setup, self._scene_buffers(setup), chunk=chunk,
+                                                    progress=progress)
+        stats = stats.reshape(B, len(STAT_NAMES)).astype(np.float64)
+        weight_cols = [i for i, n in enumerate(STAT_NAMES) if n not in COUNT_STATS]
+        stats[:, weight_cols] /= FIXED_SCALE
+        tr = None
+        if setup.trace:
+            tr = traces.reshape(setup.trace, TRACE_EVENTS, 4).copy()
+            tr[..., :3] += setup.scene.origin.astype(np.float32)
+        return assemble_result(setup, hist.astype(np.float64) / FIXED_SCALE, stats, tr, elapsed,
+                               self.device_name)
+
+    def _launch(self, setup: RunSetup, bufs: dict, *, chunk: int = 1 << 20, progress: bool = False,
+                hist_only: bool = False):
+        """Run the kernel over the scene buffers ``bufs`` (:meth:`_scene_buffers`): the raw tallies
+        ``hist`` (B, K, 2, F) uint64, ``stats``, ``traces`` (not read back with ``hist_only``)
+        and the seconds the kernel took."""
         cl = self._cl
         _, kern = self.program(setup.mode, setup.detect)
         ctx, q = self.context, self.queue
         mf = cl.mem_flags
         p = setup.p
         B, K, F = setup.batches, setup.max_order, int(p["nbins"])
-        g = setup.bricks
-        pool = g.pool if len(g.pool) else np.zeros((1, 2), np.float32)
-        bufs = dict(
-            params=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.params),
-            index=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g.index),
-            pool=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(pool)),
-            ppf=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.ppf.astype(np.float32)),
-            gtab=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.gtab.astype(np.float32)),
-        )
+        bufs = dict(bufs, params=cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.params))
         hist = np.zeros(B * K * 2 * F, dtype=np.uint64)
         stats = np.zeros(B * len(STAT_NAMES), dtype=np.uint64)
         traces = np.full((max(setup.trace, 1) * TRACE_EVENTS, 4), np.nan, dtype=np.float32)
@@ -248,22 +350,14 @@ class Simulator:
                 if bar is not None:
                     q.finish()
                     bar.update(n)
-            cl.enqueue_copy(q, hist, hist_buf)
-            cl.enqueue_copy(q, stats, stats_buf)
-            cl.enqueue_copy(q, traces, trace_buf)
+            cl.enqueue_copy(q, hist, hist_buf, is_blocking=not hist_only)
+            if not hist_only:
+                cl.enqueue_copy(q, stats, stats_buf)
+                cl.enqueue_copy(q, traces, trace_buf)
             q.finish()
         except cl.Error as err:
             raise DeviceError(f"transport kernel failed on {self.device_name}: {err}") from err
         finally:
             if bar is not None:
                 bar.close()
-        elapsed = time.perf_counter() - t0
-        stats = stats.reshape(B, len(STAT_NAMES)).astype(np.float64)
-        weight_cols = [i for i, n in enumerate(STAT_NAMES) if n not in COUNT_STATS]
-        stats[:, weight_cols] /= FIXED_SCALE
-        tr = None
-        if setup.trace:
-            tr = traces.reshape(setup.trace, TRACE_EVENTS, 4).copy()
-            tr[..., :3] += setup.scene.origin.astype(np.float32)
-        return assemble_result(setup, hist.reshape(B, K, 2, F).astype(np.float64) / FIXED_SCALE,
-                               stats, tr, elapsed, self.device_name)
+        return hist.reshape(B, K, 2, F), stats, traces, time.perf_counter() - t0

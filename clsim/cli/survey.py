@@ -1,0 +1,165 @@
+"""``clsim survey``: simulate a flight line over a scene, pulse by pulse, in batches.
+
+The pulses come from :mod:`clsim.survey` (a straight line, the preset's scan
+pattern); batches run on a local Dask cluster, a running Dask scheduler, or in
+a plain loop (``--workers 0``), each written to ``OUT/batches/`` as it
+finishes, so that running the same command again resumes a stopped run.  At
+the end the waveforms are written as LAS 1.4 (``OUT/survey.las`` with its
+``.wdp``) when :func:`clsim.survey.las.write_survey_las` is available.
+
+Examples
+--------
+>>> import argparse
+>>> p = argparse.ArgumentParser(prog="clsim")
+>>> register(p.add_subparsers(dest="command"))
+>>> a = p.parse_args(["survey", "scene.npz", "-o", "out", "--pulses", "1000"])
+>>> a.sensor, a.photons, a.batch_size, a.pulses
+('riegl-lms-q680i', 1000, 256, 1000)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from voxlidar.cli import number
+from clsim.errors import InputError
+from clsim.sensor import list_presets
+
+__all__ = ["register", "cmd_survey", "line_through"]
+
+
+def register(subparsers) -> None:
+    """Add ``survey`` to an argparse subparsers object."""
+    p = subparsers.add_parser(
+        "survey", help="simulate the pulses of a flight line over a scene (Dask or a loop; resumable)",
+        description="Simulate every pulse of a straight flight line over a voxel scene: the preset's "
+                    "scan pattern and pulse rate, each pulse with its own seed (seed + pulse number), "
+                    "in batches written to OUT/batches/ as they finish. Running the same command again "
+                    "resumes: finished batches are kept. Ends with OUT/survey.las (LAS 1.4 waveform "
+                    "packets) when the LAS writer is available.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("scene", help="scene file (.npz, voxlidar.scene.Scene.save); every worker loads it")
+    p.add_argument("-o", "--out", required=True, help="output folder (survey.json, batches/, survey.las)")
+    p.add_argument("--sensor", default="riegl-lms-q680i",
+                   help=f"preset with a [survey] table ({', '.join(list_presets())}) or a .toml file")
+    p.add_argument("--start", default=None, metavar="X,Y",
+                   help="start of the line, metres (default: the scene's west edge at its middle y); a "
+                        "negative X needs '=': --start=-20,0")
+    p.add_argument("--end", default=None, metavar="X,Y", help="end of the line (default: the scene's east edge)")
+    p.add_argument("--altitude", type=number(lo=0, lo_open=True, unit="m"), default=None,
+                   help="flying height, m (default: the preset's typical flying height)")
+    p.add_argument("--speed", type=number(lo=0, lo_open=True, unit="m/s"), default=None,
+                   help="ground speed, m/s (default: the preset's)")
+    p.add_argument("--pulse-rate", type=number(lo=0, lo_open=True, unit="Hz"), default=None,
+                   help="override the preset's pulse rate, Hz")
+    p.add_argument("--scan-rate", type=number(lo=0, lo_open=True, unit="Hz"), default=None,
+                   help="override the preset's scan rate (lines or rotations per second)")
+    p.add_argument("--fov", type=number(lo=0, lo_open=True, hi=180, hi_open=True, unit="degrees"), default=None,
+                   help="override the preset's full field of view, degrees")
+    span = p.add_mutually_exclusive_group()
+    span.add_argument("--duration", type=number(lo=0, lo_open=True, unit="s"), default=None,
+                      help="simulate the first DURATION seconds of the line (default: all of it)")
+    span.add_argument("--pulses", type=number(int, lo=1), default=None, help="simulate the first N pulses")
+    p.add_argument("--photons", type=number(int, lo=1), default=1000, help="photons per pulse")
+    p.add_argument("--max-order", type=number(int, lo=1, hi=64), default=3, help="highest scattering order")
+    p.add_argument("--seed", type=number(int, lo=0), default=1, help="base seed: pulse k gets seed + k")
+    p.add_argument("--batch-size", type=number(int, lo=1), default=256, help="pulses per task and per file")
+    p.add_argument("--workers", type=number(int, lo=0), default=os.cpu_count() or 1,
+                   help="worker processes of the local Dask cluster (one thread each); 0: a plain loop "
+                        "in this process, no Dask")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="address of a running Dask scheduler (tcp://host:8786) instead of a local cluster; "
+                        "its workers need voxlidar and the scene file at the same path")
+    p.add_argument("--in-flight", type=number(int, lo=1), default=2,
+                   help="tasks per worker submitted at a time (bounds memory)")
+    p.add_argument("--device", default=None, help="OpenCL device each worker opens (default: VOXLIDAR_DEVICE "
+                   "or the best working device)")
+    p.add_argument("--restart", action="store_true",
+                   help="delete the batches of an earlier run in OUT and start over (default: resume)")
+    p.add_argument("--no-las", action="store_true", help="keep only the batch files, write no LAS")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_survey)
+
+
+def _xy(text, name):
+    if text is None:
+        return None
+    try:
+        v = tuple(float(s) for s in str(text).split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 2 or not all(np.isfinite(v)):
+        raise InputError(f"--{name} {text!r} must be X,Y in metres, for example --{name}=-20,0")
+    return v
+
+
+def line_through(scene, start=None, end=None):
+    """(start, end) of the default line: across the scene along x at its middle y."""
+    lo = np.asarray(scene.origin, dtype=np.float64)
+    hi = lo + scene.voxel_size * np.asarray(scene.shape)
+    ym = 0.5 * (lo[1] + hi[1])
+    return (start or (float(lo[0]), float(ym))), (end or (float(hi[0]), float(ym)))
+
+
+def cmd_survey(args) -> int:
+    from clsim.sensor import Sensor
+    from clsim.survey import ScanPattern, Trajectory, typical_flight
+    from clsim.survey._pulses import _ceil
+    from clsim.survey.distributed import SurveyJob, load_survey, run_survey
+    from voxlidar.scene import Scene
+
+    scene = Scene.load(args.scene)
+    sensor = Sensor.preset(args.sensor)
+    overrides = {k: v for k, v in (("pulse_rate_hz", args.pulse_rate), ("scan_rate_hz", args.scan_rate),
+                                   ("fov_deg", args.fov)) if v is not None}
+    pattern = ScanPattern.preset(args.sensor, **overrides)
+    flight = typical_flight(args.sensor)
+    start, end = line_through(scene, _xy(args.start, "start"), _xy(args.end, "end"))
+    if start == end:
+        raise InputError(f"--start and --end are the same point {start}; give a line of some length")
+    tr = Trajectory.line(start, end, altitude_m=args.altitude or flight.altitude_m,
+                         speed_mps=args.speed or flight.speed_mps)
+    count = args.pulses
+    if args.duration is not None:
+        count = _ceil(args.duration * pattern.pulse_rate_hz)          # the pulses with t_k < duration
+    job = SurveyJob(scene_path=args.scene, trajectory=tr, pattern=pattern, sensor=sensor, photons=args.photons,
+                    count=count, seed=args.seed, batch_size=args.batch_size, max_order=args.max_order,
+                    device=args.device)
+    out = Path(args.out)
+    if args.restart and out.is_dir():
+        shutil.rmtree(out / "batches", ignore_errors=True)
+        (out / "survey.json").unlink(missing_ok=True)
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
+    n_b = len(job.ranges())
+    say(f"survey: {job.count:,} pulses ({job.count / pattern.pulse_rate_hz:.3g} s of a {tr.duration_s:.3g} s "
+        f"line at {tr.legs[0].start[2]:g} m), {args.photons:,} photons each, {n_b} batches of "
+        f"{args.batch_size}; " + ("a plain loop" if args.workers == 0 and not args.scheduler else
+                                  f"Dask {'scheduler ' + args.scheduler if args.scheduler else f'{args.workers} local workers'}"))
+    run = run_survey(job, out, workers=max(args.workers, 1), scheduler=args.scheduler,
+                     direct=args.workers == 0 and not args.scheduler, in_flight=args.in_flight,
+                     progress=not args.quiet)
+    if run.computed:
+        say(f"survey: {run.computed} batches computed ({run.pulses:,} pulses, {run.pulses / run.seconds:,.0f} "
+            f"pulses/s), {run.skipped} already on disk")
+    else:
+        say(f"survey: nothing to compute: all {run.n_batches} batches are on disk")
+    if args.no_las:
+        say(f"survey: waveforms in {out / 'batches'} (one .npz per batch; clsim.survey.load_survey reads them)")
+        return 0
+    try:
+        from clsim.survey.las import write_survey_las
+    except ImportError:
+        say(f"survey: no LAS written (clsim.survey.las is not in this version); the waveforms are in "
+            f"{out / 'batches'} (clsim.survey.load_survey reads them)")
+        return 0
+    wf = load_survey(out)
+    path = write_survey_las(out / "survey.las", job.pulses(), wf.waveform, t0_ns=wf.t0_ns, bin_ns=wf.bin_ns,
+                            sensor=sensor)
+    say(f"survey: wrote {path if path is not None else out / 'survey.las'}")
+    return 0
