@@ -59,8 +59,11 @@ def probe_build(device) -> str | None:
 
     from voxlidar.devices import build_program, describe
 
+    from clsim.waveforms.decompose import _detect_cl
+
     src, inc = _source()
     build_program(cl.Context([device]), src, [inc] + build_options(describe(device), 1, True))
+    _detect_cl.probe_build(device)
     return None
 
 
@@ -87,6 +90,18 @@ class DeviceFitter:
         # group overflows PoCL's stack with the kernel's private arrays); GPUs: the
         # runtime's choice
         self.local_size = None if info.is_gpu else (1,)
+        self._detector = None
+
+    @property
+    def detector(self):
+        """The detection kernels (:class:`._detect_cl.Detector`), built on first use."""
+        if self._detector is None:
+            from clsim.waveforms.decompose._detect_cl import Detector
+
+            t0 = time.perf_counter()
+            self._detector = Detector(self)
+            self.build_seconds += time.perf_counter() - t0
+        return self._detector
 
     def kernel(self, k: int, fit_baseline: bool):
         """The ``lm_fit`` kernel for ``k`` echoes (built once per fitter)."""
@@ -113,6 +128,15 @@ class DeviceFitter:
 
 class BoundFitter:
     """A chunk's samples on the device; :meth:`fit` fits any of its rows."""
+
+    @classmethod
+    def on_device(cls, fitter: DeviceFitter, y, flags, span, noise, n_samples: int):
+        """On buffers already on the device (:mod:`._detect_cl`): samples and flag
+        bits (N, 8 ceil(n/8)), span (N,) int2, noise (N,) float32."""
+        self = cls.__new__(cls)
+        self.fitter, self.n, self.n_samples = fitter, -(-n_samples // 8) * 8, n_samples
+        self.y, self.flags, self.span, self.noise = y, flags, span, noise
+        return self
 
     def __init__(self, fitter: DeviceFitter, y, use, cens, noise):
         cl = fitter._cl
