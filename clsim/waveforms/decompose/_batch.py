@@ -41,6 +41,8 @@ from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse, _FALLBACK_SIG
 from clsim.waveforms.decompose._results import EchoTable
 
 _SQRT_PI = np.sqrt(np.pi)
+#: Chunks decomposed at once on a device (threads; see :func:`decompose_batch`).
+_IN_FLIGHT = 2
 #: Gaussian smoothing (samples) of the curvature used to find shoulders.
 _CURV_SMOOTH = 1.5
 
@@ -378,13 +380,23 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         pl = Pulse.gaussian(_positive(pulse_sigma_ns, "pulse_sigma_ns") / dt)
     else:
         pl = None
-    parts = []
     step = max(1, int(chunk))
-    for lo in range(0, n_all, step):
+
+    def one(lo):
         hi = min(n_all, lo + step)
-        parts.append(_decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl,
-                                      fa, saturation, int(max_components), add_components,
-                                      fitter))
+        return _decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl, fa,
+                                saturation, int(max_components), add_components, fitter)
+
+    starts = range(0, n_all, step)
+    if fitter is None or len(starts) < 2:
+        parts = [one(lo) for lo in starts]
+    else:
+        # two chunks in flight: one's host steps run while the other's kernels do (the
+        # chunks are independent: the same results as one after the other)
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=_IN_FLIGHT) as pool:
+            parts = list(pool.map(one, starts))
     return _table(parts, t0, dt)
 
 

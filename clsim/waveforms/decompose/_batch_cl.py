@@ -25,6 +25,7 @@ Marquardt, D. W. (1963). An algorithm for least-squares estimation of
 
 from __future__ import annotations
 
+import threading
 import time
 from importlib import resources
 
@@ -91,21 +92,30 @@ class DeviceFitter:
         # runtime's choice
         self.local_size = None if info.is_gpu else (1,)
         self._detector = None
+        # chunks run in threads (decompose_batch): a kernel object's arguments and its
+        # launch must not interleave with another thread's, nor two builds
+        self.lock = threading.RLock()
 
     @property
     def detector(self):
         """The detection kernels (:class:`._detect_cl.Detector`), built on first use."""
-        if self._detector is None:
-            from clsim.waveforms.decompose._detect_cl import Detector
+        with self.lock:
+            if self._detector is None:
+                from clsim.waveforms.decompose._detect_cl import Detector
 
-            t0 = time.perf_counter()
-            self._detector = Detector(self)
-            self.build_seconds += time.perf_counter() - t0
+                t0 = time.perf_counter()
+                self._detector = Detector(self)
+                self.build_seconds += time.perf_counter() - t0
         return self._detector
 
     def kernel(self, k: int, fit_baseline: bool):
         """The ``lm_fit`` kernel for ``k`` echoes (built once per fitter)."""
         key = (int(k), bool(fit_baseline))
+        with self.lock:
+            kern = self._kernels.get(key)
+            return kern if kern is not None else self._build(key)
+
+    def _build(self, key):
         if key not in self._kernels:
             from voxlidar.devices import build_program
 
@@ -192,9 +202,10 @@ class BoundFitter:
         d_q = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=q)
         d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
         kern = self.fitter.kernel(k, fit_baseline)
-        kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out, g,
-                      max_iter, tol, int(bool(linear) and bool(fit_baseline)))
-        cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
+        with self.fitter.lock:
+            kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out,
+                          g, max_iter, tol, int(bool(linear) and bool(fit_baseline)))
+            cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
         done = cl.enqueue_copy(queue, out, d_out, is_blocking=False)
 
         def finish() -> GroupFit:

@@ -28,7 +28,8 @@ from clsim.waveforms.decompose._batch_cl import BoundFitter, build_options
 
 #: Most candidates per waveform the kernel keeps (its private arrays).
 MAX_CANDIDATES = 32
-ITEMS = 2000
+#: Most work-items of a detection launch (each loops over rows beyond).
+ITEMS = 1 << 16
 #: Saturation modes of the kernel.
 _SAT_NONE, _SAT_AUTO, _SAT_VALUE = 0, 1, 2
 
@@ -130,9 +131,10 @@ class BoundDetection:
         self.lengths = lengths
 
     def _run(self, kern, *args):
-        kern.set_args(*args)
-        self.cl.enqueue_nd_range_kernel(self.queue, kern, (min(self.rows, ITEMS),),
-                                        self.det.fitter.local_size)
+        with self.det.fitter.lock:
+            kern.set_args(*args)
+            self.cl.enqueue_nd_range_kernel(self.queue, kern, (min(self.rows, ITEMS),),
+                                            self.det.fitter.local_size)
 
     def noise_stats(self, saturation) -> NoiseStats:
         """Kernel ``noise_stats``; ``saturation``: None, "auto" or a full-scale value

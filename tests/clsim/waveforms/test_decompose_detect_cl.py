@@ -98,3 +98,18 @@ def test_many_components_fall_back_to_numpy_detection(cl_device_for_fits):
     table = decompose_batch(ys, max_components=40, device=cl_device_for_fits)
     assert np.all(table.counts == m.size), table.counts
     np.testing.assert_allclose(table[0].location_ns, m, atol=0.2)
+
+
+def test_chunks_in_flight_give_the_same_table(cl_device_for_fits, monkeypatch):
+    """Chunks decomposed two at a time in threads: the same table, bit for bit, as
+    one chunk after the other (each chunk's work is its own)."""
+    import clsim.waveforms.decompose._batch as batch
+
+    ys = _mixed(np.random.default_rng(24)) * 2
+    two = decompose_batch(ys, chunk=37, device=cl_device_for_fits)
+    monkeypatch.setattr(batch, "_IN_FLIGHT", 1)
+    one = decompose_batch(ys, chunk=37, device=cl_device_for_fits)
+    np.testing.assert_array_equal(two.counts, one.counts)
+    for col in ("amplitude", "location_ns", "sigma_ns", "amplitude_se"):
+        np.testing.assert_array_equal(getattr(two, col), getattr(one, col))
+    np.testing.assert_array_equal(two.baseline, one.baseline)
