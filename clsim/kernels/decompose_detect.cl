@@ -22,6 +22,13 @@
 #define USE 1
 #define CENS 2
 #define BIG 3.0e38f
+/* 1.4826 / sqrt(2) and 1 / sqrt(12) as float32 pairs (hi + lo): x * c by fma is then
+ * the float32 nearest to the exact product, as the NumPy steps' float64 is once
+ * rounded, so integer samples give the same noise sigma, bit for bit */
+#define MAD_HI 1.0483565e+00f
+#define MAD_LO -1.9263362e-08f
+#define Q_HI 2.8867513e-01f
+#define Q_LO 5.1812084e-09f
 
 /* Order statistics by bisection on the bits of order-preserving keys (a radix
  * select): branch-free counting passes over 8 keys at a time, exact, where a
@@ -103,9 +110,10 @@ CLSIM_INLINE float2 noise_of(global const float *y, const int len, const int all
         int c2 = 0;
         for (int j = 0; j + 1 < len; ++j)
             if (all_ || (y[j] != 0.0f && y[j + 1] != 0.0f)) s[c2++] = float_key(fast_abs(y[j + 1] - y[j] - med));
-        sigma = 1.4826f * order_mean(s, c, (c - 1) / 2, c / 2) / M_SQRT2_F;
+        const float mad = order_mean(s, c, (c - 1) / 2, c / 2);
+        sigma = fma(mad, MAD_HI, mad * MAD_LO);
     }
-    return (float2)(base, fast_max(sigma, q / sqrt(12.0f)));
+    return (float2)(base, fast_max(sigma, fma(q, Q_HI, q * Q_LO)));
 }
 
 /* OUT per row (8 floats): baseline, noise sigma, samples that count, half-maximum

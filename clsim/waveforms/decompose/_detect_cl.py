@@ -189,9 +189,9 @@ class BoundDetection:
         cl.enqueue_copy(self.queue, cand, d_cand, is_blocking=False)
         cl.enqueue_copy(self.queue, cnt, d_cnt, is_blocking=True)
         on = np.arange(k_cap) < cnt[:, None]
-        cand = np.where(on[:, :, None], cand, 0.0)
-        return (np.where(on, cand[:, :, 0], 0.0), np.where(on, cand[:, :, 1], 0.0),
-                np.where(on, cand[:, :, 2], 1.0), on)
+        # float64 from here: the fits' state (unused slots hold garbage: zeroed)
+        cand = np.where(on[:, :, None], cand, 0.0).astype(float)
+        return cand[:, :, 0], cand[:, :, 1], np.where(on, cand[:, :, 2], 1.0), on
 
     def fitter(self) -> BoundFitter:
         """The chunk's :class:`._batch_cl.BoundFitter` on the buffers already here."""
