@@ -1,5 +1,5 @@
-"""Gaussian decomposition benchmark: clsim (batched with its fits on the default OpenCL
-device and with the NumPy fits, single waveform, and the earlier amplitude-threshold
+"""Gaussian decomposition benchmark: clsim (batched with its detection and fits on the
+default OpenCL device and in NumPy, single waveform, and the earlier amplitude-threshold
 detection) against gdecomp 1.0.6 (PyPI; C++ with mpfit) and a plain scipy
 ``curve_fit``, on the same waveforms with the same baseline and 4-sigma threshold for
 the other methods.
