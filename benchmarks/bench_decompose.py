@@ -1,5 +1,5 @@
-"""Gaussian decomposition benchmark: clsim (batched with its fits on the default OpenCL
-device and with the NumPy fits, single waveform, and the earlier amplitude-threshold
+"""Gaussian decomposition benchmark: clsim (batched with its detection and fits on the
+default OpenCL device and in NumPy, single waveform, and the earlier amplitude-threshold
 detection) against gdecomp 1.0.6 (PyPI; C++ with mpfit) and a plain scipy
 ``curve_fit``, on the same waveforms with the same baseline and 4-sigma threshold for
 the other methods.
@@ -409,10 +409,11 @@ def peer_scores(path: Path, method) -> dict:
 METHODS = ("clsim batched", "clsim batched NumPy", "clsim single", "clsim before", "gdecomp",
            "curve_fit")
 NOTE = {
-    "clsim batched": "`decompose_batch`, its Levenberg-Marquardt fits on the OpenCL device "
-                     "it chooses by default (one waveform per work-item)",
+    "clsim batched": "`decompose_batch`, its detection and Levenberg-Marquardt fits on the "
+                     "OpenCL device it chooses by default (one waveform per work-item; two "
+                     "chunks in flight)",
     "clsim batched NumPy": "`decompose_batch(device=\"numpy\")`, the same steps with the "
-                           "fits vectorised in NumPy",
+                           "detection and fits vectorised in NumPy",
     "clsim single": "`decompose`, matched-filter detection (this change's default)",
     "clsim before": "`decompose(detection=\"amplitude\")`: the earlier 4-sigma amplitude rule",
     "gdecomp": "gdecomp 1.0.6 (PyPI, C++/mpfit), baseline removed, threshold 4 sigma",

@@ -8,9 +8,14 @@ for a Gaussian: Caruana et al. 1986), then the Levenberg-Marquardt fit of all
 waveforms with the same number of echoes together, its start amplitudes and
 baseline by linear least squares, pruning of weak echoes, and rounds of
 adding a resolved echo at the highest residual feature while the BIC falls.
-The fits run on an OpenCL device, one waveform per work-item (:mod:`._batch_cl`,
-``clsim/kernels/decompose_lm.cl``), which also returns each fit's residual for
-the search; without a device, vectorised in NumPy (:mod:`._batch_fit`).
+On an OpenCL device the detection runs there too, one waveform per work-item
+(:mod:`._detect_cl`, ``clsim/kernels/decompose_detect.cl``; the NumPy steps
+:func:`noise_stats_numpy` and :func:`candidates_numpy` are its reference), the
+samples stay on the device, and the fits run there, one waveform per work-item
+(:mod:`._batch_cl`, ``clsim/kernels/decompose_lm.cl``), which also returns each
+fit's residual for the search; two chunks are in flight at once (threads), so one
+chunk's host steps overlap the other's kernels. Without a device, everything is
+vectorised in NumPy (:mod:`._batch_fit`).
 
 Differences from :func:`decompose`, for speed: one pulse for the whole batch
 (default: the 20th percentile of the widths of the strongest echoes), no
@@ -34,12 +39,15 @@ from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 from clsim.errors import InputError
 from clsim.waveforms.decompose._batch_cl import device_fitter
 from clsim.waveforms.decompose._batch_fit import fit_group, linear_start
+from clsim.waveforms.decompose._detect_cl import MAX_CANDIDATES, NoiseStats
 from clsim.waveforms.decompose._checks import _positive
 from clsim.waveforms.decompose._fitting import _MIN_SIGMA_SAMPLES
 from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse, _FALLBACK_SIGMA, filter_output
 from clsim.waveforms.decompose._results import EchoTable
 
 _SQRT_PI = np.sqrt(np.pi)
+#: Chunks decomposed at once on a device (threads; see :func:`decompose_batch`).
+_IN_FLIGHT = 2
 #: Gaussian smoothing (samples) of the curvature used to find shoulders.
 _CURV_SMOOTH = 1.5
 
@@ -139,10 +147,10 @@ def _log_parabola(f, rows, idx, n):
     return idx + np.clip(shift, -0.5, 0.5), var
 
 
-def _batch_pulse(y, use, base, sigma, lengths):
-    """Gaussian-equivalent pulse width: the 20th percentile of the FWHM of each
-    waveform's strongest echo, among those 20 sigma or more above the baseline (blends
-    and canopy returns are wider than the pulse)."""
+def _echo_widths(y, use, base, sigma, lengths):
+    """Gaussian-equivalent width (samples) of each waveform's strongest echo, from its
+    interpolated half-maximum crossings; NaN unless it stands 20 sigma or more above
+    the baseline with both crossings inside the record."""
     n = y.shape[1]
     h = np.where(use, y - base[:, None], -np.inf)
     i = np.argmax(h, axis=1)
@@ -153,15 +161,22 @@ def _batch_pulse(y, use, base, sigma, lengths):
     left = np.where(below & (j < i[:, None]), j, -1).max(axis=1)
     right = np.where(below & (j > i[:, None]), j, n).min(axis=1)
     good = (top >= 20.0 * sigma) & (left >= 0) & (right < lengths)
-    if not good.any():
-        return _FALLBACK_SIGMA
+    width = np.full(y.shape[0], np.nan)
     r = np.flatnonzero(good)
     hl, hl1 = h[r, left[r]], h[r, left[r] + 1]
     hr, hr1 = h[r, right[r]], h[r, right[r] - 1]
-    xl = left[r] + (half[r] - hl) / (hl1 - hl)
-    xr = right[r] - (half[r] - hr) / (hr1 - hr)
-    w = (xr - xl) / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    w = w[np.isfinite(w) & (w > 0)]
+    with np.errstate(invalid="ignore"):
+        xl = left[r] + (half[r] - hl) / (hl1 - hl)
+        xr = right[r] - (half[r] - hr) / (hr1 - hr)
+    width[r] = (xr - xl) / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    return width
+
+
+def _batch_pulse(width):
+    """Gaussian-equivalent pulse width: the 20th percentile of the widths of each
+    waveform's strongest echo (:func:`_echo_widths`; blends and canopy returns are
+    wider than the pulse), or the fallback when none is usable."""
+    w = width[np.isfinite(width) & (width > 0)]
     if w.size == 0:
         return _FALLBACK_SIGMA
     return float(np.percentile(w, 20.0))
@@ -173,12 +188,20 @@ def _rice(n_valid, pulse, false_alarm):
     return np.sqrt(2.0 * np.log(np.maximum(rate / false_alarm, 1.0)))
 
 
-def _censored(y, inside, saturation):
+def _saturation(saturation):
+    """``saturation`` checked: None, "auto" or a positive full-scale value (float)."""
     if saturation is None:
         return None
     if isinstance(saturation, bool) or (isinstance(saturation, str) and saturation != "auto"):
         raise InputError(f"saturation must be 'auto', None or the digitiser's full-scale "
                          f"value (a number); got {saturation!r}")
+    return saturation if isinstance(saturation, str) else _positive(saturation, "saturation")
+
+
+def _censored(y, inside, saturation):
+    saturation = _saturation(saturation)
+    if saturation is None:
+        return None
     if isinstance(saturation, str):
         top = np.where(inside, y, -np.inf).max(axis=1)
         at = inside & (y == top[:, None])
@@ -187,7 +210,7 @@ def _censored(y, inside, saturation):
         for k in range(3):
             mask[:, k:k + run3.shape[1]] |= run3
     else:
-        mask = inside & (y >= _positive(saturation, "saturation"))
+        mask = inside & (y >= saturation)
     return mask if mask.any() else None
 
 
@@ -267,16 +290,24 @@ def _resolved_rows(a, m, s, on, a1, m1, s1):
         a, m, s, on = (np.take_along_axis(v, order, axis=1) for v in (a, m, s, on))
     lo = np.minimum(m - 3 * s, (m1 - 3 * s1)[:, None])
     hi = np.maximum(m + 3 * s, (m1 + 3 * s1)[:, None])
-    grid = np.linspace(0.0, 1.0, 160)
+    # in float32 (the exponentials are most of the search's time on many-echo
+    # waveforms; a sign of the curvature is not changed by the rounding except within
+    # 1e-6 of an inflection point)
+    grid = np.linspace(0.0, 1.0, 160, dtype=np.float32)
+    f32 = np.float32
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         # z^2 of each echo of the pair on the grid x = lo + (hi - lo) * grid
-        z0 = ((lo - m) / s)[..., None] + ((hi - lo) / s)[..., None] * grid
-        z1 = (((lo - m1[:, None]) / s1[:, None])[..., None]
-              + ((hi - lo) / s1[:, None])[..., None] * grid)
+        z0 = ((lo - m) / s).astype(f32)[..., None] + ((hi - lo) / s).astype(f32)[..., None] * grid
+        z1 = (((lo - m1[:, None]) / s1[:, None]).astype(f32)[..., None]
+              + ((hi - lo) / s1[:, None]).astype(f32)[..., None] * grid)
         z0 *= z0
         z1 *= z1
-        curv = (z0 - 1) * np.exp(-0.5 * z0) * (a / s ** 2)[..., None]
-        curv += (z1 - 1) * np.exp(-0.5 * z1) * (a1 / s1 ** 2)[:, None, None]
+        e0 = np.exp(np.multiply(z0, f32(-0.5)))
+        e1 = np.exp(np.multiply(z1, f32(-0.5)))
+        z0 -= f32(1.0)
+        z1 -= f32(1.0)
+        curv = z0 * e0 * (a / s ** 2).astype(f32)[..., None]
+        curv += z1 * e1 * (a1 / s1 ** 2).astype(f32)[:, None, None]
     sign = np.sign(curv)
     changes = np.count_nonzero(sign[..., 1:] != sign[..., :-1], axis=-1)
     return np.all((changes >= 4) | ~on, axis=1)
@@ -351,6 +382,7 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         raise InputError(f"max_components must be >= 1; got {max_components!r}")
     if pulse is not None and pulse_sigma_ns is not None:
         raise InputError("give pulse (a measured response) or pulse_sigma_ns, not both")
+    saturation = _saturation(saturation)
     fitter = device_fitter(device)
     y_all, len_all = _pad(waveforms)
     n_all = y_all.shape[0]
@@ -361,13 +393,23 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
         pl = Pulse.gaussian(_positive(pulse_sigma_ns, "pulse_sigma_ns") / dt)
     else:
         pl = None
-    parts = []
     step = max(1, int(chunk))
-    for lo in range(0, n_all, step):
+
+    def one(lo):
         hi = min(n_all, lo + step)
-        parts.append(_decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl,
-                                      fa, saturation, int(max_components), add_components,
-                                      fitter))
+        return _decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl, fa,
+                                saturation, int(max_components), add_components, fitter)
+
+    starts = range(0, n_all, step)
+    if fitter is None or len(starts) < 2:
+        parts = [one(lo) for lo in starts]
+    else:
+        # two chunks in flight: one's host steps run while the other's kernels do (the
+        # chunks are independent: the same results as one after the other)
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=_IN_FLIGHT) as pool:
+            parts = list(pool.map(one, starts))
     return _table(parts, t0, dt)
 
 
@@ -406,9 +448,7 @@ def _group_fitter(device, y, use, cens, noise):
     once; the groups of one round are all enqueued before the first wait), else
     :func:`fit_group`."""
     if device is not None:
-        bound = device.bind(y, use, cens, noise)
-        return lambda rows, a, m, s, b, fb, linear: bound.start(rows, a, m, s, b,
-                                                                fit_baseline=fb, linear=linear)
+        return _bound_fit(device.bind(y, use, cens, noise))
 
     def fit(rows, a, m, s, b, fb, linear):
         c = None if cens is None else cens[rows]
@@ -421,9 +461,11 @@ def _group_fitter(device, y, use, cens, noise):
     return fit
 
 
-def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, device):
-    n_rows, n = y.shape
-    rows = np.arange(n_rows)
+def noise_stats_numpy(y, lengths, saturation):
+    """The NumPy detection's first step for a chunk (N, n): robust baseline and noise,
+    no-data zeros, clipped samples, clipping-tolerant baseline, width of the strongest
+    echo (:class:`._detect_cl.NoiseStats`; the kernel ``noise_stats`` is its twin)."""
+    n = y.shape[1]
     inside = np.arange(n) < lengths[:, None]
     # no-data fill: exact zeros when the rest of the record sits > 4 sigma above zero
     zero = inside & (y == 0.0)
@@ -436,12 +478,17 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     use = np.where(gap[:, None], nz, inside)
     cens = _censored(y, use, saturation)
     b = _clipped_baseline(y, use, sigma, base0)
-    n_valid = use.sum(axis=1)
-    if pl is None:
-        pl = Pulse.gaussian(float(np.clip(_batch_pulse(y, use, b, sigma, lengths), 0.7,
-                                          max(0.7, n / 8.0))))
-    u = _rice(n_valid, pl, fa)
-    level = u * sigma / pl.norm
+    return NoiseStats(b, sigma, use.sum(axis=1), _echo_widths(y, use, b, sigma, lengths), use,
+                      cens)
+
+
+def candidates_numpy(y, lengths, ns, pl, level, k_cap):
+    """The NumPy detection's second step (the kernel ``candidates`` is its twin): start
+    amplitude, location, sigma (N, k_cap) of each waveform's highest candidates, highest
+    first, and their mask."""
+    n_rows, n = y.shape
+    b, sigma, use, cens = ns.b, ns.sigma, ns.use, ns.cens
+    inside = np.arange(n) < lengths[:, None]
     # detection: matched filter (amplitude units) and the smoothed samples
     yb = np.where(use, y - b[:, None], 0.0)
     f = filter_output(yb, pl)
@@ -467,7 +514,6 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     # maxima) or from the curvature (shoulders: sigma^2 = -y/y'' - smoothing^2); the
     # amplitudes by linear least squares below
     height = np.where(peak, ys, np.where(shoulder, yc, np.where(weak, f, -np.inf)))
-    k_cap = max(1, min(k_max, int((n - 2) // 3)))
     # the k_cap highest candidates of each row, highest first (candidates are sparse)
     r_all, i_all = np.nonzero(height > -np.inf)
     o = np.lexsort((-height[r_all, i_all], r_all))
@@ -477,7 +523,6 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     r_c, c_c, idx = r_all[keep], rank[keep], i_all[keep]
     cand = np.zeros((n_rows, k_cap), bool)
     cand[r_c, c_c] = True
-    st = _State(n_rows, k_cap, n)
     is_peak = peak[r_c, idx]
     is_sh = shoulder[r_c, idx]
     # the three samples around each candidate, from the curve that found it
@@ -494,12 +539,44 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
         var_sh = -yc[r_c, idx] / d2[r_c, idx] - _CURV_SMOOTH ** 2
     var = np.where(is_peak, var - 1.0, np.where(is_sh, var_sh, var - pl.sigma ** 2))
     sig0 = np.where(np.isfinite(var) & (var > 0.25), np.sqrt(np.abs(var)), pl.sigma)
-    st.m[r_c, c_c], st.s[r_c, c_c] = loc, np.clip(sig0, 0.5, n / 2.0)
-    st.a[r_c, c_c] = height[r_c, idx]
-    st.on = cand
+    a, m, s = np.zeros((n_rows, k_cap)), np.zeros((n_rows, k_cap)), np.ones((n_rows, k_cap))
+    m[r_c, c_c], s[r_c, c_c] = loc, np.clip(sig0, 0.5, n / 2.0)
+    a[r_c, c_c] = height[r_c, idx]
+    return a, m, s, cand
+
+
+def _bound_fit(bound):
+    """:func:`_group_fitter`'s ``fit`` on a :class:`._batch_cl.BoundFitter`."""
+    return lambda rows, a, m, s, b, fb, linear: bound.start(rows, a, m, s, b, fit_baseline=fb,
+                                                            linear=linear)
+
+
+def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, device):
+    n_rows, n = y.shape
+    rows = np.arange(n_rows)
+    k_cap = max(1, min(k_max, int((n - 2) // 3)))
+    # detection on the device (its samples then stay there for the fits), else NumPy
+    det = None
+    if device is not None and k_cap <= MAX_CANDIDATES:
+        det = device.detector.bind(y, lengths)
+        ns = det.noise_stats(saturation)
+    else:
+        ns = noise_stats_numpy(y, lengths, saturation)
+    b, sigma, use, cens = ns.b, ns.sigma, ns.use, ns.cens
+    if pl is None:
+        pl = Pulse.gaussian(float(np.clip(_batch_pulse(ns.width), 0.7, max(0.7, n / 8.0))))
+    u = _rice(ns.n_valid, pl, fa)
+    level = u * sigma / pl.norm
+    if det is not None:
+        a, m, s, cand = det.candidates(pl, level, k_cap)
+    else:
+        a, m, s, cand = candidates_numpy(y, lengths, ns, pl, level, k_cap)
+    st = _State(n_rows, k_cap, n)
+    st.a, st.m, st.s, st.on = a, m, s, cand
     st.b = b.copy()
     st.noise = sigma
-    st.fit = _group_fitter(device, y, use, cens, sigma)
+    st.fit = (_bound_fit(det.fitter()) if det is not None
+              else _group_fitter(device, y, use, cens, sigma))
     start = (st.a.copy(), st.m.copy(), st.s.copy(), st.on.copy(), st.b.copy())
     # fit (amplitudes and baseline first by linear least squares), prune, add
     _refit(st, rows[st.k() > 0], y, use, cens, linear=True)

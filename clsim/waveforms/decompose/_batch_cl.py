@@ -25,6 +25,7 @@ Marquardt, D. W. (1963). An algorithm for least-squares estimation of
 
 from __future__ import annotations
 
+import threading
 import time
 from importlib import resources
 
@@ -59,8 +60,11 @@ def probe_build(device) -> str | None:
 
     from voxlidar.devices import build_program, describe
 
+    from clsim.waveforms.decompose import _detect_cl
+
     src, inc = _source()
     build_program(cl.Context([device]), src, [inc] + build_options(describe(device), 1, True))
+    _detect_cl.probe_build(device)
     return None
 
 
@@ -87,10 +91,31 @@ class DeviceFitter:
         # group overflows PoCL's stack with the kernel's private arrays); GPUs: the
         # runtime's choice
         self.local_size = None if info.is_gpu else (1,)
+        self._detector = None
+        # chunks run in threads (decompose_batch): a kernel object's arguments and its
+        # launch must not interleave with another thread's, nor two builds
+        self.lock = threading.RLock()
+
+    @property
+    def detector(self):
+        """The detection kernels (:class:`._detect_cl.Detector`), built on first use."""
+        with self.lock:
+            if self._detector is None:
+                from clsim.waveforms.decompose._detect_cl import Detector
+
+                t0 = time.perf_counter()
+                self._detector = Detector(self)
+                self.build_seconds += time.perf_counter() - t0
+        return self._detector
 
     def kernel(self, k: int, fit_baseline: bool):
         """The ``lm_fit`` kernel for ``k`` echoes (built once per fitter)."""
         key = (int(k), bool(fit_baseline))
+        with self.lock:
+            kern = self._kernels.get(key)
+            return kern if kern is not None else self._build(key)
+
+    def _build(self, key):
         if key not in self._kernels:
             from voxlidar.devices import build_program
 
@@ -113,6 +138,15 @@ class DeviceFitter:
 
 class BoundFitter:
     """A chunk's samples on the device; :meth:`fit` fits any of its rows."""
+
+    @classmethod
+    def on_device(cls, fitter: DeviceFitter, y, flags, span, noise, n_samples: int):
+        """On buffers already on the device (:mod:`._detect_cl`): samples and flag
+        bits (N, 8 ceil(n/8)), span (N,) int2, noise (N,) float32."""
+        self = cls.__new__(cls)
+        self.fitter, self.n, self.n_samples = fitter, -(-n_samples // 8) * 8, n_samples
+        self.y, self.flags, self.span, self.noise = y, flags, span, noise
+        return self
 
     def __init__(self, fitter: DeviceFitter, y, use, cens, noise):
         cl = fitter._cl
@@ -168,9 +202,10 @@ class BoundFitter:
         d_q = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=q)
         d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
         kern = self.fitter.kernel(k, fit_baseline)
-        kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out, g,
-                      max_iter, tol, int(bool(linear) and bool(fit_baseline)))
-        cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
+        with self.fitter.lock:
+            kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out,
+                          g, max_iter, tol, int(bool(linear) and bool(fit_baseline)))
+            cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
         done = cl.enqueue_copy(queue, out, d_out, is_blocking=False)
 
         def finish() -> GroupFit:
