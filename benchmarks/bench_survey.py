@@ -3,9 +3,9 @@
 Flight: the RIEGL LMS-Q680i preset (polygon scanner, 266 kHz, 200 lines/s,
 600 m, 60 m/s) along x over the scene's middle, its field of view narrowed so
 that the swath spans the scene's width (the pulses hit the trees rather than
-300 m of bare ground either side).  Scene: ``--scene`` (any ``Scene.save``
-file, e.g. a plot's ``to_scene()``), by default the synthetic oak
-``make_tree(seed=1).truth_scene(0.2)`` (cached under ``out/bench_cache``).
+300 m of bare ground either side).  Scene: ``--scene`` (a ``Scene.save`` or
+``PlotScene.save`` file), by default the 50 m plot of 30 trees
+``clsim.scenes.make_plot(seed=0, voxel_size=0.5)`` (cached under ``out/bench_cache``).
 
 0. **Per pulse**: ``Simulator.run`` once per pulse against
    :meth:`Simulator.run_pulses` (the scene built and uploaded once), with the
@@ -59,22 +59,22 @@ def log(msg):
 
 
 def default_scene() -> Path:
-    path = ROOT / "out" / "bench_cache" / "survey_oak_seed1_0.2m.npz"
+    path = ROOT / "out" / "bench_cache" / "survey_plot_seed0_0.5m.npz"
     if not path.exists():
-        from tlsvox.truth.synthetic import make_tree
+        from clsim.scenes import make_plot
 
-        log("building the synthetic oak's 0.2 m scene (once; cached)")
-        make_tree(seed=1).truth_scene(0.2).save(path)
+        log("building the default 30-tree plot at 0.5 m (once; cached)")
+        make_plot(seed=0, voxel_size=0.5).save(path)
     return path
 
 
 def make_job(scene_path, *, count: int, photons: int, batch: int, seed: int = 1, device=None):
     """The flight line over the scene's middle, long enough for ``count`` pulses."""
     from clsim.sensor import Sensor
+    from clsim.scenes import load_scene
     from clsim.survey import ScanPattern, SurveyJob, Trajectory, typical_flight
-    from voxlidar.scene import Scene
 
-    scene = Scene.load(scene_path)
+    scene = load_scene(scene_path)
     lo = np.asarray(scene.origin, float)
     hi = lo + scene.voxel_size * np.asarray(scene.shape)
     H, v = typical_flight(PRESET)
@@ -134,7 +134,7 @@ def noop_cost(client, n_tasks: int, in_flight: int) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default=None, help="scene file (default: the synthetic oak at 0.2 m)")
+    ap.add_argument("--scene", default=None, help="scene file (default: the 30-tree plot at 0.5 m)")
     ap.add_argument("--pulses", type=int, default=600, help="pulses of the rate runs")
     ap.add_argument("--batch", type=int, default=50, help="pulses per task in the rate runs")
     ap.add_argument("--photons", default="1000,5000", help="photons per pulse of the rate runs (comma list)")
@@ -168,10 +168,10 @@ def main(argv=None) -> int:
     log(f"scene {scene_path}; device {device}; load average {load0:.1f}")
 
     # -- 0. one pulse at a time (Simulator.run) against run_pulses, per pulse ----------------------
-    from voxlidar.scene import Scene
+    from clsim.scenes import load_scene
     from clsim.transport.setup import prepare_scene
 
-    scene = Scene.load(scene_path)
+    scene = load_scene(scene_path)
     per_pulse = {}
     for ph in photon_list:
         job0, _ = make_job(scene_path, count=args.overhead_pulses, photons=ph, batch=args.overhead_pulses)

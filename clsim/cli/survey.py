@@ -5,7 +5,7 @@ pattern); batches run on a local Dask cluster, a running Dask scheduler, or in
 a plain loop (``--workers 0``), each written to ``OUT/batches/`` as it
 finishes, so that running the same command again resumes a stopped run.  At
 the end the waveforms are written as LAS 1.4 (``OUT/survey.las`` with its
-``.wdp``) when :func:`clsim.survey.las.write_survey_las` is available.
+``.wdp``, :func:`clsim.survey.las.write_survey_las`) unless ``--no-las``.
 
 Examples
 --------
@@ -152,14 +152,10 @@ def cmd_survey(args) -> int:
     if args.no_las:
         say(f"survey: waveforms in {out / 'batches'} (one .npz per batch; clsim.survey.load_survey reads them)")
         return 0
-    try:
-        from clsim.survey.las import write_survey_las
-    except ImportError:
-        say(f"survey: no LAS written (clsim.survey.las is not in this version); the waveforms are in "
-            f"{out / 'batches'} (clsim.survey.load_survey reads them)")
-        return 0
+    from clsim.survey.las import write_survey_las
+
     wf = load_survey(out)
-    path = write_survey_las(out / "survey.las", job.pulses(), wf.waveform, t0_ns=wf.t0_ns, bin_ns=wf.bin_ns,
-                            sensor=sensor)
-    say(f"survey: wrote {path if path is not None else out / 'survey.las'}")
+    las, wdp = write_survey_las(out / "survey.las", job.pulses(), wf.waveform, t0_ns=wf.t0_ns, bin_ns=wf.bin_ns,
+                                sensor=sensor)
+    say(f"survey: wrote {las} (points: the decomposed returns) and {wdp.name} (the waveforms)")
     return 0
