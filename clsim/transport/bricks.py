@@ -14,6 +14,14 @@ Per voxel the pool stores ``(LAD, sigma_wood)``:
   ``p``: ``sigma_wood = -ln(1 - p) / h`` (p is capped at ``1 - 1e-6``); for
   ``"area_density"`` randomly oriented bark gives ``sigma_wood = 0.5 WAD``.
 
+Directional wood (``scene.wood_beta > 0`` somewhere; docs/method.md): a
+second pool ``wdir`` of the same rows holds ``(axis x, y, z, beta)`` per
+voxel, and ``sigma_wood`` above is the direction-averaged extinction, which
+the kernel scales by ``1 + beta (4 sin(psi) / pi - 1)`` along a direction at
+angle psi to the axis (:func:`wood_factor`; largest, ``wood_majorant_factor``,
+across the axis).  Scenes without directional wood have no ``wdir`` and are
+traced exactly as before.
+
 Examples
 --------
 >>> from clsim.validation.testscenes import homogeneous_layer
@@ -29,7 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from voxlidar.scene import Scene
 
-__all__ = ["BrickGrid", "build_bricks", "extinction", "BRICK", "WOOD_P_MAX"]
+__all__ = ["BrickGrid", "build_bricks", "extinction", "wood_direction", "wood_factor",
+           "wood_majorant_factor", "BRICK", "WOOD_P_MAX"]
 
 BRICK = 8
 WOOD_P_MAX = 1.0 - 1e-6
@@ -58,6 +67,31 @@ def extinction(scene: Scene, *, leaf_off: bool = False) -> tuple[np.ndarray, np.
     return lad, sw, flags
 
 
+def wood_direction(scene: Scene) -> np.ndarray | None:
+    """Per stored voxel ``(axis x, y, z, beta)`` float64, or None when no bark has a direction."""
+    if not scene.wood_directional:
+        return None
+    return np.column_stack([scene.wood_axis, scene.wood_beta]).astype(np.float64)
+
+
+def wood_factor(wdir: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Directional wood extinction over the direction-averaged one.
+
+    ``1 + beta (4 sin(psi) / pi - 1)`` for rows ``(axis, beta)`` of ``wdir``
+    (n, 4) and unit directions ``d`` (n, 3), psi the angle between them: a
+    cylinder side of area A seen at psi projects ``A sin(psi) / pi``, randomly
+    oriented facets ``A / 4`` (both averaged over directions give A / 4).
+    """
+    c = np.einsum("ij,ij->i", wdir[:, :3], d)
+    sin_psi = np.sqrt(np.maximum(0.0, 1.0 - c * c))
+    return 1.0 + wdir[:, 3] * (4.0 / np.pi * sin_psi - 1.0)
+
+
+def wood_majorant_factor(beta: np.ndarray) -> np.ndarray:
+    """Largest :func:`wood_factor` over directions: ``1 + beta (4 / pi - 1)`` (across the axis)."""
+    return 1.0 + np.asarray(beta) * (4.0 / np.pi - 1.0)
+
+
 @dataclass
 class BrickGrid:
     """Brick occupancy grid and pool (see module docstring).
@@ -73,6 +107,9 @@ class BrickGrid:
     pool : (n_bricks * brick**3, 2) float32
         ``(LAD, sigma_wood)`` per voxel; voxel (lx, ly, lz) of slot s is row
         ``s * brick**3 + lx + brick * (ly + brick * lz)``.
+    wdir : (n_bricks * brick**3, 4) float32 or None
+        ``(axis x, y, z, beta)`` per voxel, same rows as ``pool``; None when
+        the scene's wood has no direction (every ``beta`` 0).
     """
 
     brick: int
@@ -80,6 +117,7 @@ class BrickGrid:
     index: np.ndarray
     pool: np.ndarray
     flags: dict
+    wdir: np.ndarray | None = None
 
     @property
     def n_bricks(self) -> int:
@@ -87,7 +125,7 @@ class BrickGrid:
 
     @property
     def nbytes(self) -> int:
-        return self.index.nbytes + self.pool.nbytes
+        return self.index.nbytes + self.pool.nbytes + (0 if self.wdir is None else self.wdir.nbytes)
 
 
 def build_bricks(scene: Scene, *, leaf_off: bool = False, brick: int = BRICK) -> BrickGrid:
@@ -106,5 +144,11 @@ def build_bricks(scene: Scene, *, leaf_off: bool = False, brick: int = BRICK) ->
     row = slot * brick**3 + loc[:, 0] + brick * (loc[:, 1] + brick * loc[:, 2])
     pool = np.zeros((len(used) * brick**3, 2), dtype=np.float32)
     pool[row] = vals
+    wdir = None
+    wd = wood_direction(scene)
+    if wd is not None:
+        wdir = np.zeros((len(pool), 4), dtype=np.float32)
+        wdir[:, 2] = 1.0
+        wdir[row] = wd[keep]
     return BrickGrid(brick=brick, brick_shape=bshape.astype(np.int32), index=index, pool=pool,
-                     flags=flags)
+                     flags=flags, wdir=wdir)

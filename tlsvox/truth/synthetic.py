@@ -193,14 +193,24 @@ class SyntheticTree:
         shape = np.ceil((hi + margin - origin) / voxel_size).astype(int) + 1
         return origin, tuple(int(v) for v in shape)
 
-    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None):
+    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional"):
         """The voxel scene of the mesh's exact leaf area and wood (the turbid-medium twin).
 
         LAD = leaf area in the voxel / voxel volume.  Wood becomes a crossing
         probability: bark surfaces are closed convex cylinders, whose mean
         projected area over random directions is a quarter of their surface
-        (Cauchy), so sigma_wood = A_bark / (4 V) and the chance that a beam
-        crossing the whole voxel is stopped is ``1 - exp(-sigma_wood h)``.
+        (Cauchy), so the direction-averaged sigma_wood = A_bark / (4 V) and the
+        chance that a beam crossing the whole voxel is stopped, averaged over
+        directions, is ``1 - exp(-sigma_wood h)``.
+
+        ``wood_model="directional"`` (default) also gives each voxel its bark
+        axis and anisotropy (``wood_axis``, ``wood_beta``) from the bark
+        normals' area-weighted second moment
+        (:func:`tlsvox.truth.meshtruth.bark_direction`): the trunk and
+        scaffolds are upright cylinders, which a turbid medium of randomly
+        oriented facets overstates for oblique beams and understates across.
+        ``"isotropic"`` leaves them out (randomly oriented facets, as before
+        the directions existed).
 
         Returns
         -------
@@ -208,6 +218,10 @@ class SyntheticTree:
         """
         from voxlidar.scene import Scene
 
+        from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
+
+        if wood_model not in ("directional", "isotropic"):
+            raise InputError(f"wood_model={wood_model!r} must be 'directional' or 'isotropic'")
         origin, shape = self.truth_grid(voxel_size)
         kw = dict(origin=origin, voxel_size=voxel_size, shape=shape)
         leaf = self.leaf_area_per_voxel(**kw)
@@ -216,8 +230,20 @@ class SyntheticTree:
         ijk = np.argwhere((leaf > 0) | (bark > 0))
         lad = leaf[tuple(ijk.T)] / vol
         wood = 1.0 - np.exp(-bark[tuple(ijk.T)] / (4.0 * vol) * voxel_size)
+        wood_axis = wood_beta = None
+        if wood_model == "directional":
+            flat, area, mom = normal_moments_per_voxel(self.triangle_coords(Material.BARK), **kw)
+            axis, beta = bark_direction(area, mom)
+            keys = np.ravel_multi_index(ijk.T, shape)
+            pos = np.searchsorted(flat, keys)
+            found = pos < len(flat)
+            found[found] = flat[pos[found]] == keys[found]
+            wood_axis = np.tile([0.0, 0.0, 1.0], (len(ijk), 1))
+            wood_beta = np.zeros(len(ijk))
+            wood_axis[found] = axis[pos[found]]
+            wood_beta[found] = beta[pos[found]]
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
-                     wood_kind="probability", leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
+                     wood_kind="probability", wood_axis=wood_axis, wood_beta=wood_beta, leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
                      crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,
                      meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size})
 

@@ -138,3 +138,44 @@ def test_truth_scene_holds_the_leaf_area_and_wood():
     # trunk voxel at the base: bark surface of the trunk segment inside it
     i, j, k = np.floor((np.array([0.0, 0.0, 0.1]) - scene.origin) / 0.25).astype(int)
     assert scene.dense("wood")[i, j, k] > 0
+
+
+def test_bark_direction_of_a_cylinder_and_of_isotropic_facets(rng):
+    """An 8-sided cylinder's normals are all across its axis: beta = 1, the axis found;
+    a fine sphere's normals are isotropic: beta ~ 0 (a polyhedron's, up to its facets)."""
+    from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
+    from tlsvox.truth.synthetic import _cylinders_mesh
+
+    a = np.array([0.3, 0.4, 0.2])
+    d = np.array([0.2, -0.3, 0.93])
+    d /= np.linalg.norm(d)
+    v, t = _cylinders_mesh(np.array([[*a, *(a + 0.6 * d), 0.05]]))
+    flat, area, mom = normal_moments_per_voxel(v[t], origin=(0, 0, 0), voxel_size=1.0, shape=(1, 1, 1))
+    axis, beta = bark_direction(area, mom)
+    assert flat.tolist() == [0] and beta[0] == pytest.approx(1.0, abs=1e-9)
+    assert abs(axis[0] @ d) == pytest.approx(1.0, abs=1e-9) and axis[0, 2] >= 0
+    # unit sphere from a fine UV tessellation, scaled into one voxel
+    th, ph = np.meshgrid(np.linspace(0, np.pi, 61), np.linspace(0, 2 * np.pi, 121), indexing="ij")
+    p = 0.4 * np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1) + 0.5
+    q = np.concatenate([np.stack([p[:-1, :-1], p[1:, :-1], p[1:, 1:]], 2).reshape(-1, 3, 3),
+                        np.stack([p[:-1, :-1], p[1:, 1:], p[:-1, 1:]], 2).reshape(-1, 3, 3)])
+    _, area, mom = normal_moments_per_voxel(q, origin=(0, 0, 0), voxel_size=1.0, shape=(1, 1, 1))
+    assert area[0] == pytest.approx(4 * np.pi * 0.4**2, rel=2e-3)
+    assert bark_direction(area, mom)[1][0] < 0.01
+
+
+def test_truth_scene_gives_the_trunk_an_upright_axis():
+    """Directional wood of the twin: the trunk's voxels are cylinders (beta near 1) with a
+    near-vertical axis; wood_model='isotropic' leaves the directions out."""
+    tree = small_tree()
+    scene = tree.truth_scene(0.25)
+    i, j, k = np.floor((np.array([0.0, 0.0, 0.6]) - scene.origin) / 0.25).astype(int)
+    row = np.flatnonzero((scene.ijk == [i, j, k]).all(axis=1))
+    assert row.size == 1 and scene.wood[row[0]] > 0
+    assert scene.wood_beta[row[0]] > 0.9 and scene.wood_axis[row[0], 2] > 0.9
+    assert scene.wood_directional and np.all(scene.wood_beta[scene.wood == 0] == 0)
+    iso = tree.truth_scene(0.25, wood_model="isotropic")
+    assert not iso.wood_directional
+    np.testing.assert_array_equal(iso.wood, scene.wood)
+    with pytest.raises(InputError, match="wood_model"):
+        tree.truth_scene(0.25, wood_model="cylinders")
