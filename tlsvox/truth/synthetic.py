@@ -193,7 +193,44 @@ class SyntheticTree:
         shape = np.ceil((hi + margin - origin) / voxel_size).astype(int) + 1
         return origin, tuple(int(v) for v in shape)
 
-    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional"):
+    def solid_wood_voxels(self, *, origin, voxel_size, shape) -> tuple[np.ndarray, np.ndarray]:
+        """Voxels whose centre lies inside a bark cylinder, and that cylinder's axis.
+
+        Returns
+        -------
+        flat : (K,) int64
+            Sorted flat (C-order) indices of the voxels.
+        axis : (K, 3) float64
+            Unit axis (z >= 0) of the cylinder holding each centre (the last
+            one listed where cylinders overlap).
+        """
+        origin = np.asarray(origin, dtype=np.float64)
+        shape = tuple(int(v) for v in shape)
+        found = {}
+        for c in self.cylinders:
+            a, b, r = c[:3], c[3:6], float(c[6])
+            length = float(np.linalg.norm(b - a))
+            if length <= 0 or r <= 0:
+                continue
+            d = (b - a) / length
+            d = -d if d[2] < 0 else d
+            lo = np.maximum(np.floor((np.minimum(a, b) - r - origin) / voxel_size).astype(int), 0)
+            hi = np.minimum(np.floor((np.maximum(a, b) + r - origin) / voxel_size).astype(int), np.array(shape) - 1)
+            if np.any(hi < lo):
+                continue
+            g = np.stack(np.meshgrid(*[np.arange(lo[k], hi[k] + 1) for k in range(3)], indexing="ij"),
+                         -1).reshape(-1, 3)
+            x = origin + (g + 0.5) * voxel_size
+            t = np.clip((x - a) @ ((b - a) / length), 0.0, length)
+            inside = np.linalg.norm(x - (a + t[:, None] * ((b - a) / length)), axis=1) < r
+            for f in np.ravel_multi_index(g[inside].T, shape):
+                found[int(f)] = d
+        flat = np.array(sorted(found), dtype=np.int64)
+        axis = np.array([found[f] for f in flat.tolist()]).reshape(-1, 3)
+        return flat, axis
+
+    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional",
+                    solid_wood: bool = False):
         """The voxel scene of the mesh's exact leaf area and wood (the turbid-medium twin).
 
         LAD = leaf area in the voxel / voxel volume.  Wood becomes a crossing
@@ -212,6 +249,13 @@ class SyntheticTree:
         ``"isotropic"`` leaves them out (randomly oriented facets, as before
         the directions existed).
 
+        ``solid_wood=True`` also fills the inside of the solid cylinders: every
+        voxel whose centre lies inside one (:meth:`solid_wood_voxels`) becomes
+        opaque wood (probability ``1 - 1e-6``, the transport's cap) with the
+        cylinder's axis and ``beta = 1``.  Without it a trunk wider than a
+        voxel is a shell of bark voxels around empty ones, which a turbid
+        medium lets beams through (docs/method.md, directional wood).
+
         Returns
         -------
         tlsvox.Scene
@@ -227,9 +271,15 @@ class SyntheticTree:
         leaf = self.leaf_area_per_voxel(**kw)
         bark = self.bark_area_per_voxel(**kw)
         vol = voxel_size**3
-        ijk = np.argwhere((leaf > 0) | (bark > 0))
+        solid_flat, solid_axis = (self.solid_wood_voxels(**kw) if solid_wood
+                                  else (np.zeros(0, np.int64), np.zeros((0, 3))))
+        occupied = (leaf > 0) | (bark > 0)
+        occupied.reshape(-1)[solid_flat] = True
+        ijk = np.argwhere(occupied)
         lad = leaf[tuple(ijk.T)] / vol
         wood = 1.0 - np.exp(-bark[tuple(ijk.T)] / (4.0 * vol) * voxel_size)
+        solid = np.searchsorted(np.ravel_multi_index(ijk.T, shape), solid_flat)  # rows of the solid voxels
+        wood[solid] = 1.0 - 1e-6
         wood_axis = wood_beta = None
         if wood_model == "directional":
             flat, area, mom = normal_moments_per_voxel(self.triangle_coords(Material.BARK), **kw)
@@ -242,10 +292,14 @@ class SyntheticTree:
             wood_beta = np.zeros(len(ijk))
             wood_axis[found] = axis[pos[found]]
             wood_beta[found] = beta[pos[found]]
+            wood_axis[solid] = solid_axis
+            wood_beta[solid] = 1.0
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
-                     wood_kind="probability", wood_axis=wood_axis, wood_beta=wood_beta, leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
+                     wood_kind="probability", wood_axis=wood_axis, wood_beta=wood_beta,
+                     leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
                      crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,
-                     meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size})
+                     meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size,
+                           "wood_model": wood_model, "solid_wood": bool(solid_wood)})
 
     def bounds(self, *, vegetation_only: bool = True) -> np.ndarray:
         """(2, 3) lower/upper corner of the leaves and bark (or everything)."""

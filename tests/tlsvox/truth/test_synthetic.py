@@ -179,3 +179,25 @@ def test_truth_scene_gives_the_trunk_an_upright_axis():
     np.testing.assert_array_equal(iso.wood, scene.wood)
     with pytest.raises(InputError, match="wood_model"):
         tree.truth_scene(0.25, wood_model="cylinders")
+
+
+def test_solid_wood_fills_the_trunk():
+    """solid_wood=True: voxels whose centre lies inside a cylinder are opaque wood with the
+    cylinder's axis; the count matches the trunk's volume; the rest is unchanged."""
+    tree = small_tree()
+    h = 0.05
+    plain, solid = tree.truth_scene(h), tree.truth_scene(h, solid_wood=True)
+    origin, shape = tree.truth_grid(h)
+    flat, axis = tree.solid_wood_voxels(origin=origin, voxel_size=h, shape=shape)
+    c = tree.cylinders
+    volume = float(np.sum(np.pi * c[:, 6] ** 2 * np.linalg.norm(c[:, 3:6] - c[:, :3], axis=1)))
+    assert len(flat) * h**3 == pytest.approx(volume, rel=0.25)  # overlaps at joints, centre rule
+    rows = np.searchsorted(np.ravel_multi_index(solid.ijk.T, shape), flat)
+    assert np.all(solid.wood[rows] == pytest.approx(1 - 1e-6)) and np.all(solid.wood_beta[rows] == 1.0)
+    np.testing.assert_allclose(solid.wood_axis[rows], axis)
+    assert solid.total_leaf_area() == pytest.approx(plain.total_leaf_area(), rel=1e-12)
+    assert solid.meta["solid_wood"] and not plain.meta["solid_wood"]
+    # the trunk's centre line is solid, its axis upright
+    i, j, k = np.floor((np.array([0.0, 0.0, 0.5]) - origin) / h).astype(int)
+    row = np.flatnonzero((solid.ijk == [i, j, k]).all(axis=1))
+    assert row.size == 1 and solid.wood[row[0]] > 0.99 and solid.wood_axis[row[0], 2] > 0.99
