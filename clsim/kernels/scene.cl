@@ -94,6 +94,11 @@ CLSIM_INLINE size_t voxel_row(int3 v, int slot)
     return (size_t)slot * B3 + l.x + BRICK * (l.y + BRICK * l.z);
 }
 
+CLSIM_INLINE float2 voxel_value(int3 v, int slot, __global const float2 *pool)
+{
+    return pool[voxel_row(v, slot)];
+}
+
 /* Index along one axis after an empty-brick jump: the float32 position, but
  * never behind the current voxel (rounding could otherwise bounce the walk
  * between two bricks forever); on the exit axis, the neighbour's first voxel. */

@@ -18,9 +18,10 @@ Directional wood (``scene.wood_beta > 0`` somewhere; docs/method.md): a
 second pool ``wdir`` of the same rows holds ``(axis x, y, z, beta)`` per
 voxel, and ``sigma_wood`` above is the direction-averaged extinction, which
 the kernel scales by ``1 + beta (4 sin(psi) / pi - 1)`` along a direction at
-angle psi to the axis (:func:`wood_factor`; largest, ``wood_majorant_factor``,
-across the axis).  Scenes without directional wood have no ``wdir`` and are
-traced exactly as before.
+angle psi to the axis (largest across the axis, ``1 + beta (4 / pi - 1)``: the
+tracking majorant; kernels/transport.cl ``wood_parts``, ``wood_majorant``).
+Scenes without directional wood have no ``wdir`` and are traced exactly as
+before.
 
 Examples
 --------
@@ -37,8 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from voxlidar.scene import Scene
 
-__all__ = ["BrickGrid", "build_bricks", "extinction", "wood_direction", "wood_factor",
-           "wood_majorant_factor", "BRICK", "WOOD_P_MAX"]
+__all__ = ["BrickGrid", "build_bricks", "extinction", "wood_direction", "BRICK", "WOOD_P_MAX"]
 
 BRICK = 8
 WOOD_P_MAX = 1.0 - 1e-6
@@ -72,24 +72,6 @@ def wood_direction(scene: Scene) -> np.ndarray | None:
     if not scene.wood_directional:
         return None
     return np.column_stack([scene.wood_axis, scene.wood_beta]).astype(np.float64)
-
-
-def wood_factor(wdir: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Directional wood extinction over the direction-averaged one.
-
-    ``1 + beta (4 sin(psi) / pi - 1)`` for rows ``(axis, beta)`` of ``wdir``
-    (n, 4) and unit directions ``d`` (n, 3), psi the angle between them: a
-    cylinder side of area A seen at psi projects ``A sin(psi) / pi``, randomly
-    oriented facets ``A / 4`` (both averaged over directions give A / 4).
-    """
-    c = np.einsum("ij,ij->i", wdir[:, :3], d)
-    sin_psi = np.sqrt(np.maximum(0.0, 1.0 - c * c))
-    return 1.0 + wdir[:, 3] * (4.0 / np.pi * sin_psi - 1.0)
-
-
-def wood_majorant_factor(beta: np.ndarray) -> np.ndarray:
-    """Largest :func:`wood_factor` over directions: ``1 + beta (4 / pi - 1)`` (across the axis)."""
-    return 1.0 + np.asarray(beta) * (4.0 / np.pi - 1.0)
 
 
 @dataclass
