@@ -76,7 +76,16 @@ class Scene:
         Wood value per voxel, its meaning given by ``wood_kind``.
     wood_kind : {"probability", "area_density"}
         ``probability``: chance that a beam crossing the whole voxel is stopped
-        by wood; ``area_density``: wood (bark) area density, m2/m3.
+        by wood, averaged over directions; ``area_density``: wood (bark) area
+        density, m2/m3.
+    wood_axis : (M, 3) float, optional
+        Unit axis of each voxel's bark (sign free; default +z).
+    wood_beta : (M,) float in [0, 1], optional
+        Anisotropy of each voxel's bark: 0 (default) randomly oriented facets,
+        1 a cylinder side whose normals are all perpendicular to ``wood_axis``.
+        The wood extinction along a direction at angle psi to the axis is the
+        direction-averaged one times ``1 + beta (4 sin(psi) / pi - 1)``
+        (docs/method.md, "Directional wood").
     occluded : (M,) bool, optional
         Voxels whose LAD could not be estimated (too few beams).
     lad_std : (M,) float, optional
@@ -99,6 +108,8 @@ class Scene:
     lad: np.ndarray
     wood: np.ndarray | None = None
     wood_kind: str = "probability"
+    wood_axis: np.ndarray | None = None
+    wood_beta: np.ndarray | None = None
     occluded: np.ndarray | None = None
     lad_std: np.ndarray | None = None
     leaf_angle: LeafAngle = field(default_factory=LeafAngle)
@@ -133,6 +144,7 @@ class Scene:
                              "no canopy is that dense; a wrong unit, or leaf area per voxel instead of per m3?")
         self.wood = self._column("wood", self.wood, np.float64, m, default=0.0)
         self.occluded = self._column("occluded", self.occluded, bool, m, default=False)
+        self._wood_direction(m)
         if self.lad_std is not None:
             self.lad_std = self._column("lad_std", self.lad_std, np.float64, m)
         if self.wood_kind not in WOOD_KINDS:
@@ -145,6 +157,31 @@ class Scene:
         self.crown_center = np.asarray(self.crown_center, dtype=np.float64).reshape(2)
         if self.ground_z is not None:
             self.ground_z = float(self.ground_z)
+
+    def _wood_direction(self, m):
+        self.wood_beta = self._column("wood_beta", self.wood_beta, np.float64, m, default=0.0)
+        if np.any((self.wood_beta < 0) | (self.wood_beta > 1)):
+            raise InputError("wood_beta must lie in [0, 1] (0: randomly oriented bark, 1: a pure cylinder)")
+        if self.wood_axis is None:
+            self.wood_axis = np.tile([0.0, 0.0, 1.0], (m, 1))
+            return
+        a = np.asarray(self.wood_axis, dtype=np.float64)
+        if a.shape != (m, 3):
+            raise InputError(f"wood_axis must be one 3-vector per voxel: expected ({m}, 3), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise InputError("wood_axis contains NaN or inf; every value must be finite")
+        norm = np.linalg.norm(a, axis=1)
+        bad = (norm < 1e-6) & (self.wood_beta > 0)
+        if np.any(bad):
+            raise InputError(f"wood_axis has {int(bad.sum())} zero-length vectors where wood_beta > 0; "
+                             "give a unit bark axis there (or wood_beta = 0)")
+        a = np.where(norm[:, None] < 1e-6, [[0.0, 0.0, 1.0]], a / np.maximum(norm, 1e-300)[:, None])
+        self.wood_axis = a
+
+    @property
+    def wood_directional(self) -> bool:
+        """True when some voxel's bark has a direction (``wood_beta > 0``)."""
+        return bool(np.any(self.wood_beta > 0))
 
     @staticmethod
     def _column(name, values, dtype, m, default=None):
@@ -224,6 +261,9 @@ class Scene:
         )
         if self.lad_std is not None:
             arrays["lad_std"] = self.lad_std
+        if self.wood_directional:
+            arrays["wood_axis"] = self.wood_axis
+            arrays["wood_beta"] = self.wood_beta
 
         def write(tmp):
             with open(tmp, "wb") as fh:
@@ -270,6 +310,8 @@ class Scene:
                 lad=z["lad"],
                 wood=opt("wood", np.asarray),
                 wood_kind=opt("wood_kind", str, "probability"),
+                wood_axis=opt("wood_axis", np.asarray),
+                wood_beta=opt("wood_beta", np.asarray),
                 occluded=opt("occluded", np.asarray),
                 lad_std=opt("lad_std", np.asarray),
                 leaf_angle=opt("leaf_angle", lambda v: json.loads(str(v)), "uniform"),

@@ -20,6 +20,7 @@ typedef struct {
     int cbx, cby, cbz;    /* current brick cell */
     int slot;             /* its pool slot; WALK_LOOKUP: look it up before the next step */
     int fresh;            /* tm must be recomputed (start, or after a brick jump) */
+    size_t row;           /* pool row of the segment walker_next returned last */
 } walker_t;
 
 #define WALK_LOOKUP (-2)
@@ -86,10 +87,16 @@ CLSIM_INLINE int brick_slot(int3 v, __global const params_t *P, __global const i
     return index[b.x + P->bshape[0] * (b.y + P->bshape[1] * b.z)];
 }
 
-CLSIM_INLINE float2 voxel_value(int3 v, int slot, __global const float2 *pool)
+/* Pool row of voxel v in brick slot `slot` (also the row of the wood directions). */
+CLSIM_INLINE size_t voxel_row(int3 v, int slot)
 {
     const int3 l = v & (BRICK - 1);
-    return pool[(size_t)slot * B3 + l.x + BRICK * (l.y + BRICK * l.z)];
+    return (size_t)slot * B3 + l.x + BRICK * (l.y + BRICK * l.z);
+}
+
+CLSIM_INLINE float2 voxel_value(int3 v, int slot, __global const float2 *pool)
+{
+    return pool[voxel_row(v, slot)];
 }
 
 /* Index along one axis after an empty-brick jump: the float32 position, but
@@ -153,7 +160,8 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
             }
         }
         *steps += 1u;
-        const float2 e = voxel_value((int3)(w->vx, w->vy, w->vz), w->slot, pool);
+        const size_t row = voxel_row((int3)(w->vx, w->vy, w->vz), w->slot);
+        const float2 e = pool[row];
         const float t_a = w->t;
         int leave;
         float t_b;
@@ -181,18 +189,21 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
             *ta = t_a;
             *tb = t_b;
             *val = e;
+            w->row = row;
             return 1;
         }
     }
     return 0;
 }
 
-/* Extinction at a point (paper mode); sets *skip_t to the exit of an empty brick. */
+/* Extinction at a point (paper mode) and its pool row *row; sets *skip_t to the
+ * exit of an empty brick. */
 CLSIM_INLINE float2 point_value(float3 x, __global const params_t *P, __global const int *index,
-                          __global const float2 *pool, float3 o, float3 d, float *skip_t)
+                          __global const float2 *pool, float3 o, float3 d, float *skip_t, size_t *row)
 {
     const int3 v = convert_int3_rtn(x / P->h);
     *skip_t = -1.0f;
+    *row = 0;
     if (!inside_grid(v, P))
         return (float2)(0.0f);
     const int slot = brick_slot(v, P, index);
@@ -204,7 +215,8 @@ CLSIM_INLINE float2 point_value(float3 x, __global const params_t *P, __global c
                                     far_plane_t(c.z, sign_of(d.z), o.z, safe_inv(d.z), cell)));
         return (float2)(0.0f);
     }
-    return voxel_value(v, slot, pool);
+    *row = voxel_row(v, slot);
+    return pool[*row];
 }
 
 #endif

@@ -1,7 +1,8 @@
 /* Monte Carlo photon transport through a sparse voxel scene with a ground plane.
  * Physics and notation: docs/method.md.  NumPy float64 twin: clsim/transport_ref.py.
  * Compile-time constants (-D): MODE (0 exact, 1 paper), DETECT (0 nee, 1 analog),
- * BRICK, NTAB, NG, TRACE_EVENTS; CLSIM_ATOM64 where the device has 64-bit atomics. */
+ * WOOD_DIR (1: voxels carry bark directions, the wdir buffer), BRICK, NTAB, NG,
+ * TRACE_EVENTS; CLSIM_ATOM64 where the device has 64-bit atomics. */
 #include "common.cl"
 #include "params.cl"
 #include "philox.cl"
@@ -23,12 +24,96 @@ typedef struct {
     __global const float2 *pool;
     __global const float *ppf;
     __global const float *gtab;
+    __global const float4 *wdir; /* (axis, beta) per pool row; read only when WOOD_DIR */
 } scene_t;
 
 /* A leaf normal at x from the random numbers b.z, b.w (the scene's leaf angles and azimuths). */
 CLSIM_INLINE float3 scene_leaf_normal(const scene_t *S, float4 b, float3 x)
 {
     return leaf_normal(S->ppf, b.z, b.w, x, S->P->crown_c[0], S->P->crown_c[1], S->P->outward);
+}
+
+/* Directional wood (docs/method.md): the wood extinction along unit d of the
+ * voxel at pool row `row`, split into its cylinder part (.x, sw beta 4 sin(psi)/pi,
+ * psi the angle between d and the bark axis) and its random-facet part
+ * (.y, sw (1 - beta)); sw is the direction-averaged extinction the pool holds.
+ * Without directions (WOOD_DIR 0, a separate build) the parts are (0, sw)
+ * and the code folds to the direction-free kernel bit for bit. */
+#ifndef WOOD_DIR
+#define WOOD_DIR 0
+#endif
+#define WOOD_4_OVER_PI 1.27323954f
+
+CLSIM_INLINE float2 wood_parts(const scene_t *S, size_t row, float sw, float3 d)
+{
+#if !WOOD_DIR
+    return (float2)(0.0f, sw);
+#else
+    const float4 q = S->wdir[row];
+    const float c = fast_dot((float3)(q.x, q.y, q.z), d);
+    const float sin_psi = fast_sqrt(fast_max(0.0f, 1.0f - c * c));
+    return (float2)(sw * q.w * WOOD_4_OVER_PI * sin_psi, sw * (1.0f - q.w));
+#endif
+}
+
+/* The wood extinction along d (sum of the parts). */
+CLSIM_INLINE float wood_sigma(const scene_t *S, size_t row, float sw, float3 d)
+{
+#if !WOOD_DIR
+    return sw;
+#else
+    const float2 p = wood_parts(S, row, sw, d);
+    return p.x + p.y;
+#endif
+}
+
+/* Largest wood extinction over directions (across the axis): the tracker's majorant. */
+CLSIM_INLINE float wood_majorant(const scene_t *S, size_t row, float sw)
+{
+#if !WOOD_DIR
+    return sw;
+#else
+    const float beta = S->wdir[row].w;
+    return sw * beta * WOOD_4_OVER_PI + sw * (1.0f - beta);
+#endif
+}
+
+/* A tentative collision at y = xi' sigma_maj - LAD (>= 0) in the wood share of
+ * the majorant: 1 for a real wood hit (*cyl: on the cylinder part), 0 for a
+ * null collision.  Without directions every such collision is wood. */
+CLSIM_INLINE int wood_hit(const scene_t *S, size_t row, float sw, float3 d, float y, int *cyl)
+{
+    *cyl = 0;
+#if !WOOD_DIR
+    return 1;
+#else
+    const float2 p = wood_parts(S, row, sw, d);
+    *cyl = y < p.x;
+    return y < p.x + p.y;
+#endif
+}
+
+/* Normal of a wood element hit from d, facing -d, weighted by |n . d|: on the
+ * cylinder part perpendicular to the voxel's bark axis a (n = -cos(phi) u +
+ * sin(phi) v, u the unit part of d across a, v = a x u, sin(phi) = 2 u1 - 1);
+ * random facets: cosine-weighted about -d. */
+CLSIM_INLINE float3 wood_normal(const scene_t *S, size_t row, float3 d, int cyl, float u1, float u2)
+{
+#if WOOD_DIR
+    if (cyl) {
+        const float4 q = S->wdir[row];
+        const float3 a = (float3)(q.x, q.y, q.z);
+        const float3 p = d - a * fast_dot(a, d);
+        const float l2 = fast_dot(p, p);
+        if (l2 > 1.0e-12f) {
+            const float3 u = p * (1.0f / fast_sqrt(l2));
+            const float s = 2.0f * u1 - 1.0f;
+            const float c = fast_sqrt(fast_max(0.0f, 1.0f - s * s));
+            return s * cross(a, u) - c * u;
+        }
+    }
+#endif
+    return cosine_dir(-d, u1, u2);
 }
 
 /* The paper's interception probability of one step ds through LAD u with leaf normal nl. */
@@ -74,6 +159,7 @@ typedef struct {
     float tk;  /* the current step point: distance, */
     float3 x;  /* position */
     float2 e;  /* and the voxel's LAD and wood extinction there */
+    size_t row; /* its pool row */
 } stepper_t;
 
 /* Clip [0, t_limit] to the grid; 0 when the ray misses it. */
@@ -95,7 +181,8 @@ CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d
         const float t = (float)p->k * p->ds;
         const float3 xk = o + d * t;
         float skip;
-        const float2 v = point_value(xk, S->P, S->index, S->pool, o, d, &skip);
+        size_t row;
+        const float2 v = point_value(xk, S->P, S->index, S->pool, o, d, &skip, &row);
         *steps += 1u;
         if (skip >= 0.0f) {
             p->k = max(p->k + 1, (int)floor(skip / p->ds) + 1);
@@ -106,6 +193,7 @@ CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d
             p->tk = t;
             p->x = xk;
             p->e = v;
+            p->row = row;
             return 1;
         }
     }
@@ -119,7 +207,8 @@ CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d
 typedef struct {
     walker_t w;
     float ta, tb, tau; /* current voxel segment; optical depth left */
-    float2 e;          /* its LAD and wood extinction */
+    float2 e;          /* its LAD and (direction-averaged) wood extinction */
+    float wmaj;        /* its wood majorant (wood_majorant) */
     int live;          /* a segment is loaded */
 } tracker_t;
 
@@ -138,9 +227,10 @@ CLSIM_INLINE int tracker_next(tracker_t *k, const scene_t *S, float *tc, uint *s
         if (!k->live) {
             if (!walker_next(&k->w, S->P, S->index, S->pool, &k->ta, &k->tb, &k->e, steps))
                 return 0;
+            k->wmaj = wood_majorant(S, k->w.row, k->e.y);
             k->live = 1;
         }
-        const float sig = k->e.x + k->e.y;
+        const float sig = k->e.x + k->wmaj;
         const float opt = sig * (k->tb - k->ta);
         if (opt <= k->tau) {
             k->tau -= opt;
@@ -166,18 +256,22 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
     if (tracker_init(&k, o, d, tg, neg_log_unit(b.x), P)) {
         float tc;
         while (tracker_next(&k, S, &tc, steps)) {
-            const float sig = k.e.x + k.e.y;
+            const float sig = k.e.x + k.wmaj;
             const float3 x = o + d * tc;
-            if (b.y * sig >= k.e.x) { /* wood: randomly oriented, facing normal */
-                *n = cosine_dir(-d, b.z, b.w);
-                *t = tc;
-                return EV_WOOD;
-            }
-            const float3 nl = scene_leaf_normal(S, b, x);
-            if (b.y * sig < k.e.x * fast_abs(fast_dot(nl, d))) {
-                *n = nl;
-                *t = tc;
-                return EV_LEAF;
+            if (b.y * sig >= k.e.x) { /* wood share of the majorant */
+                int cyl;
+                if (wood_hit(S, k.w.row, k.e.y, d, b.y * sig - k.e.x, &cyl)) {
+                    *n = wood_normal(S, k.w.row, d, cyl, b.z, b.w);
+                    *t = tc;
+                    return EV_WOOD;
+                }
+            } else {
+                const float3 nl = scene_leaf_normal(S, b, x);
+                if (b.y * sig < k.e.x * fast_abs(fast_dot(nl, d))) {
+                    *n = nl;
+                    *t = tc;
+                    return EV_LEAF;
+                }
             }
             b = rng_next(rng); /* null collision */
             k.tau = neg_log_unit(b.x);
@@ -195,9 +289,11 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                 *t = p.tk;
                 return EV_LEAF;
             }
-            if (b.y < -expm1(-p.e.y * ds)) {
+            const float2 wp = wood_parts(S, p.row, p.e.y, d);
+            const float sw = wood_sigma(S, p.row, p.e.y, d);
+            if (b.y < -expm1(-sw * ds)) {
                 const float4 b2 = rng_next(rng);
-                *n = cosine_dir(-d, b2.z, b2.w);
+                *n = wood_normal(S, p.row, d, b2.y * sw < wp.x, b2.z, b2.w);
                 *t = p.tk;
                 return EV_WOOD;
             }
@@ -232,7 +328,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
         const float gd = g_of(S->gtab, d.z);
         float od = 0.0f;
         while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
-            od += (e.x * gd + e.y) * (tb - ta);
+            od += (e.x * gd + wood_sigma(S, w.row, e.y, d)) * (tb - ta);
             if (od > 40.0f)
                 return 0.0f;
         }
@@ -244,10 +340,10 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
         return T;
     float tc;
     while (tracker_next(&k, S, &tc, steps)) {
-        const float sig = k.e.x + k.e.y;
+        const float sig = k.e.x + k.wmaj;
         const float3 x = o + d * tc;
         const float3 nl = scene_leaf_normal(S, b, x);
-        T *= 1.0f - (k.e.x * fast_abs(fast_dot(nl, d)) + k.e.y) / sig;
+        T *= 1.0f - (k.e.x * fast_abs(fast_dot(nl, d)) + wood_sigma(S, k.w.row, k.e.y, d)) / sig;
         if (T < RR_THRESHOLD) {
             if (b.y * RR_SURVIVE < T)
                 T = RR_SURVIVE;
@@ -265,7 +361,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
     while (stepper_next(&p, S, o, d, steps)) {
         const float4 b = rng_next(rng);
         const float3 nl = scene_leaf_normal(S, b, p.x);
-        T *= (1.0f - paper_leaf_prob(p.e.x, nl, d, ds)) * exp(-p.e.y * ds);
+        T *= (1.0f - paper_leaf_prob(p.e.x, nl, d, ds)) * exp(-wood_sigma(S, p.row, p.e.y, d) * ds);
         if (T < RR_THRESHOLD) {
             if (b.y * RR_SURVIVE < T)
                 T = RR_SURVIVE;
@@ -297,7 +393,7 @@ CLSIM_INLINE void record(__global float4 *trace, ulong pid, int k, float3 x, int
 
 __kernel void simulate(__global const params_t *P, __global const int *index,
                        __global const float2 *pool, __global const float *ppf,
-                       __global const float *gtab, __global ulong *hist, __global ulong *stats, __global float4 *trace,
+                       __global const float *gtab, __global const float4 *wdir, __global ulong *hist, __global ulong *stats, __global float4 *trace,
                        uint2 key, ulong pid0, uint n)
 {
     const uint gid = get_global_id(0);
@@ -306,7 +402,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     const ulong pid = pid0 + gid;
     const uint batch = (uint)(pid % (ulong)P->n_batches);
     __global ulong *st = stats + batch * NSTAT;
-    const scene_t S = {P, index, pool, ppf, gtab};
+    const scene_t S = {P, index, pool, ppf, gtab, wdir};
     rng_t rng;
     rng_init(&rng, key, pid);
 

@@ -14,6 +14,15 @@ Per voxel the pool stores ``(LAD, sigma_wood)``:
   ``p``: ``sigma_wood = -ln(1 - p) / h`` (p is capped at ``1 - 1e-6``); for
   ``"area_density"`` randomly oriented bark gives ``sigma_wood = 0.5 WAD``.
 
+Directional wood (``scene.wood_beta > 0`` somewhere; docs/method.md): a
+second pool ``wdir`` of the same rows holds ``(axis x, y, z, beta)`` per
+voxel, and ``sigma_wood`` above is the direction-averaged extinction, which
+the kernel scales by ``1 + beta (4 sin(psi) / pi - 1)`` along a direction at
+angle psi to the axis (largest across the axis, ``1 + beta (4 / pi - 1)``: the
+tracking majorant; kernels/transport.cl ``wood_parts``, ``wood_majorant``).
+Scenes without directional wood have no ``wdir`` and are traced exactly as
+before.
+
 Examples
 --------
 >>> from clsim.validation.testscenes import homogeneous_layer
@@ -29,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from voxlidar.scene import Scene
 
-__all__ = ["BrickGrid", "build_bricks", "extinction", "BRICK", "WOOD_P_MAX"]
+__all__ = ["BrickGrid", "build_bricks", "extinction", "wood_direction", "BRICK", "WOOD_P_MAX"]
 
 BRICK = 8
 WOOD_P_MAX = 1.0 - 1e-6
@@ -58,6 +67,13 @@ def extinction(scene: Scene, *, leaf_off: bool = False) -> tuple[np.ndarray, np.
     return lad, sw, flags
 
 
+def wood_direction(scene: Scene) -> np.ndarray | None:
+    """Per stored voxel ``(axis x, y, z, beta)`` float64, or None when no bark has a direction."""
+    if not scene.wood_directional:
+        return None
+    return np.column_stack([scene.wood_axis, scene.wood_beta]).astype(np.float64)
+
+
 @dataclass
 class BrickGrid:
     """Brick occupancy grid and pool (see module docstring).
@@ -73,6 +89,9 @@ class BrickGrid:
     pool : (n_bricks * brick**3, 2) float32
         ``(LAD, sigma_wood)`` per voxel; voxel (lx, ly, lz) of slot s is row
         ``s * brick**3 + lx + brick * (ly + brick * lz)``.
+    wdir : (n_bricks * brick**3, 4) float32 or None
+        ``(axis x, y, z, beta)`` per voxel, same rows as ``pool``; None when
+        the scene's wood has no direction (every ``beta`` 0).
     """
 
     brick: int
@@ -80,6 +99,7 @@ class BrickGrid:
     index: np.ndarray
     pool: np.ndarray
     flags: dict
+    wdir: np.ndarray | None = None
 
     @property
     def n_bricks(self) -> int:
@@ -87,7 +107,7 @@ class BrickGrid:
 
     @property
     def nbytes(self) -> int:
-        return self.index.nbytes + self.pool.nbytes
+        return self.index.nbytes + self.pool.nbytes + (0 if self.wdir is None else self.wdir.nbytes)
 
 
 def build_bricks(scene: Scene, *, leaf_off: bool = False, brick: int = BRICK) -> BrickGrid:
@@ -106,5 +126,11 @@ def build_bricks(scene: Scene, *, leaf_off: bool = False, brick: int = BRICK) ->
     row = slot * brick**3 + loc[:, 0] + brick * (loc[:, 1] + brick * loc[:, 2])
     pool = np.zeros((len(used) * brick**3, 2), dtype=np.float32)
     pool[row] = vals
+    wdir = None
+    wd = wood_direction(scene)
+    if wd is not None:
+        wdir = np.zeros((len(pool), 4), dtype=np.float32)
+        wdir[:, 2] = 1.0
+        wdir[row] = wd[keep]
     return BrickGrid(brick=brick, brick_shape=bshape.astype(np.int32), index=index, pool=pool,
-                     flags=flags)
+                     flags=flags, wdir=wdir)

@@ -23,7 +23,7 @@ import numpy as np
 
 from voxlidar.scene import Scene
 
-from clsim.transport.bricks import extinction
+from clsim.transport.bricks import extinction, wood_direction
 from clsim.errors import InputError
 from clsim.transport.rng import uniforms
 from clsim.transport.result import SimulationResult, assemble_result
@@ -54,6 +54,47 @@ def cosine_dir(m, u1, u2):
     v = (r * np.cos(ph))[:, None] * b1 + (r * np.sin(ph))[:, None] * b2 \
         + np.sqrt(np.maximum(0.0, 1.0 - u1))[:, None] * m
     return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def wood_parts(q, sw, d):
+    """Directional wood extinction along unit ``d`` (n, 3): (cylinder part, random-facet part).
+
+    ``q`` (n, 4) holds ``(bark axis, beta)`` per row, or is None (no directions:
+    the parts are ``(0, sw)``); ``sw`` (n,) is the direction-averaged extinction.
+    The kernel's ``wood_parts`` (docs/method.md, directional wood)."""
+    if q is None:
+        return np.zeros_like(sw), sw
+    c = row_dot(q[:, :3], d)
+    sin_psi = np.sqrt(np.maximum(0.0, 1.0 - c * c))
+    return sw * q[:, 3] * (4.0 / np.pi) * sin_psi, sw * (1.0 - q[:, 3])
+
+
+def wood_majorant(q, sw):
+    """Largest wood extinction over directions, ``sw (beta 4 / pi + 1 - beta)`` (kernel ``wood_majorant``)."""
+    if q is None:
+        return sw
+    return sw * q[:, 3] * (4.0 / np.pi) + sw * (1.0 - q[:, 3])
+
+
+def wood_normal(q, d, cyl, u1, u2):
+    """Normals of wood elements hit from ``d``, facing ``-d``, weighted by ``|n . d|``.
+
+    Rows with ``cyl`` lie on the cylinder part, perpendicular to the bark axis
+    (``n = -cos(phi) u + sin(phi) a x u``, ``sin(phi) = 2 u1 - 1``); the rest are
+    random facets, cosine-weighted about ``-d`` (kernel ``wood_normal``)."""
+    n = cosine_dir(-d, u1, u2)
+    if q is None or not np.any(cyl):
+        return n
+    a = q[:, :3]
+    p = d - a * row_dot(a, d)[:, None]
+    l2 = row_dot(p, p)
+    use = cyl & (l2 > 1e-12)
+    if use.any():
+        u = p[use] / np.sqrt(l2[use])[:, None]
+        s = 2.0 * u1[use] - 1.0
+        c = np.sqrt(np.maximum(0.0, 1.0 - s * s))
+        n[use] = s[:, None] * np.cross(a[use], u) - c[:, None] * u
+    return n
 
 
 def row_dot(a, b):
@@ -105,6 +146,12 @@ class _Transport:
         i, j, k = sc.ijk.T
         self.ext[i, j, k, 0] = lad
         self.ext[i, j, k, 1] = sw
+        wd = wood_direction(sc)
+        self.wdir = None
+        if wd is not None:  # float32 as on the device
+            self.wdir = np.zeros(tuple(sc.shape) + (4,))
+            self.wdir[..., 2] = 1.0
+            self.wdir[i, j, k] = wd.astype(np.float32)
         self.shape = np.asarray(sc.shape)
         self.h = sc.voxel_size
         self.L = self.shape * self.h
@@ -174,6 +221,12 @@ class _Transport:
         e = self.ext[vc[:, 0], vc[:, 1], vc[:, 2]]
         return np.where(inside[:, None], e, 0.0), inside
 
+    def wood_dir(self, v):
+        """(axis, beta) of voxels v (inside the grid), or None for a scene without directions."""
+        if self.wdir is None:
+            return None
+        return self.wdir[v[:, 0], v[:, 1], v[:, 2]]
+
     # -- free flight / transmittance -------------------------------------------------
     def walk(self, o, d, t_lim, idx, shadow):
         """Exact: delta tracking (flight) or ratio tracking (shadow).  Paper: fixed steps.
@@ -211,7 +264,8 @@ class _Transport:
                 ax = np.argmin(tf, axis=1)
                 tb = np.minimum(tf[np.arange(act.size), ax], t1[act])
                 ta = t[act]
-                sig = e[:, 0] + e[:, 1]
+                q = self.wood_dir(vi)
+                sig = e[:, 0] + wood_majorant(q, e[:, 1])
                 opt = sig * np.maximum(tb - ta, 0.0)
                 coll = (sig > 0) & (tb > ta) & (opt > tau[act])
                 # segments without collision: advance
@@ -226,23 +280,28 @@ class _Transport:
                 ic = act[coll]
                 if ic.size:
                     sg, ec = sig[coll], e[coll]
+                    qc = None if q is None else q[coll]
                     tc = ta[coll] + tau[ic] / sg
                     x = o[ic] + d[ic] * tc[:, None]
                     bb = b[ic]
                     nl = self.leaf_normal(bb[:, 2], bb[:, 3], x)
                     cosn = np.abs(row_dot(nl, d[ic]))
+                    wc, wr = wood_parts(qc, ec[:, 1], d[ic])
                     if shadow:
-                        T[ic] *= 1.0 - (ec[:, 0] * cosn + ec[:, 1]) / sg
+                        T[ic] *= 1.0 - (ec[:, 0] * cosn + wc + wr) / sg
                         low = T[ic] < RR_THRESHOLD
                         surv = bb[:, 1] * RR_SURVIVE < T[ic]
                         T[ic] = np.where(low, np.where(surv, RR_SURVIVE, 0.0), T[ic])
                         stop = low & ~surv
                     else:
-                        wood = bb[:, 1] * sg >= ec[:, 0]
-                        leaf = ~wood & (bb[:, 1] * sg < ec[:, 0] * cosn)
+                        y = bb[:, 1] * sg - ec[:, 0]
+                        in_wood = y >= 0
+                        wood = in_wood if q is None else in_wood & (y < wc + wr)
+                        leaf = ~in_wood & (bb[:, 1] * sg < ec[:, 0] * cosn)
                         stop = wood | leaf
                         ev[ic[wood]] = WOOD
-                        nrm[ic[wood]] = cosine_dir(-d[ic[wood]], bb[wood, 2], bb[wood, 3])
+                        nrm[ic[wood]] = wood_normal(None if qc is None else qc[wood], d[ic[wood]],
+                                                    (y < wc)[wood], bb[wood, 2], bb[wood, 3])
                         ev[ic[leaf]] = LEAF
                         nrm[ic[leaf]] = nl[leaf]
                         tev[ic[stop]] = tc[stop]
@@ -263,19 +322,22 @@ class _Transport:
                     break
                 tk = k[act] * ds
                 x = o[act] + d[act] * tk[:, None]
-                e, _ = self.value(np.floor(x / self.h).astype(np.int64))
+                vx = np.floor(x / self.h).astype(np.int64)
+                e, _ = self.value(vx)
                 self.steps += act.size
                 nz = (e[:, 0] + e[:, 1]) > 0
                 stop = np.zeros(act.size, bool)
                 if nz.any():
                     iz = act[nz]
                     ez, xz = e[nz], x[nz]
+                    qz = self.wood_dir(vx[nz])  # non-zero voxels lie inside the grid
+                    wc, wr = wood_parts(qz, ez[:, 1], d[iz])
                     bb = self.draw(idx[iz])
                     nl = self.leaf_normal(bb[:, 2], bb[:, 3], xz)
                     pl = np.minimum(1.0, ez[:, 0] * np.abs(row_dot(nl, d[iz])) * ds)
-                    pw = -np.expm1(-ez[:, 1] * ds)
+                    pw = -np.expm1(-(wc + wr) * ds)
                     if shadow:
-                        T[iz] *= (1.0 - pl) * np.exp(-ez[:, 1] * ds)
+                        T[iz] *= (1.0 - pl) * np.exp(-(wc + wr) * ds)
                         low = T[iz] < RR_THRESHOLD
                         surv = bb[:, 1] * RR_SURVIVE < T[iz]
                         T[iz] = np.where(low, np.where(surv, RR_SURVIVE, 0.0), T[iz])
@@ -289,7 +351,9 @@ class _Transport:
                             iw = iz[wood]
                             b2 = self.draw(idx[iw])
                             ev[iw] = WOOD
-                            nrm[iw] = cosine_dir(-d[iw], b2[:, 2], b2[:, 3])
+                            cyl = b2[:, 1] * (wc + wr)[wood] < wc[wood]
+                            nrm[iw] = wood_normal(None if qz is None else qz[wood], d[iw], cyl,
+                                                  b2[:, 2], b2[:, 3])
                         st = leaf | wood
                         tev[iz[st]] = tk[nz][st]
                     stop[nz] = st
@@ -333,7 +397,8 @@ class _Transport:
                 tf = np.where(sa == 0, np.inf, ((vi + (sa > 0)) * self.h - o[act]) / d[act])
             ax = np.argmin(tf, axis=1)
             tb = np.minimum(tf[np.arange(act.size), ax], t1[act])
-            od[act] += (e[:, 0] * gd[act] + e[:, 1]) * np.maximum(tb - t[act], 0.0)
+            wc, wr = wood_parts(self.wood_dir(vi), e[:, 1], d[act])
+            od[act] += (e[:, 0] * gd[act] + wc + wr) * np.maximum(tb - t[act], 0.0)
             t[act] = np.maximum(t[act], tb)
             vox[act, ax] += sa[np.arange(act.size), ax]
             act = act[(t[act] < t1[act]) & (od[act] <= 40.0)]

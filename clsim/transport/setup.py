@@ -275,7 +275,8 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
         range_ref_m=R_ref, optics={k: list(v) for k, v in optics.items()},
         scene=dict(origin=lo.tolist(), voxel_size=scene.voxel_size, shape=list(scene.shape),
                    n_voxels=scene.n_voxels, leaf_angle=scene.leaf_angle.to_dict(),
-                   leaf_azimuth=scene.leaf_azimuth, ground_z=ground, meta=scene.meta),
+                   leaf_azimuth=scene.leaf_azimuth, ground_z=ground, meta=scene.meta,
+                   wood_directional=bricks.wdir is not None),
     )
     return RunSetup(scene=scene, sensor=sensor, mode=mode, detect=detect, photons=photons,
                     seed=int(seed), max_order=max_order, batches=batches, leaf_off=bool(leaf_off),

@@ -47,8 +47,12 @@ def working_devices() -> list[DeviceInfo]:
 
 
 def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = None,
-                  fast_math: bool = True) -> list[str]:
+                  fast_math: bool = True, wood_dir: bool = False) -> list[str]:
     """``-D`` options of the transport kernel for a device, mode and detection.
+
+    ``wood_dir`` builds the variant that reads each voxel's bark direction
+    (scenes with ``wood_beta > 0``); without it the kernel is the
+    direction-free one, bit for bit.
 
     ``-cl-fast-relaxed-math`` is safe: the kernels create no infinity or NaN
     (kernels/common.cl).  64-bit atomics are used where the device has them
@@ -58,7 +62,7 @@ def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = No
     use64 = info.int64_atomics if atomics64 is None else bool(atomics64) and info.int64_atomics
     opts = [f"-DMODE={1 if mode is Mode.PAPER else 0}", f"-DDETECT={1 if detect is Detect.ANALOG else 0}",
             f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}", f"-DNTAB={NTAB}", f"-DNG={NG}",
-            f"-DTRACE_EVENTS={TRACE_EVENTS}"]
+            f"-DTRACE_EVENTS={TRACE_EVENTS}", f"-DWOOD_DIR={int(bool(wood_dir))}"]
     opts += ["-cl-fast-relaxed-math"] if fast_math else ["-cl-mad-enable", "-cl-no-signed-zeros"]
     if use64:
         opts.append("-DCLSIM_ATOM64")
@@ -138,13 +142,13 @@ class Simulator:
     def device_name(self) -> str:
         return self.info.label
 
-    def program(self, mode: Mode, detect: Detect):
-        """(program, kernel) built for a mode and detection (cached per Simulator)."""
-        key = (Mode.parse(mode, "mode"), Detect.parse(detect, "detect"))
+    def program(self, mode: Mode, detect: Detect, wood_dir: bool = False):
+        """(program, kernel) built for a mode, detection and wood model (cached per Simulator)."""
+        key = (Mode.parse(mode, "mode"), Detect.parse(detect, "detect"), bool(wood_dir))
         if key not in self._programs:
             src, inc = _kernel_source()
             opts = [inc] + build_options(self.info, key[0], key[1], atomics64=self.atomics64,
-                                         fast_math=self.fast_math)
+                                         fast_math=self.fast_math, wood_dir=key[2])
             t0 = time.perf_counter()
             try:
                 prg = build_program(self.context, src, opts)
@@ -291,6 +295,8 @@ class Simulator:
                 pool=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(pool)),
                 ppf=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.ppf.astype(np.float32)),
                 gtab=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.gtab.astype(np.float32)),
+                wdir=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(
+                    g.wdir if g.wdir is not None else np.zeros((1, 4), np.float32))),
             )
         except cl.Error as err:
             raise DeviceError(f"cannot upload the scene ({g.nbytes / 2**20:.0f} MiB of bricks) to "
@@ -316,7 +322,7 @@ class Simulator:
         ``hist`` (B, K, 2, F) uint64, ``stats``, ``traces`` (not read back with ``hist_only``)
         and the seconds the kernel took."""
         cl = self._cl
-        _, kern = self.program(setup.mode, setup.detect)
+        _, kern = self.program(setup.mode, setup.detect, setup.bricks.wdir is not None)
         ctx, q = self.context, self.queue
         mf = cl.mem_flags
         p = setup.p
@@ -346,7 +352,7 @@ class Simulator:
             for start in range(0, setup.photons, chunk):
                 n = min(chunk, setup.photons - start)
                 kern(q, (n,), self.local_size, bufs["params"], bufs["index"], bufs["pool"], bufs["ppf"],
-                     bufs["gtab"], hist_buf, stats_buf, trace_buf, key, np.uint64(start), np.uint32(n))
+                     bufs["gtab"], bufs["wdir"], hist_buf, stats_buf, trace_buf, key, np.uint64(start), np.uint32(n))
                 if bar is not None:
                     q.finish()
                     bar.update(n)

@@ -117,3 +117,34 @@ def test_vox_refuses_a_grid_it_would_list_in_gigabytes(tmp_path):
     with pytest.raises(InputError, match="lists every voxel of the grid: 300 x 300 x 300"):
         write_vox(scene, tmp_path / "big.vox")
     assert not (tmp_path / "big.vox").exists()
+
+
+def test_wood_directions_round_trip_and_default(scene, tmp_path):
+    """Bark axes and anisotropy survive save/load; a scene without them is isotropic
+    (beta 0, axis +z) and writes no such keys, so old files read as before."""
+    assert not scene.wood_directional and np.all(scene.wood_beta == 0)
+    np.testing.assert_array_equal(scene.wood_axis, np.tile([0.0, 0.0, 1.0], (scene.n_voxels, 1)))
+    with np.load(scene.save(tmp_path / "iso.npz")) as z:
+        assert "wood_axis" not in z and "wood_beta" not in z
+    rng = np.random.default_rng(4)
+    axis = rng.normal(size=(scene.n_voxels, 3))
+    scene.wood_axis = axis * 3.0  # any length: stored as unit vectors
+    scene.wood_beta = rng.uniform(0, 1, scene.n_voxels)
+    scene.__post_init__()
+    np.testing.assert_allclose(np.linalg.norm(scene.wood_axis, axis=1), 1.0)
+    back = Scene.load(scene.save(tmp_path / "dir.npz"))
+    assert back.wood_directional
+    np.testing.assert_allclose(back.wood_axis, scene.wood_axis, rtol=1e-12)
+    np.testing.assert_allclose(back.wood_beta, scene.wood_beta, rtol=1e-12)
+
+
+@pytest.mark.parametrize("kw, word", [
+    (dict(wood_beta=[1.5]), "wood_beta must lie in"),
+    (dict(wood_beta=[0.5, 0.5]), "wood_beta must have one value per voxel"),
+    (dict(wood_beta=[0.5], wood_axis=[[0.0, 0.0, 0.0]]), "zero-length"),
+    (dict(wood_axis=[0.0, 0.0, 1.0, 0.0]), r"wood_axis must be one 3-vector per voxel"),
+    (dict(wood_axis=[[np.nan, 0.0, 1.0]]), "NaN"),
+])
+def test_bad_wood_directions(kw, word):
+    with pytest.raises(InputError, match=word):
+        Scene(origin=(0, 0, 0), voxel_size=1.0, shape=(1, 1, 1), ijk=[[0, 0, 0]], lad=[0.0], wood=[0.3], **kw)

@@ -20,7 +20,8 @@ import numpy as np
 
 from tlsvox.errors import InputError
 
-__all__ = ["area_per_voxel", "triangle_areas", "split_triangles_on_grid"]
+__all__ = ["area_per_voxel", "normal_moments_per_voxel", "bark_direction", "triangle_areas",
+           "split_triangles_on_grid"]
 
 
 def triangle_areas(tris: np.ndarray) -> np.ndarray:
@@ -111,3 +112,74 @@ def area_per_voxel(tris, *, origin, voxel_size, shape, chunk: int = 200_000) -> 
         flat = np.ravel_multi_index(ijk[inside].T, shape)
         out += np.bincount(flat, weights=area[inside], minlength=out.size)
     return out.reshape(shape)
+
+
+def normal_moments_per_voxel(tris, *, origin, voxel_size, shape, chunk: int = 200_000):
+    """Area and area-weighted second moment of the unit normals per occupied voxel.
+
+    Parameters
+    ----------
+    tris, origin, voxel_size, shape, chunk
+        As :func:`area_per_voxel`.
+
+    Returns
+    -------
+    flat : (K,) int64
+        Flat (C-order) indices of the voxels holding area.
+    area : (K,) float64, m2
+    moment : (K, 3, 3) float64, m2
+        ``sum A n n^T`` over the pieces in each voxel (n the unit normal;
+        its sign does not matter).
+    """
+    if not (np.isfinite(voxel_size) and voxel_size > 0):
+        raise InputError(f"voxel_size must be > 0 metres, got {voxel_size!r}")
+    shape = tuple(int(s) for s in shape)
+    tris = np.asarray(tris, dtype=np.float64).reshape(-1, 3, 3)
+    origin = np.asarray(origin, dtype=np.float64).reshape(3)
+    keys, areas, moms = [], [], []
+    for start in range(0, len(tris), chunk):
+        pieces = split_triangles_on_grid(tris[start : start + chunk], origin, voxel_size)
+        cr = np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0])
+        two_a = np.linalg.norm(cr, axis=1)
+        ok = two_a > 0
+        n = cr[ok] / two_a[ok, None]
+        area = 0.5 * two_a[ok]
+        ijk = np.floor((pieces[ok].mean(axis=1) - origin) / voxel_size).astype(np.int64)
+        inside = np.all((ijk >= 0) & (ijk < np.array(shape)), axis=1)
+        flat = np.ravel_multi_index(ijk[inside].T, shape)
+        u, inv = np.unique(flat, return_inverse=True)
+        a = area[inside]
+        nn = (n[inside, :, None] * n[inside, None, :]).reshape(-1, 9) * a[:, None]
+        keys.append(u)
+        areas.append(np.bincount(inv, weights=a, minlength=len(u)))
+        moms.append(np.stack([np.bincount(inv, weights=nn[:, c], minlength=len(u)) for c in range(9)], axis=1))
+    if not keys:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3, 3))
+    u, inv = np.unique(np.concatenate(keys), return_inverse=True)
+    area = np.bincount(inv, weights=np.concatenate(areas), minlength=len(u))
+    m9 = np.concatenate(moms)
+    mom = np.stack([np.bincount(inv, weights=m9[:, c], minlength=len(u)) for c in range(9)], axis=1)
+    return u, area, mom.reshape(-1, 3, 3)
+
+
+def bark_direction(area, moment) -> tuple[np.ndarray, np.ndarray]:
+    """Bark axis and anisotropy from the normals' second moment (docs/method.md, directional wood).
+
+    ``M = moment / area`` has eigenvalues l1 >= l2 >= l3 (sum 1).  The axis is
+    the eigenvector of l3 (the direction the normals avoid) and
+    ``beta = 1 - 3 l3``: 1 for a cylinder side (normals all perpendicular to
+    its axis, l3 = 0), 0 for isotropic facets (l = 1/3 each).  The model
+    ``M = beta (I - a a^T) / 2 + (1 - beta) I / 3`` has the same l3.
+
+    Returns
+    -------
+    axis : (K, 3) float64, unit, z >= 0
+    beta : (K,) float64 in [0, 1]
+    """
+    area = np.asarray(area, dtype=np.float64)
+    m = np.asarray(moment, dtype=np.float64).reshape(-1, 3, 3) / np.maximum(area, 1e-300)[:, None, None]
+    w, v = np.linalg.eigh(0.5 * (m + m.transpose(0, 2, 1)))  # ascending eigenvalues
+    axis = v[:, :, 0]
+    axis = np.where(axis[:, 2:3] < 0, -axis, axis)
+    beta = np.clip(1.0 - 3.0 * w[:, 0] / np.maximum(w.sum(axis=1), 1e-300), 0.0, 1.0)
+    return axis, np.where(area > 0, beta, 0.0)

@@ -197,54 +197,71 @@ class SyntheticTree:
         shape = np.ceil((hi + margin - origin) / voxel_size).astype(int) + 1
         return origin, tuple(int(v) for v in shape)
 
-    def solid_wood_voxels(self, *, origin, voxel_size: float, shape) -> np.ndarray:
-        """(N, 3) int indices of the voxels whose centre lies inside a bark cylinder.
+    def solid_wood_voxels(self, *, origin, voxel_size, shape) -> tuple[np.ndarray, np.ndarray]:
+        """Voxels whose centre lies inside a bark cylinder, and that cylinder's axis.
 
-        Bark is a surface, so :meth:`bark_area_per_voxel` leaves the inside of
-        a trunk or scaffold empty; these voxels are solid wood.
+        Returns
+        -------
+        flat : (K,) int64
+            Sorted flat (C-order) indices of the voxels.
+        axis : (K, 3) float64
+            Unit axis (z >= 0) of the cylinder holding each centre (the last
+            one listed where cylinders overlap).
         """
-        h = float(voxel_size)
-        origin = np.asarray(origin, dtype=float)
-        shape = np.asarray(shape, dtype=int)
-        out = []
-        for a, b, r in zip(self.cylinders[:, :3], self.cylinders[:, 3:6], self.cylinders[:, 6]):
-            lo = np.maximum(np.floor((np.minimum(a, b) - r - origin) / h).astype(int), 0)
-            hi = np.minimum(np.ceil((np.maximum(a, b) + r - origin) / h).astype(int), shape - 1)
+        origin = np.asarray(origin, dtype=np.float64)
+        shape = tuple(int(v) for v in shape)
+        found = {}
+        for c in self.cylinders:
+            a, b, r = c[:3], c[3:6], float(c[6])
+            length = float(np.linalg.norm(b - a))
+            if length <= 0 or r <= 0:
+                continue
+            d = (b - a) / length
+            d = -d if d[2] < 0 else d
+            lo = np.maximum(np.floor((np.minimum(a, b) - r - origin) / voxel_size).astype(int), 0)
+            hi = np.minimum(np.floor((np.maximum(a, b) + r - origin) / voxel_size).astype(int), np.array(shape) - 1)
             if np.any(hi < lo):
                 continue
-            axes = [np.arange(lo[k], hi[k] + 1) for k in range(3)]
-            ijk = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-            c = origin + (ijk + 0.5) * h
-            ab = b - a
-            t = np.clip((c - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
-            inside = np.linalg.norm(a + t[:, None] * ab - c, axis=1) < r
-            out.append(ijk[inside])
-        if not out:
-            return np.zeros((0, 3), dtype=int)
-        return np.unique(np.concatenate(out), axis=0)
+            g = np.stack(np.meshgrid(*[np.arange(lo[k], hi[k] + 1) for k in range(3)], indexing="ij"),
+                         -1).reshape(-1, 3)
+            x = origin + (g + 0.5) * voxel_size
+            t = np.clip((x - a) @ ((b - a) / length), 0.0, length)
+            inside = np.linalg.norm(x - (a + t[:, None] * ((b - a) / length)), axis=1) < r
+            for f in np.ravel_multi_index(g[inside].T, shape):
+                found[int(f)] = d
+        flat = np.array(sorted(found), dtype=np.int64)
+        axis = np.array([found[f] for f in flat.tolist()]).reshape(-1, 3)
+        return flat, axis
 
-    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, solid_wood: bool = True):
+    def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional",
+                    solid_wood: bool = True):
         """The voxel scene of the mesh's exact leaf area and wood (the turbid-medium twin).
 
         LAD = leaf area in the voxel / voxel volume.  Wood becomes a crossing
         probability: bark surfaces are closed convex cylinders, whose mean
         projected area over random directions is a quarter of their surface
-        (Cauchy), so sigma_wood = A_bark / (4 V) and the chance that a beam
-        crossing the whole voxel is stopped is ``1 - exp(-sigma_wood h)``.
-        With ``solid_wood`` (default) the voxels whose centre lies inside a
-        cylinder (:meth:`solid_wood_voxels`) are opaque wood (probability 1):
-        without them a trunk is a shell of turbid voxels around an empty
-        core, and light crosses it to the ground that the solid trunk hides.
-        The mesh's cylinders are closed at both ends (``TreeParams.capped_wood``)
-        to match; docs/bench/waveform_terms.md measures both.
+        (Cauchy), so the direction-averaged sigma_wood = A_bark / (4 V) and the
+        chance that a beam crossing the whole voxel is stopped, averaged over
+        directions, is ``1 - exp(-sigma_wood h)``.
 
-        Parameters
-        ----------
-        voxel_size : float, metres
-        wavelength_nm : float, optional
-            Unused: the scene's materials table covers every wavelength (kept for old calls).
-        solid_wood : bool
-            Fill the inside of trunks and branches thicker than a voxel.
+        ``wood_model="directional"`` (default) also gives each voxel its bark
+        axis and anisotropy (``wood_axis``, ``wood_beta``) from the bark
+        normals' area-weighted second moment
+        (:func:`tlsvox.truth.meshtruth.bark_direction`): the trunk and
+        scaffolds are upright cylinders, which a turbid medium of randomly
+        oriented facets overstates for oblique beams and understates across.
+        ``"isotropic"`` leaves them out (randomly oriented facets, as before
+        the directions existed).
+
+        ``solid_wood`` (default) also fills the inside of the solid cylinders: every
+        voxel whose centre lies inside one (:meth:`solid_wood_voxels`) becomes
+        opaque wood (probability ``1 - 1e-6``, the transport's cap) with the
+        cylinder's axis and ``beta = 1``.  Without it a trunk wider than a
+        voxel is a shell of bark voxels around empty ones, which a turbid
+        medium lets beams through (docs/method.md, directional wood).  The
+        mesh's cylinders are closed at both ends (``TreeParams.capped_wood``) to
+        match: open tubes let a beam down a trunk's axis reach the ground
+        (docs/bench/waveform_terms.md measures both).
 
         Returns
         -------
@@ -252,22 +269,44 @@ class SyntheticTree:
         """
         from voxlidar.scene import Scene
 
+        from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
+
+        if wood_model not in ("directional", "isotropic"):
+            raise InputError(f"wood_model={wood_model!r} must be 'directional' or 'isotropic'")
         origin, shape = self.truth_grid(voxel_size)
         kw = dict(origin=origin, voxel_size=voxel_size, shape=shape)
         leaf = self.leaf_area_per_voxel(**kw)
         bark = self.bark_area_per_voxel(**kw)
         vol = voxel_size**3
-        solid = np.zeros(leaf.shape, dtype=bool)
-        if solid_wood:
-            solid[tuple(self.solid_wood_voxels(**kw).T)] = True
-        ijk = np.argwhere((leaf > 0) | (bark > 0) | solid)
+        solid_flat, solid_axis = (self.solid_wood_voxels(**kw) if solid_wood
+                                  else (np.zeros(0, np.int64), np.zeros((0, 3))))
+        occupied = (leaf > 0) | (bark > 0)
+        occupied.reshape(-1)[solid_flat] = True
+        ijk = np.argwhere(occupied)
         lad = leaf[tuple(ijk.T)] / vol
         wood = 1.0 - np.exp(-bark[tuple(ijk.T)] / (4.0 * vol) * voxel_size)
-        wood[solid[tuple(ijk.T)]] = 1.0
+        solid = np.searchsorted(np.ravel_multi_index(ijk.T, shape), solid_flat)  # rows of the solid voxels
+        wood[solid] = 1.0 - 1e-6
+        wood_axis = wood_beta = None
+        if wood_model == "directional":
+            flat, area, mom = normal_moments_per_voxel(self.triangle_coords(Material.BARK), **kw)
+            axis, beta = bark_direction(area, mom)
+            keys = np.ravel_multi_index(ijk.T, shape)
+            pos = np.searchsorted(flat, keys)
+            found = pos < len(flat)
+            found[found] = flat[pos[found]] == keys[found]
+            wood_axis = np.tile([0.0, 0.0, 1.0], (len(ijk), 1))
+            wood_beta = np.zeros(len(ijk))
+            wood_axis[found] = axis[pos[found]]
+            wood_beta[found] = beta[pos[found]]
+            wood_axis[solid] = solid_axis
+            wood_beta[solid] = 1.0
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
-                     wood_kind="probability", leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
+                     wood_kind="probability", wood_axis=wood_axis, wood_beta=wood_beta,
+                     leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
                      crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,
-                     meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size})
+                     meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size,
+                           "wood_model": wood_model, "solid_wood": bool(solid_wood)})
 
     def bounds(self, *, vegetation_only: bool = True) -> np.ndarray:
         """(2, 3) lower/upper corner of the leaves and bark (or everything)."""

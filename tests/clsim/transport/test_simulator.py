@@ -26,6 +26,17 @@ def layer(**kw):
     return testscenes.set_optics(s, 1064, leaf=(0.45, 0.40), ground=(0.3, 0.0), bark=(0.45, 0.0))
 
 
+def directional(scene, seed=5):
+    """The scene with every voxel's bark given a random axis and anisotropy (seeded)."""
+    g = np.random.default_rng(seed)
+    axis = g.normal(size=(scene.n_voxels, 3))
+    scene.wood_axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+    scene.wood_beta = g.uniform(0.0, 1.0, scene.n_voxels)
+    scene.wood_beta[: scene.n_voxels // 4] = 1.0
+    scene.__post_init__()
+    return scene
+
+
 def balance(res):
     """Launched energy minus every fate (0 in expectation; roulette adds noise)."""
     return 1.0 - sum(res.stat(n)[0] for n in FATES) + res.stat("rr_added")[0]
@@ -69,12 +80,21 @@ SCENES = {
     "outward": dict(scene=lambda: layer(leaf_angle="planophile", leaf_azimuth="outward"),
                     sensor=SENSOR.replace(off_nadir_deg=30.0, azimuth_deg=60.0),
                     kw=dict(max_order=2, target=(1.5, -1.0))),
+    "wood_directional": dict(scene=lambda: directional(layer(lad=0.5, wood=0.3)),
+                             sensor=SENSOR.replace(off_nadir_deg=30.0), kw=dict(max_order=2)),
+    "wood_directional_paper": dict(scene=lambda: directional(layer(lad=0.5, wood=0.3)),
+                                   sensor=SENSOR.replace(off_nadir_deg=30.0), kw=dict(mode="paper", max_order=2)),
+    "wood_directional_outward": dict(scene=lambda: directional(layer(lad=0.5, wood=0.3, leaf_azimuth="outward")),
+                                     sensor=SENSOR.replace(off_nadir_deg=30.0, azimuth_deg=60.0),
+                                     kw=dict(max_order=2, target=(1.5, -1.0))),
     "analog": dict(scene=lambda: layer(), sensor=SENSOR.replace(altitude_m=20.0, fov_mrad=200.0,
                                                                 virtual_aperture_m=4.0),
                    kw=dict(max_order=2, detect="analog")),
 }
 PHOTONS = {"multiple": (200_000, 30_000), "paper": (40_000, 10_000), "oblique_wood": (200_000, 30_000),
-           "outward": (200_000, 30_000), "analog": (400_000, 60_000)}
+           "outward": (200_000, 30_000), "analog": (400_000, 60_000),
+           "wood_directional": (200_000, 30_000), "wood_directional_paper": (40_000, 10_000),
+           "wood_directional_outward": (200_000, 30_000)}
 
 
 def test_every_device_matches_the_oracle(sim):
@@ -150,10 +170,11 @@ def test_same_seed_same_result(sim):
     assert not np.array_equal(r1.fine, r3.fine)
 
 
+@pytest.mark.parametrize("wood", ["isotropic", "directional"])
 @pytest.mark.parametrize("mode", ["exact", "paper"])
-def test_oracle_replays_kernel_photons(mode, sim):
+def test_oracle_replays_kernel_photons(mode, wood, sim):
     """The oracle replays single photons of a kernel run: same events, same places."""
-    scene = layer(wood=0.2)
+    scene = layer(wood=0.2) if wood == "isotropic" else directional(layer(lad=0.5, wood=0.4))
     ids = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]
     # paper-mode steps of 2 cm from a ground point land exactly on the layer's faces
     # (z = 2 m), where float32 and float64 may pick different voxels; 1.73 cm never does

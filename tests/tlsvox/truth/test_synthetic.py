@@ -144,7 +144,7 @@ def test_solid_wood_voxels_are_the_centres_inside_the_cylinders():
     tree = small_tree(trunk_radius=0.3)
     h = 0.1
     origin, shape = tree.truth_grid(h)
-    solid = tree.solid_wood_voxels(origin=origin, voxel_size=h, shape=shape)
+    flat, _ = tree.solid_wood_voxels(origin=origin, voxel_size=h, shape=shape)
     # brute force over every voxel centre of the grid: distance to each cylinder's segment below its radius
     ijk = np.argwhere(np.ones(shape, dtype=bool))
     c = origin + (ijk + 0.5) * h
@@ -153,11 +153,75 @@ def test_solid_wood_voxels_are_the_centres_inside_the_cylinders():
         ab = b - a
         t = np.clip((c - a) @ ab / (ab @ ab), 0.0, 1.0)
         inside |= np.linalg.norm(a + t[:, None] * ab - c, axis=1) < r
-    assert sorted(map(tuple, solid)) == sorted(map(tuple, ijk[inside]))
-    assert len(solid) > 20  # the 0.3 m trunk holds whole 0.1 m voxels
+    assert flat.tolist() == sorted(np.ravel_multi_index(ijk[inside].T, shape).tolist())
+    assert len(flat) > 20  # the 0.3 m trunk holds whole 0.1 m voxels
+    solid = np.stack(np.unravel_index(flat, shape), axis=1)
 
     hollow, filled = tree.truth_scene(h, solid_wood=False), tree.truth_scene(h)
     assert filled.total_leaf_area() == pytest.approx(hollow.total_leaf_area(), rel=1e-12)
     dense = filled.dense("wood")
-    assert np.all(dense[tuple(solid.T)] == 1.0)
-    assert hollow.dense("wood")[tuple(solid.T)].min() < 1.0  # the core of the hollow twin is not opaque
+    assert np.all(dense[tuple(solid.T)] == pytest.approx(1 - 1e-6))
+    assert hollow.dense("wood")[tuple(solid.T)].min() < 0.5  # the core of the hollow twin is not opaque
+
+
+def test_bark_direction_of_a_cylinder_and_of_isotropic_facets(rng):
+    """An 8-sided cylinder's normals are all across its axis: beta = 1, the axis found;
+    a fine sphere's normals are isotropic: beta ~ 0 (a polyhedron's, up to its facets)."""
+    from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
+    from tlsvox.truth.synthetic import _cylinders_mesh
+
+    a = np.array([0.3, 0.4, 0.2])
+    d = np.array([0.2, -0.3, 0.93])
+    d /= np.linalg.norm(d)
+    v, t = _cylinders_mesh(np.array([[*a, *(a + 0.6 * d), 0.05]]))
+    flat, area, mom = normal_moments_per_voxel(v[t], origin=(0, 0, 0), voxel_size=1.0, shape=(1, 1, 1))
+    axis, beta = bark_direction(area, mom)
+    assert flat.tolist() == [0] and beta[0] == pytest.approx(1.0, abs=1e-9)
+    assert abs(axis[0] @ d) == pytest.approx(1.0, abs=1e-9) and axis[0, 2] >= 0
+    # unit sphere from a fine UV tessellation, scaled into one voxel
+    th, ph = np.meshgrid(np.linspace(0, np.pi, 61), np.linspace(0, 2 * np.pi, 121), indexing="ij")
+    p = 0.4 * np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1) + 0.5
+    q = np.concatenate([np.stack([p[:-1, :-1], p[1:, :-1], p[1:, 1:]], 2).reshape(-1, 3, 3),
+                        np.stack([p[:-1, :-1], p[1:, 1:], p[:-1, 1:]], 2).reshape(-1, 3, 3)])
+    _, area, mom = normal_moments_per_voxel(q, origin=(0, 0, 0), voxel_size=1.0, shape=(1, 1, 1))
+    assert area[0] == pytest.approx(4 * np.pi * 0.4**2, rel=2e-3)
+    assert bark_direction(area, mom)[1][0] < 0.01
+
+
+def test_truth_scene_gives_the_trunk_an_upright_axis():
+    """Directional wood of the twin: the trunk's voxels are cylinders (beta near 1) with a
+    near-vertical axis; wood_model='isotropic' leaves the directions out."""
+    tree = small_tree()
+    scene = tree.truth_scene(0.25)
+    i, j, k = np.floor((np.array([0.0, 0.0, 0.6]) - scene.origin) / 0.25).astype(int)
+    row = np.flatnonzero((scene.ijk == [i, j, k]).all(axis=1))
+    assert row.size == 1 and scene.wood[row[0]] > 0
+    assert scene.wood_beta[row[0]] > 0.9 and scene.wood_axis[row[0], 2] > 0.9
+    assert scene.wood_directional and np.all(scene.wood_beta[scene.wood == 0] == 0)
+    iso = tree.truth_scene(0.25, wood_model="isotropic")
+    assert not iso.wood_directional
+    np.testing.assert_array_equal(iso.wood, scene.wood)
+    with pytest.raises(InputError, match="wood_model"):
+        tree.truth_scene(0.25, wood_model="cylinders")
+
+
+def test_solid_wood_fills_the_trunk():
+    """solid_wood=True: voxels whose centre lies inside a cylinder are opaque wood with the
+    cylinder's axis; the count matches the trunk's volume; the rest is unchanged."""
+    tree = small_tree()
+    h = 0.05
+    plain, solid = tree.truth_scene(h, solid_wood=False), tree.truth_scene(h)  # solid is the default
+    origin, shape = tree.truth_grid(h)
+    flat, axis = tree.solid_wood_voxels(origin=origin, voxel_size=h, shape=shape)
+    c = tree.cylinders
+    volume = float(np.sum(np.pi * c[:, 6] ** 2 * np.linalg.norm(c[:, 3:6] - c[:, :3], axis=1)))
+    assert len(flat) * h**3 == pytest.approx(volume, rel=0.25)  # overlaps at joints, centre rule
+    rows = np.searchsorted(np.ravel_multi_index(solid.ijk.T, shape), flat)
+    assert np.all(solid.wood[rows] == pytest.approx(1 - 1e-6)) and np.all(solid.wood_beta[rows] == 1.0)
+    np.testing.assert_allclose(solid.wood_axis[rows], axis)
+    assert solid.total_leaf_area() == pytest.approx(plain.total_leaf_area(), rel=1e-12)
+    assert solid.meta["solid_wood"] and not plain.meta["solid_wood"]
+    # the trunk's centre line is solid, its axis upright
+    i, j, k = np.floor((np.array([0.0, 0.0, 0.5]) - origin) / h).astype(int)
+    row = np.flatnonzero((solid.ijk == [i, j, k]).all(axis=1))
+    assert row.size == 1 and solid.wood[row[0]] > 0.99 and solid.wood_axis[row[0], 2] > 0.99
