@@ -4,9 +4,9 @@ The four budget pulses of :func:`clsim.validation.budget.default_pulses` over th
 default synthetic oak (``make_tree(seed=1)``), sensor ``ahab-chiroptera-i``:
 the explicit-geometry mesh reference against the exact-LAD voxel twin
 (``tree.truth_scene``), leaf-on and leaf-off (wood and ground only), with and
-without the hot-spot option, and with solid or hollow wood on both sides (the
+without the hot-spot option, with solid or hollow wood on both sides (the
 mesh's bark cylinders closed at their ends or open tubes; the twin's trunks
-filled or a shell).  Leaf-off isolates the wood terms: the twin turns bark into
+filled or a shell), and with directional or isotropic wood in the twin.  Leaf-off isolates the wood terms: the twin turns bark into
 a turbid medium of randomly oriented facets (sigma = bark area / 4V), while the
 mesh's trunk and scaffolds are cylinders, mostly upright.
 
@@ -45,8 +45,10 @@ def main(argv=None):
     tree = make_tree(seed=1)  # bark cylinders closed at their ends (TreeParams.capped_wood)
     tubes = make_tree(TreeParams(capped_wood=False), seed=1)  # open tubes, as until 2026-11
     base = Sensor.preset("ahab-chiroptera-i")
-    twin = tree.truth_scene(args.voxel)  # trunks and scaffolds filled (solid_wood)
-    hollow = tubes.truth_scene(args.voxel, solid_wood=False)  # the twin as it was: bark area of open tubes
+    twin = tree.truth_scene(args.voxel)  # the default: directional wood, trunks and scaffolds filled
+    iso = tree.truth_scene(args.voxel, wood_model="isotropic")  # solid, randomly oriented bark facets
+    # the twin as it was until 2026-11: isotropic bark of open tubes, hollow trunks
+    hollow = tubes.truth_scene(args.voxel, solid_wood=False, wood_model="isotropic")
     tubes_solid = tubes.truth_scene(args.voxel)
     sim, mesh = Simulator(), MeshReferenceSimulator()
     rows = []
@@ -56,9 +58,10 @@ def main(argv=None):
         for leaf_off in (False, True):
             # (mesh, twin): solid on both sides (the default), then the old pair, open tubes against a hollow
             # twin, and the solid twin against the tubes (centre pulses: where the beam meets the trunk)
-            pairs = [("capped", "solid", tree, twin), ("open tubes", "hollow", tubes, hollow)]
+            pairs = [("capped", "solid, directional", tree, twin), ("capped", "solid, isotropic", tree, iso),
+                     ("open tubes", "hollow, isotropic", tubes, hollow)]
             if "centre" in pulse.name:
-                pairs.append(("open tubes", "solid", tubes, tubes_solid))
+                pairs.append(("open tubes", "solid, directional", tubes, tubes_solid))
             refs = {}
             for (mesh_name, trunk, t, scene), hotspot in ((p, hs) for p in pairs for hs in (True, False)):
                 if mesh_name not in refs:
@@ -80,7 +83,7 @@ def main(argv=None):
              f"exact-LAD twin at {args.voxel * 100:g} cm, {args.photons:,} photons each, 3 orders. r: Pearson "
              "correlation of the waveforms; E: received energy, twin / mesh (total, from vegetation, from the "
              "ground; ± one standard error from the 16 batches).", "",
-             "| pulse | leaves | mesh's cylinders | twin's trunks | hot spot | r | E total | E vegetation | E ground |",
+             "| pulse | leaves | mesh's cylinders | twin's wood | hot spot | r | E total | E vegetation | E ground |",
              "|---|---|---|---|---|---:|---:|---:|---:|"]
     for name, leaf_off, mesh_name, trunk, hotspot, m in rows:
         lines.append(f"| {name} | {'off' if leaf_off else 'on'} | {mesh_name} | {trunk} | {'on' if hotspot else 'off'} | "
@@ -90,12 +93,12 @@ def main(argv=None):
     lines += ["", "Two wood terms show here. (1) Solid wood: bark is a surface, so a twin built from bark area alone "
               "holds no wood inside a trunk, and light that crosses the trunk's shell of turbid voxels goes on "
               "through the hollow to the ground; and a mesh of open tubes lets a beam down a trunk's axis reach "
-              "the ground inside it. Rows 'open tubes / hollow' are how the figures were made until 2026-11; "
-              "'capped / solid' (now the default: `TreeParams.capped_wood`, `truth_scene(solid_wood=True)`) "
-              "close both. (2) Brightness: leaf-off, the twin's wood returns about 2.5 times the mesh's energy "
-              "for the oblique pulse through the crown centre: random facets (the turbid model) face a beam far "
-              "more squarely than the side of an upright cylinder seen 15 degrees off its axis, so they "
-              "backscatter more. That needs directional wood per voxel (a bark axis from the bark normals).", ""]
+              "the ground inside it. Rows 'open tubes / hollow, isotropic' are how the figures were made until "
+              "2026-11; 'capped / solid' close both (now the default: `TreeParams.capped_wood`, "
+              "`truth_scene(solid_wood=True)`). (2) Orientation: random facets (`wood_model='isotropic'`) face a "
+              "beam far more squarely than the side of an upright cylinder seen 15 degrees off its axis, so they "
+              "backscatter more; 'directional' gives each voxel its bark axis and anisotropy from the bark "
+              "normals (docs/method.md, directional wood; now the default).", ""]
     out = Path(args.out)
     atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
     print(f"wrote {out}")

@@ -255,8 +255,9 @@ class SyntheticTree:
 
         ``solid_wood`` (default) also fills the inside of the solid cylinders: every
         voxel whose centre lies inside one (:meth:`solid_wood_voxels`) becomes
-        opaque wood (probability ``1 - 1e-6``, the transport's cap) with the
-        cylinder's axis and ``beta = 1``.  Without it a trunk wider than a
+        opaque wood (probability ``1 - 1e-6``, the transport's cap) from every
+        direction (``beta = 0``; the cylinder's axis is kept in ``wood_axis``).
+        Without it a trunk wider than a
         voxel is a shell of bark voxels around empty ones, which a turbid
         medium lets beams through (docs/method.md, directional wood).  The
         mesh's cylinders are closed at both ends (``TreeParams.capped_wood``) to
@@ -299,8 +300,10 @@ class SyntheticTree:
             wood_beta = np.zeros(len(ijk))
             wood_axis[found] = axis[pos[found]]
             wood_beta[found] = beta[pos[found]]
+            # inside a solid trunk the wood stops a beam from any direction: isotropic (beta 0), the
+            # cylinder's axis kept for the record (with beta 1 a beam along the axis would pass)
             wood_axis[solid] = solid_axis
-            wood_beta[solid] = 1.0
+            wood_beta[solid] = 0.0
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
                      wood_kind="probability", wood_axis=wood_axis, wood_beta=wood_beta,
                      leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,

@@ -217,7 +217,7 @@ def test_solid_wood_fills_the_trunk():
     volume = float(np.sum(np.pi * c[:, 6] ** 2 * np.linalg.norm(c[:, 3:6] - c[:, :3], axis=1)))
     assert len(flat) * h**3 == pytest.approx(volume, rel=0.25)  # overlaps at joints, centre rule
     rows = np.searchsorted(np.ravel_multi_index(solid.ijk.T, shape), flat)
-    assert np.all(solid.wood[rows] == pytest.approx(1 - 1e-6)) and np.all(solid.wood_beta[rows] == 1.0)
+    assert np.all(solid.wood[rows] == pytest.approx(1 - 1e-6)) and np.all(solid.wood_beta[rows] == 0.0)
     np.testing.assert_allclose(solid.wood_axis[rows], axis)
     assert solid.total_leaf_area() == pytest.approx(plain.total_leaf_area(), rel=1e-12)
     assert solid.meta["solid_wood"] and not plain.meta["solid_wood"]
