@@ -125,12 +125,12 @@ class Peer:
             raise RuntimeError("the mitransient worker stopped (see its stderr above)")
         return json.loads(line)
 
-    def scene(self, spec: dict):
-        self.versions = self.ask({"cmd": "scene", "spec": spec})
+    def scene(self, spec: dict, name: str = ""):
+        self.versions = self.ask({"cmd": "scene", "name": name, "spec": spec})
 
-    def render(self, spp: int, seed: int):
+    def render(self, spp: int, seed: int, name: str = ""):
         out = self.tmp / "peer.npz"
-        r = self.ask({"cmd": "render", "spp": int(spp), "seed": int(seed), "out": str(out)})
+        r = self.ask({"cmd": "render", "name": name, "spp": int(spp), "seed": int(seed), "out": str(out)})
         return np.load(out)["hist"], r["seconds"]
 
     def close(self):
@@ -197,18 +197,28 @@ def rel_l2(a, b):
 
 
 def fit(points):
-    """err = a t^-b over (t, err) points with 1e-4 < err < 0.5: (a, b, t at 1 %), and the
-    fixed-exponent 1/2 fit's t at 1 %."""
+    """Time to 1 % error from (wall time, error) points in order of sample count.
+
+    ``t1``: log-log interpolation between the two consecutive points that bracket 1 %
+    (the local err = a t^-b through them), else the power law fitted to all points
+    with 1e-4 < err < 0.5 (extrapolated, ``how`` says which); ``b`` that fit's
+    exponent; ``t1_half`` the fixed-exponent err = c / sqrt(t) fit (plain Monte Carlo)."""
     pts = np.array([(t, e) for t, e in points if 1e-4 < e < 0.5 and t > 0])
     if len(pts) < 2:
-        return dict(a=np.nan, b=np.nan, t1=np.nan, t1_half=np.nan)
+        return dict(a=np.nan, b=np.nan, t1=np.nan, t1_half=np.nan, how="no fit")
     lt, le = np.log(pts[:, 0]), np.log(pts[:, 1])
     slope, icept = np.polyfit(lt, le, 1)
     b = -slope
     a = np.exp(icept)
-    t1 = (a / 0.01) ** (1 / b) if b > 0 else np.nan
     c = float(np.exp(np.median(le + 0.5 * lt)))
-    return dict(a=a, b=b, t1=t1, t1_half=(c / 0.01) ** 2)
+    out = dict(a=a, b=b, t1=(a / 0.01) ** (1 / b) if b > 0 else np.nan, t1_half=(c / 0.01) ** 2,
+               how="extrapolated")
+    for (t0, e0), (t1, e1) in zip(pts[:-1], pts[1:]):
+        if e0 >= 0.01 > e1 and t1 > t0:
+            k = np.log(e0 / e1) / np.log(t1 / t0)
+            out.update(t1=t0 * (e0 / 0.01) ** (1 / k), how="interpolated")
+            break
+    return out
 
 
 def run_scene(args, name, scene_fn, voxels, peer, lines, tmp):
@@ -236,12 +246,13 @@ def run_scene(args, name, scene_fn, voxels, peer, lines, tmp):
             peers.append((f"mitransient {end} end, {sampler}", end, sampler))
     peer_refs = {}
     for label, end, sampler in peers:
-        peer.scene(peer_spec(scene, setup, end, max_depth=MAX_ORDER + 1, tmp=tmp, sampler=sampler))
-        peer.render(4096, 0)
-        h = [peer.render(args.ref_spp, 1000 + i)[0] for i in range(args.ref_chunks)]
+        peer.scene(peer_spec(scene, setup, end, max_depth=MAX_ORDER + 1, tmp=tmp, sampler=sampler), name=label)
+        h = [peer.render(args.ref_spp, 1000 + i, name=label)[0] for i in range(args.ref_chunks)]
         peer_refs[label] = np.mean(h, axis=0)
     rows = {k: [] for k in list(sims) + [p[0] for p in peers]}
     for n in args.series:
+        for label, _, _ in peers:  # Dr.Jit compiles per launch size: once, untimed
+            peer.render(n, 1, name=label)
         for rep in range(args.repeats):
             for label, (s, sc) in sims.items():
                 t0 = time.perf_counter()
@@ -249,8 +260,7 @@ def run_scene(args, name, scene_fn, voxels, peer, lines, tmp):
                 dt = time.perf_counter() - t0
                 rows[label].append((n, dt, rel_l2(r.fine.sum(axis=(0, 1)), refs[label])))
             for label, end, sampler in peers:
-                peer.scene(peer_spec(scene, setup, end, max_depth=MAX_ORDER + 1, tmp=tmp, sampler=sampler))
-                h, dt = peer.render(n, 20_000 + 97 * n + rep)
+                h, dt = peer.render(n, 20_000 + 97 * n + rep, name=label)
                 rows[label].append((n, dt, rel_l2(h, peer_refs[label])))
             print(f"  {name} n={n:,} rep {rep}: " + ", ".join(
                 f"{k}: {rows[k][-1][1]:.2f} s {100 * rows[k][-1][2]:.2f} %" for k in rows), flush=True)
@@ -265,6 +275,10 @@ def run_scene(args, name, scene_fn, voxels, peer, lines, tmp):
         top_n = max(by_n)
         sps = top_n / statistics.median(d for d, _ in by_n[top_n])
         summary[label] = dict(series=med, sps=sps, **f)
+    # same physics: the references' shapes (each scaled to unit sum) should nearly agree
+    unit = lambda h: h / h.sum()  # noqa: E731
+    for label in peer_refs:
+        summary[label]["shape_vs_clsim"] = rel_l2(unit(peer_refs[label]), unit(ref))
     return summary, setup, peers
 
 
@@ -288,10 +302,10 @@ def closed_form_section(args, peer, lines, tmp):
     res["clsim"] = checks_from_hist(h, setup.edges_ns, R, top, 2.0, bare=hb)
     if peer.proc is not None:
         for end in ("laser", "receiver"):
-            peer.scene(peer_spec(scene, setup, end, max_depth=2, tmp=tmp, bare=True))
-            hb = np.mean([peer.render(args.cf_spp, 70 + i)[0] for i in range(2)], axis=0)
-            peer.scene(peer_spec(scene, setup, end, max_depth=2, tmp=tmp))
-            hp = np.mean([peer.render(args.cf_spp, 80 + i)[0] for i in range(2)], axis=0)
+            peer.scene(peer_spec(scene, setup, end, max_depth=2, tmp=tmp, bare=True), name="cf bare")
+            hb = np.mean([peer.render(args.cf_spp, 70 + i, name="cf bare")[0] for i in range(2)], axis=0)
+            peer.scene(peer_spec(scene, setup, end, max_depth=2, tmp=tmp), name="cf")
+            hp = np.mean([peer.render(args.cf_spp, 80 + i, name="cf")[0] for i in range(2)], axis=0)
             res[f"mitransient {end} end"] = checks_from_hist(hp, setup.edges_ns, R, top, 2.0, bare=hb)
     lines += ["### Closed forms (slab, single scattering, nadir)", "",
               f"sigma_t = G u = 0.5 /m, H = 2 m, canopy top at {top:g} m, ground at {R:g} m; the canopy "
@@ -315,11 +329,14 @@ def write_scene(lines, name, desc, summary, peers):
               "|---|---|---|---|---|---|"]
     for label, s in summary.items():
         errs = ", ".join(f"{n:,}: {100 * e:.2f} % in {t:.3f} s" for n, t, e in s["series"])
-        lines.append(f"| {label} | {s['sps'] / 1e6:.2f} M | {s['b']:.2f} | {s['t1']:.3g} s | "
+        lines.append(f"| {label} | {s['sps'] / 1e6:.2f} M | {s['b']:.2f} | {s['t1']:.3g} s ({s['how']}) | "
                      f"{s['t1_half']:.3g} s | {errs} |")
     clsim_keys = [k for k in summary if k.startswith("clsim") and "," not in k]
     peer_keys = [k for k in summary if k.startswith("mitransient")]
     lines.append("")
+    for k in peer_keys:
+        lines.append(f"- {k}: reference's shape (unit sum) against clsim's: relative L2 "
+                     f"{100 * summary[k]['shape_vs_clsim']:.1f} % (beam and field-of-view differences).")
     if peer_keys:
         best_sps = max(peer_keys, key=lambda k: summary[k]["sps"])
         best_t1 = min(peer_keys, key=lambda k: summary[k]["t1"] if np.isfinite(summary[k]["t1"]) else np.inf)
@@ -340,6 +357,50 @@ def write_scene(lines, name, desc, summary, peers):
                 lines.append(f"  - without `{f}` alone: time to 1 % {summary[kk[0]]['t1'] / summary[k0]['t1']:.2f} x "
                              f"the default's, samples/s {summary[kk[0]]['sps'] / summary[k0]['sps']:.2f} x.")
     lines.append("")
+
+
+def profile_section(args, lines):
+    """Where the voxel walk costs: the slab at 0.5, 0.25 and 0.1 m voxels, the default estimator."""
+    sensor = Sensor.preset("ahab-chiroptera-i")
+    kw = dict(bin_ns=BIN_NS, max_order=MAX_ORDER)
+    sim = Simulator()
+    n = args.profile_photons
+    rows = []
+    for v in (0.5, 0.25, 0.1):
+        sc = slab_scene(v)
+        sim.run(sc, sensor, photons=2000, seed=0, **kw)
+        for hot in (False, True):
+            walls, kern, res = [], [], None
+            for rep in range(3):
+                t0 = time.perf_counter()
+                res = sim.run(sc, sensor, photons=n, seed=500 + rep, hotspot=hot, **kw)
+                walls.append(time.perf_counter() - t0)
+                kern.append(res.elapsed_s)
+            t_small = statistics.median(
+                [sim.run(sc, sensor, photons=256, seed=9, hotspot=hot, **kw).elapsed_s for _ in range(3)])
+            st = {k: res.stat(k)[0] for k in ("voxel_steps", "events", "shadow_rays")}
+            wall, k = statistics.median(walls), statistics.median(kern)
+            rows.append((v, hot, n / wall, st["voxel_steps"] / n, st["events"] / n, st["shadow_rays"] / n,
+                         1e9 * k / st["voxel_steps"], wall - k, t_small))
+    lines += ["### Where the voxel walk costs (slab, clsim default estimator)", "",
+              f"{n:,} photons, median of 3 runs, `max_order=3`; `hotspot=True` drops the order-1 shadow "
+              "rays (their return path is the free incoming one), so the difference between the two rows of "
+              "a voxel size is the cost of those shadow walks. ns/step = kernel seconds / voxel steps (all the "
+              "kernel's work divided by its steps); host = wall - kernel (set-up, buffers, digitising).", "",
+              "| voxel | hotspot | photons/s | voxel steps / photon | events / photon | shadow rays / photon | "
+              "ns per step | host s | kernel s for 256 photons |", "|---|---|---|---|---|---|---|---|---|"]
+    for v, hot, ps, sp, ev, sh, ns, host, small in rows:
+        lines.append(f"| {v:g} m | {hot} | {ps / 1e6:.2f} M | {sp:.1f} | {ev:.2f} | {sh:.2f} | {ns:.1f} | "
+                     f"{host:.3f} | {small:.4f} |")
+    r5 = [r for r in rows if r[0] == 0.5 and not r[1]][0]
+    r1 = [r for r in rows if r[0] == 0.1 and not r[1]][0]
+    lines += ["", f"From 0.5 m to 0.1 m voxels the voxel steps per photon grow {r1[3] / r5[3]:.1f} x and the "
+              f"time per step changes {r1[6] / r5[6]:.2f} x; photons/s fall {r5[2] / r1[2]:.1f} x. The walk's "
+              "cost is its number of steps: every step is one DDA advance and one pool load inside an occupied "
+              "brick (the empty bricks above the canopy are crossed in one step each). What would remove most "
+              "of it on uniform canopies: a brick-level record of bricks whose 512 voxels share one value, "
+              "crossed as one segment like an empty brick (8 x fewer steps in this slab at 0.1 m; not done "
+              "here).", ""]
 
 
 DIFFERENCES = """### Where the physics differs, and what was matched
@@ -378,17 +439,20 @@ def main(argv=None) -> int:
     ap.add_argument("--peer-env", default=str(PEER_ENV))
     ap.add_argument("--quick", action="store_true", help="fewer samples (a few minutes)")
     ap.add_argument("--scenes", default="slab,oak")
+    ap.add_argument("--no-profile", dest="profile", action="store_false",
+                    help="skip the voxel-walk profile")
     ap.add_argument("--no-variants", dest="variants", action="store_false",
                     help="skip clsim's estimator variants (each feature off)")
     args = ap.parse_args(argv)
     q = args.quick
-    args.series = [1 << 15, 1 << 17, 1 << 19] if q else [1 << 15, 1 << 17, 1 << 19, 1 << 21]
+    args.series = [1 << 12, 1 << 14, 1 << 16, 1 << 18] if q else [1 << 12, 1 << 14, 1 << 16, 1 << 18, 1 << 20]
     args.repeats = 2 if q else 3
     args.ref_photons = 4_000_000 if q else 16_000_000
     args.ref_spp = 1 << 22 if q else 1 << 23
     args.ref_chunks = 1 if q else 2
     args.cf_photons = 1_000_000 if q else 4_000_000
-    args.cf_spp = 1 << 21 if q else 1 << 22
+    args.cf_spp = 1 << 20 if q else 1 << 22
+    args.profile_photons = 1 << 17 if q else 1 << 19
     args.peer_setups = [("laser", "independent"), ("laser", "ldsampler"), ("receiver", "independent")]
     load = os.getloadavg()[0]
     t_start = time.time()
@@ -417,6 +481,8 @@ def main(argv=None) -> int:
                 lines += [f"**mitransient not run**: {peer.reason}.", ""]
             lines.append(DIFFERENCES)
             closed_form_section(args, peer, lines, tmp)
+            if args.profile:
+                profile_section(args, lines)
             lines += ["### Speed and error against time", "",
                       "Error = relative L2 distance of the 942-bin (slab) return histogram, all orders, to the "
                       f"set-up's own reference (clsim {args.ref_photons:,} photons; mitransient "

@@ -7,8 +7,8 @@
  * implements the defaults): CLSIM_TIGHT (free flights at the extinction LAD G(d) + sigma_wood
  * with uniform leaf azimuths, the leaf normal drawn after the collision), CLSIM_LEAF_AVG
  * (next-event weight of a leaf event averaged over the leaf normals where the scene's
- * params say it is exact), CLSIM_QMC (beam direction and first free path from a randomly
- * shifted Kronecker lattice over the photon ids). */
+ * params say it is exact), CLSIM_QMC (first free path from a randomly shifted golden-ratio
+ * Kronecker lattice over the photon ids). */
 #include "common.cl"
 #include "params.cl"
 #include "philox.cl"
@@ -36,11 +36,8 @@
 #define CLSIM_QMC 1
 #endif
 
-/* Kronecker lattice steps: 2^32 / phi3^j, phi3 = 1.2207440846 the real root of
- * x^4 = x + 1 (Roberts' generalised golden ratio for three dimensions). */
-#define QMC_A0 3518319155u
-#define QMC_A1 2882110345u
-#define QMC_A2 2360945575u
+/* Kronecker lattice step: round(2^32 / phi), phi the golden ratio. */
+#define QMC_STEP 2654435769u
 
 typedef struct {
     __global const params_t *P;
@@ -381,15 +378,11 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     const float3 sensor = (float3)(P->sensor[0], P->sensor[1], P->sensor[2]);
     const float3 axis = (float3)(P->axis[0], P->axis[1], P->axis[2]);
     const float3 e1 = (float3)(P->e1[0], P->e1[1], P->e1[2]), e2 = (float3)(P->e2[0], P->e2[1], P->e2[2]);
-    float4 b0 = rng_next(&rng);
+    const float4 b0 = rng_next(&rng);
     float u_first = 0.0f;
 #if MODE == 0 && CLSIM_QMC
-    { /* the photon's point of a Kronecker lattice shifted by the seed (P->qmc) */
-        const uint ip = (uint)pid;
-        b0.x = unit_of(P->qmc[0] + ip * QMC_A0);
-        b0.y = unit_of(P->qmc[1] + ip * QMC_A1);
-        u_first = unit_of(P->qmc[2] + ip * QMC_A2);
-    }
+    /* the photon's point of the golden-ratio lattice shifted by the seed (P->qmc) */
+    u_first = unit_of(P->qmc + (uint)pid * QMC_STEP);
 #endif
     const float rr = P->beam_sigma * fast_sqrt(2.0f * neg_log_unit(b0.x));
     float cph;

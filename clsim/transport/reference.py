@@ -25,7 +25,7 @@ from clsim.transport.bricks import extinction
 from clsim.errors import InputError
 from clsim.transport.rng import uniforms
 from clsim.transport.result import SimulationResult, assemble_result
-from clsim.transport.setup import (NG, NTAB, QMC_STEPS, STAT_NAMES, TRACE_EVENTS, Detect, Mode, RunSetup,
+from clsim.transport.setup import (NG, NTAB, QMC_STEP, STAT_NAMES, TRACE_EVENTS, Detect, Mode, RunSetup,
                                    prepare_run)
 
 __all__ = ["ReferenceSimulator"]
@@ -146,7 +146,7 @@ class _Transport:
         self.nee = setup.detect is Detect.NEE
         self.hotspot = bool(setup.p["hotspot"])
         self.leaf_avg = bool(setup.p["leaf_avg"])
-        self.qmc = tuple(int(v) for v in setup.p["qmc"])
+        self.qmc = int(setup.p["qmc"])
         B, K, F = setup.batches, setup.max_order, len(self.edges) - 1
         self.hist = np.zeros((B, K, 2, F))
         self.stats = np.zeros((B, len(STAT_NAMES)))
@@ -420,11 +420,8 @@ class _Transport:
         K = self.s.max_order
         allp = np.arange(n)
         b0 = self.draw(allp)
-        u_first = None
-        if self.exact:  # the seed-shifted Kronecker lattice of beam directions and first free paths
-            b0[:, 0] = lattice_unit(self.qmc[0], self.pid, QMC_STEPS[0])
-            b0[:, 1] = lattice_unit(self.qmc[1], self.pid, QMC_STEPS[1])
-            u_first = lattice_unit(self.qmc[2], self.pid, QMC_STEPS[2])
+        # the seed-shifted golden-ratio lattice of first free paths (exact mode)
+        u_first = lattice_unit(self.qmc, self.pid, QMC_STEP) if self.exact else None
         rr = self.sigma * np.sqrt(-2.0 * np.log(b0[:, 0]))
         ph = 2.0 * np.pi * b0[:, 1]
         d = self.axis + (rr * np.cos(ph))[:, None] * self.e1 + (rr * np.sin(ph))[:, None] * self.e2

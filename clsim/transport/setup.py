@@ -49,21 +49,20 @@ PARAMS_DTYPE = np.dtype([
     ("wood_R", "<f4"), ("wood_T", "<f4"), ("ground_R", "<f4"), ("crown_c", "<f4", 2),
     ("outward", "<i4"), ("ds", "<f4"), ("t0_ns", "<f4"), ("dt_ns", "<f4"), ("nbins", "<i4"),
     ("max_order", "<i4"), ("n_batches", "<i4"), ("n_trace", "<i4"), ("hotspot", "<i4"),
-    ("leaf_avg", "<i4"), ("qmc", "<u4", 3),
+    ("leaf_avg", "<i4"), ("qmc", "<u4"),
 ])
 
-#: Steps of the Kronecker lattice of first flights (kernels/transport.cl QMC_A*):
-#: round(2^32 / phi3^j), phi3 the real root of x^4 = x + 1.
-QMC_STEPS = (3518319155, 2882110345, 2360945575)
+#: Step of the golden-ratio lattice of first free paths (kernels/transport.cl QMC_STEP):
+#: round(2^32 / phi).
+QMC_STEP = 2654435769
 
 
-def qmc_shift(seed: int) -> tuple[int, int, int]:
-    """The lattice's random shift for a run's seed: the first three words of Philox
-    block (2^32 - 1, 2^32 - 1, 2^32 - 1, 1), a counter no photon stream uses (their
-    last word is 0)."""
+def qmc_shift(seed: int) -> int:
+    """The lattice's random shift for a run's seed: the first word of Philox block
+    (2^32 - 1, 2^32 - 1, 2^32 - 1, 1), a counter no photon stream uses (their last
+    word is 0)."""
     lo, hi = split_seed(seed)
-    words = philox4x32_10((0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 1), (lo, hi))
-    return tuple(int(w) for w in words[:3])
+    return int(philox4x32_10((0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 1), (lo, hi))[0])
 
 
 class Mode(str, Choice):

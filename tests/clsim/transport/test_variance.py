@@ -16,7 +16,7 @@ from clsim.errors import InputError
 from clsim.sensor import Sensor
 from clsim.transport.reference import leaf_avg_f, lattice_unit
 from clsim.transport.rng import philox4x32_10, split_seed
-from clsim.transport.setup import QMC_STEPS, qmc_shift
+from clsim.transport.setup import QMC_STEP, qmc_shift
 from clsim.transport.simulator import FEATURES, Simulator
 from clsim.validation import testscenes
 
@@ -53,20 +53,16 @@ def test_leaf_avg_f_is_the_mean_over_sampled_normals(d, w):
 
 
 def test_lattice_coordinates():
-    """Philox-derived shift, 32-bit steps of 2^32 / phi3^j, and an even spread."""
+    """Philox-derived shift, the 32-bit golden-ratio step, and an even spread."""
     lo, hi = split_seed(123)
-    assert qmc_shift(123) == tuple(int(v) for v in philox4x32_10((2**32 - 1,) * 3 + (1,), (lo, hi))[:3])
-    phi3 = 1.2207440846057596
-    assert phi3**4 == pytest.approx(phi3 + 1, rel=1e-15)
-    assert QMC_STEPS == tuple(round(2**32 / phi3**j) for j in (1, 2, 3))
+    assert qmc_shift(123) == int(philox4x32_10((2**32 - 1,) * 3 + (1,), (lo, hi))[0])
+    assert QMC_STEP == round(2**32 * 2 / (1 + 5**0.5))
     pid = np.arange(4096, dtype=np.uint64)
-    for j, s in enumerate(qmc_shift(5)):
-        u = lattice_unit(s, pid, QMC_STEPS[j])
-        assert np.all((u > 0) & (u < 1))
-        counts = np.bincount((u * 64).astype(int), minlength=64)
-        assert counts.min() >= 60 and counts.max() <= 68   # i.i.d. would spread +-8 per bin (1 sd)
-    assert lattice_unit(qmc_shift(5)[0], [0], QMC_STEPS[0])[0] != lattice_unit(qmc_shift(6)[0], [0],
-                                                                                  QMC_STEPS[0])[0]
+    u = lattice_unit(qmc_shift(5), pid, QMC_STEP)
+    assert np.all((u > 0) & (u < 1))
+    counts = np.bincount((u * 64).astype(int), minlength=64)
+    assert counts.min() >= 62 and counts.max() <= 66   # i.i.d. would spread +-8 per bin (1 sd)
+    assert lattice_unit(qmc_shift(5), [0], QMC_STEP)[0] != lattice_unit(qmc_shift(6), [0], QMC_STEP)[0]
 
 
 def test_leaf_avg_only_where_exact():
@@ -120,8 +116,8 @@ def test_features_change_the_spread_not_the_mean(sim):
 def test_batch_errors_cover_the_spread_over_seeds(sim):
     """With lattice first flights the batch standard error is an upper bound: each batch is a
     sub-lattice, whose error is larger than the whole lattice's / sqrt(B).  It must never
-    understate the spread over seeds (by more than the noise of 16 seeds), and it overstates
-    the single-scattering parts by a few times (2.8 x measured), not orders of magnitude."""
+    understate the spread over seeds (by more than the noise of 16 seeds); it overstates the
+    single-scattering parts several times (8 to 9 x measured), not orders of magnitude."""
     s = Simulator(device=sim.info)
     vals = []
     for seed in range(40, 56):
@@ -129,7 +125,7 @@ def test_batch_errors_cover_the_spread_over_seeds(sim):
         vals.append([r.energy(order=o, kind=k) for o, k in ((1, "vegetation"), (1, "ground"), (2, None))])
     v = np.array(vals)                                 # (seeds, parts, (mean, se))
     ratio = v[:, :, 1].mean(axis=0) / v[:, :, 0].std(axis=0, ddof=1)
-    assert np.all((ratio > 0.6) & (ratio < 6.0)), ratio
+    assert np.all((ratio > 0.6) & (ratio < 20.0)), ratio
 
 
 def test_leaf_avg_weight_in_the_kernel_matches_the_oracle(sim):
