@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-ORDER = ["scanner", "register_classify", "voxelize", "memory", "echo_weights", "lad_terms", "leaf_angles", "clsim", "devices", "decompose", "pipeline"]
+ORDER = ["scanner", "register_classify", "voxelize", "memory", "echo_weights", "lad_terms", "leaf_angles", "clsim", "mitransient", "devices", "decompose", "pipeline"]
 
 HEADER = """# Benchmarks
 
