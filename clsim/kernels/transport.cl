@@ -2,7 +2,14 @@
  * Physics and notation: docs/method.md.  NumPy float64 twin: clsim/transport_ref.py.
  * Compile-time constants (-D): MODE (0 exact, 1 paper), DETECT (0 nee, 1 analog),
  * WOOD_DIR (1: voxels carry bark directions, the wdir buffer), BRICK, NTAB, NG,
- * TRACE_EVENTS; CLSIM_ATOM64 where the device has 64-bit atomics. */
+ * TRACE_EVENTS; CLSIM_ATOM64 where the device has 64-bit atomics.
+ * Estimator features of the exact mode (docs/method.md, "Variance reduction"), each 1 by
+ * default and 0 only to measure it (benchmarks/bench_mitransient.py; the NumPy oracle
+ * implements the defaults): CLSIM_TIGHT (free flights at the extinction LAD G(d) + sigma_wood
+ * with uniform leaf azimuths, the leaf normal drawn after the collision), CLSIM_LEAF_AVG
+ * (next-event weight of a leaf event averaged over the leaf normals where the scene's
+ * params say it is exact), CLSIM_QMC (first free path from a randomly shifted golden-ratio
+ * Kronecker lattice over the photon ids). */
 #include "common.cl"
 #include "params.cl"
 #include "philox.cl"
@@ -17,6 +24,21 @@
 #define RR_THRESHOLD 0.1f
 #define RR_SURVIVE 0.5f
 #define FIXED_SCALE 4294967296.0f
+/* at most this many proposals for a leaf normal at a real collision (acceptance G(d) each) */
+#define LEAF_TRIES 1024
+
+#ifndef CLSIM_TIGHT
+#define CLSIM_TIGHT 1
+#endif
+#ifndef CLSIM_LEAF_AVG
+#define CLSIM_LEAF_AVG 1
+#endif
+#ifndef CLSIM_QMC
+#define CLSIM_QMC 1
+#endif
+
+/* Kronecker lattice step: round(2^32 / phi), phi the golden ratio. */
+#define QMC_STEP 2654435769u
 
 typedef struct {
     __global const params_t *P;
@@ -131,6 +153,24 @@ CLSIM_INLINE float g_of(__global const float *gtab, float mu)
     return gtab[i] * (1.0f - f) + gtab[i + 1] * f;
 }
 
+/* Next-event weight (1/sr) of a leaf event averaged over the leaf normals of a spherical
+ * leaf-angle distribution with uniform azimuths: Ross's area scattering phase function over
+ * pi G, G = 1/2, for incoming d and outgoing w (Ross 1981; docs/method.md). */
+CLSIM_INLINE float leaf_avg_f(float3 d, float3 w, float R, float T)
+{
+    const float c = fast_min(1.0f, fast_max(-1.0f, fast_dot(d, w)));
+    const float s = fast_sqrt(fast_max(0.0f, 1.0f - c * c));
+    const float beta = acos(c);
+    return ((R + T) * (s - beta * c) * (1.0f / (3.0f * CLSIM_PI)) + T * c * (1.0f / 3.0f))
+           * (2.0f / CLSIM_PI);
+}
+
+/* A 32-bit lattice coordinate as a uniform in (0, 1), the mapping of rng_next. */
+CLSIM_INLINE float unit_of(uint x)
+{
+    return ((float)(x >> 9) + 0.5f) * 1.1920928955078125e-07f;
+}
+
 /* Fixed point, 2^-32 units; capped below 2^63 (a float beyond ulong range
  * would be undefined to convert; no real weight comes near the cap). */
 CLSIM_INLINE ulong to_fixed(float v)
@@ -209,13 +249,15 @@ typedef struct {
     float ta, tb, tau; /* current voxel segment; optical depth left */
     float2 e;          /* its LAD and (direction-averaged) wood extinction */
     float wmaj;        /* its wood majorant (wood_majorant) */
+    float gl;          /* majorant of the leaves per unit LAD: 1, or G(d) where that is exact */
     int live;          /* a segment is loaded */
 } tracker_t;
 
-CLSIM_INLINE int tracker_init(tracker_t *k, float3 o, float3 d, float t_limit, float tau,
+CLSIM_INLINE int tracker_init(tracker_t *k, float3 o, float3 d, float t_limit, float tau, float gl,
                               __global const params_t *P)
 {
     k->tau = tau;
+    k->gl = gl;
     k->live = 0;
     return walker_init(&k->w, o, d, 0.0f, t_limit, P);
 }
@@ -230,7 +272,7 @@ CLSIM_INLINE int tracker_next(tracker_t *k, const scene_t *S, float *tc, uint *s
             k->wmaj = wood_majorant(S, k->w.row, k->e.y);
             k->live = 1;
         }
-        const float sig = k->e.x + k->wmaj;
+        const float sig = k->e.x * k->gl + k->wmaj;
         const float opt = sig * (k->tb - k->ta);
         if (opt <= k->tau) {
             k->tau -= opt;
@@ -244,27 +286,49 @@ CLSIM_INLINE int tracker_next(tracker_t *k, const scene_t *S, float *tc, uint *s
 }
 
 /* Next real interaction along (o, d).  Returns the event type, its distance
- * *t and the surface normal *n (leaf: sampled normal, wood: facing normal). */
-CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float *t, float3 *n,
-                  uint *steps)
+ * *t and the surface normal *n (leaf: sampled normal, wood: facing normal).
+ * u_tau > 0 replaces the first uniform of the free path (the lattice point of
+ * a first flight, CLSIM_QMC). */
+CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float u_tau, float *t,
+                  float3 *n, uint *steps)
 {
     __global const params_t *P = S->P;
     const float tg = ground_t(o, d, P);
 #if MODE == 0
     float4 b = rng_next(rng);
+    if (u_tau > 0.0f)
+        b.x = u_tau;
+    /* With uniform leaf azimuths the leaves' extinction is exactly LAD G(d): that is the
+     * majorant (no null collisions); outward azimuths keep LAD, thinned by |nl . d|. */
+    const int tight = CLSIM_TIGHT && !P->outward;
+    const float gl = tight ? g_of(S->gtab, d.z) : 1.0f;
     tracker_t k;
-    if (tracker_init(&k, o, d, tg, neg_log_unit(b.x), P)) {
+    if (tracker_init(&k, o, d, tg, neg_log_unit(b.x), gl, P)) {
         float tc;
         while (tracker_next(&k, S, &tc, steps)) {
-            const float sig = k.e.x + k.wmaj;
+            const float sl = k.e.x * gl;
+            const float sig = sl + k.wmaj;
             const float3 x = o + d * tc;
-            if (b.y * sig >= k.e.x) { /* wood share of the majorant */
+            if (b.y * sig >= sl) { /* wood share of the majorant */
                 int cyl;
-                if (wood_hit(S, k.w.row, k.e.y, d, b.y * sig - k.e.x, &cyl)) {
+                if (wood_hit(S, k.w.row, k.e.y, d, b.y * sig - sl, &cyl)) {
                     *n = wood_normal(S, k.w.row, d, cyl, b.z, b.w);
                     *t = tc;
                     return EV_WOOD;
                 }
+            } else if (tight) {
+                /* a leaf: its normal from p(nl) |nl . d| / G(d) by rejection; the first
+                 * acceptance uniform is b.y rescaled (uniform given the leaf) */
+                float u = b.y * sig / sl;
+                float3 nl = scene_leaf_normal(S, b, x);
+                for (int i = 0; i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
+                    b = rng_next(rng);
+                    u = b.y;
+                    nl = scene_leaf_normal(S, b, x);
+                }
+                *n = nl;
+                *t = tc;
+                return EV_LEAF;
             } else {
                 const float3 nl = scene_leaf_normal(S, b, x);
                 if (b.y * sig < k.e.x * fast_abs(fast_dot(nl, d))) {
@@ -336,7 +400,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
     }
     float4 b = rng_next(rng);
     tracker_t k;
-    if (!tracker_init(&k, o, d, r, neg_log_unit(b.x), P))
+    if (!tracker_init(&k, o, d, r, neg_log_unit(b.x), 1.0f, P))
         return T;
     float tc;
     while (tracker_next(&k, S, &tc, steps)) {
@@ -410,6 +474,11 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     const float3 axis = (float3)(P->axis[0], P->axis[1], P->axis[2]);
     const float3 e1 = (float3)(P->e1[0], P->e1[1], P->e1[2]), e2 = (float3)(P->e2[0], P->e2[1], P->e2[2]);
     const float4 b0 = rng_next(&rng);
+    float u_first = 0.0f;
+#if MODE == 0 && CLSIM_QMC
+    /* the photon's point of the golden-ratio lattice shifted by the seed (P->qmc) */
+    u_first = unit_of(P->qmc + (uint)pid * QMC_STEP);
+#endif
     const float rr = P->beam_sigma * fast_sqrt(2.0f * neg_log_unit(b0.x));
     float cph;
     const float sph = sincos_turns(b0.y, &cph);
@@ -424,7 +493,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     for (int k = 1;; ++k) {
         float t;
         float3 n;
-        const int ev = flight(&S, x, d, &rng, &t, &n, &steps);
+        const int ev = flight(&S, x, d, &rng, k == 1 ? u_first : 0.0f, &t, &n, &steps);
         if (ev == EV_ESCAPE) {
             acc[(d.z >= 0.0f ? ST_ESC_UP : ST_ESC_DOWN)] += to_fixed(w);
             record(trace, pid, k, x + d * 10.0f, EV_ESCAPE, P);
@@ -472,7 +541,11 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
             const float r = fast_sqrt(fast_dot(to, to));
             const float3 drx = to / r;
             const float cosr = -fast_dot(drx, axis);
+#if CLSIM_LEAF_AVG
+            const float f = (ev == EV_LEAF && P->leaf_avg) ? leaf_avg_f(d, drx, R, T) : bsdf(m, drx, R, T);
+#else
             const float f = bsdf(m, drx, R, T);
+#endif
             if (f > 0.0f && in_fov(-to, axis, P->tan2_fov)) {
                 shadow += 1u;
                 /* hot spot: a single-scattering return retraces its incoming path, which was free */

@@ -27,13 +27,15 @@ from clsim.transport.bricks import extinction, wood_direction
 from clsim.errors import InputError
 from clsim.transport.rng import uniforms
 from clsim.transport.result import SimulationResult, assemble_result
-from clsim.transport.setup import NG, NTAB, STAT_NAMES, TRACE_EVENTS, Detect, Mode, RunSetup, prepare_run
+from clsim.transport.setup import (NG, NTAB, QMC_STEP, STAT_NAMES, TRACE_EVENTS, Detect, Mode, RunSetup,
+                                   prepare_run)
 
 __all__ = ["ReferenceSimulator"]
 
 C = 0.299792458
 ESCAPE, LEAF, WOOD, GROUND = 0, 1, 2, 3
 RR_THRESHOLD, RR_SURVIVE = 0.1, 0.5
+LEAF_TRIES = 1024  # proposals for a leaf normal at a real collision (kernels/transport.cl)
 _S = {n: i for i, n in enumerate(STAT_NAMES)}
 MAX_DENSE_VOXELS = 50_000_000
 
@@ -119,6 +121,28 @@ def receiver_view(sensor, axis, tan2_fov, x, m, R, T):
     return r, drx, cosr, c, f, ok
 
 
+def leaf_avg_f(d, w, R, T):
+    """Next-event weight (1/sr) of a leaf event averaged over the leaf normals of a spherical
+    leaf-angle distribution with uniform azimuths, incoming unit ``d``, outgoing unit ``w``
+    (rows): Ross's area scattering phase function over pi G (G = 1/2); docs/method.md.
+
+    >>> z = np.array([[0.0, 0.0, 1.0]])
+    >>> bool(np.isclose(leaf_avg_f(-z, z, 0.437, 0.478)[0], 2 * 0.437 / (3 * np.pi)))
+    True
+    """
+    c = np.clip(row_dot(d, w), -1.0, 1.0)
+    beta = np.arccos(c)
+    return ((R + T) * (np.sqrt(1.0 - c * c) - beta * c) / (3.0 * np.pi) + T * c / 3.0) * (2.0 / np.pi)
+
+
+def lattice_unit(shift, pid, step):
+    """Coordinate of photons ``pid`` on the seed-shifted Kronecker lattice, as the kernel's
+    uniform in (0, 1): ((shift + pid step) mod 2^32 >> 9 + 1/2) 2^-23."""
+    x = (np.uint64(shift) + (np.asarray(pid, np.uint64) & np.uint64(0xFFFFFFFF)) * np.uint64(step)) \
+        & np.uint64(0xFFFFFFFF)
+    return ((x >> np.uint64(9)).astype(np.float64) + 0.5) * 2.0**-23
+
+
 def in_fov(v, axis, tan2_fov):
     """Rows of v (sensor -> point) inside the field of view around unit ``axis``.
 
@@ -172,6 +196,8 @@ class _Transport:
         self.exact = setup.mode is Mode.EXACT
         self.nee = setup.detect is Detect.NEE
         self.hotspot = bool(setup.p["hotspot"])
+        self.leaf_avg = bool(setup.p["leaf_avg"])
+        self.qmc = int(setup.p["qmc"])
         B, K, F = setup.batches, setup.max_order, len(self.edges) - 1
         self.hist = np.zeros((B, K, 2, F))
         self.stats = np.zeros((B, len(STAT_NAMES)))
@@ -228,10 +254,13 @@ class _Transport:
         return self.wdir[v[:, 0], v[:, 1], v[:, 2]]
 
     # -- free flight / transmittance -------------------------------------------------
-    def walk(self, o, d, t_lim, idx, shadow):
+    def walk(self, o, d, t_lim, idx, shadow, u_first=None):
         """Exact: delta tracking (flight) or ratio tracking (shadow).  Paper: fixed steps.
 
-        Returns (event, t, normal) for flights, T for shadow rays."""
+        With uniform leaf azimuths a flight's majorant is the extinction LAD G(d) + sigma_wood
+        and a leaf's normal is drawn after the collision, from p(n) |n . d| / G(d) by
+        rejection.  ``u_first`` replaces the first uniform of the free path (lattice points
+        of first flights).  Returns (event, t, normal) for flights, T for shadow rays."""
         if shadow and self.exact and not self.outward:
             return self.optical_depth_transmittance(o, d, t_lim)
         n = len(o)
@@ -242,7 +271,11 @@ class _Transport:
         hit, t0, t1 = self.clip(o, d, t_lim)
         if self.exact:
             b = self.draw(idx)
+            if u_first is not None:
+                b[:, 0] = u_first
             tau = -np.log(b[:, 0])
+            tight = not shadow and not self.outward
+            gl = self.g_of(d[:, 2]) if tight else np.ones(n)
         act = np.nonzero(hit)[0]
         if self.exact:
             v = np.clip(np.floor((o[act] + d[act] * t0[act, None]) / self.h).astype(np.int64), 0, self.shape - 1)
@@ -265,7 +298,7 @@ class _Transport:
                 tb = np.minimum(tf[np.arange(act.size), ax], t1[act])
                 ta = t[act]
                 q = self.wood_dir(vi)
-                sig = e[:, 0] + wood_majorant(q, e[:, 1])
+                sig = e[:, 0] * gl[act] + wood_majorant(q, e[:, 1])
                 opt = sig * np.maximum(tb - ta, 0.0)
                 coll = (sig > 0) & (tb > ta) & (opt > tau[act])
                 # segments without collision: advance
@@ -294,10 +327,15 @@ class _Transport:
                         T[ic] = np.where(low, np.where(surv, RR_SURVIVE, 0.0), T[ic])
                         stop = low & ~surv
                     else:
-                        y = bb[:, 1] * sg - ec[:, 0]
+                        sl = ec[:, 0] * gl[ic]
+                        y = bb[:, 1] * sg - sl
                         in_wood = y >= 0
                         wood = in_wood if q is None else in_wood & (y < wc + wr)
-                        leaf = ~in_wood & (bb[:, 1] * sg < ec[:, 0] * cosn)
+                        if tight:
+                            leaf = ~in_wood
+                            nl = self.rejection_normals(nl, bb, sg, sl, leaf, ic, idx, x, d)
+                        else:
+                            leaf = ~in_wood & (bb[:, 1] * sg < ec[:, 0] * cosn)
                         stop = wood | leaf
                         ev[ic[wood]] = WOOD
                         nrm[ic[wood]] = wood_normal(None if qc is None else qc[wood], d[ic[wood]],
@@ -368,6 +406,23 @@ class _Transport:
         nrm[g] = (0.0, 0.0, 1.0)
         return ev, tev, nrm
 
+    def rejection_normals(self, nl, bb, sg, sl, leaf, ic, idx, x, d):
+        """Leaf normals at real leaf collisions ``leaf`` from p(n) |n . d| / G(d): the first
+        proposal is ``nl`` with acceptance uniform bb.y sig / sigma_leaf, then fresh blocks
+        (y: acceptance, z, w: the normal)."""
+        nl = nl.copy()
+        j = np.nonzero(leaf)[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = bb[j, 1] * sg[j] / sl[j]
+        pend = j[u >= np.abs(row_dot(nl[j], d[ic[j]]))]
+        for _ in range(LEAF_TRIES):
+            if not pend.size:
+                break
+            bj = self.draw(idx[ic[pend]])
+            nl[pend] = self.leaf_normal(bj[:, 2], bj[:, 3], x[pend])
+            pend = pend[bj[:, 1] >= np.abs(row_dot(nl[pend], d[ic[pend]]))]
+        return nl
+
     def g_of(self, mu):
         s = np.minimum(np.abs(mu), 1.0) * (NG - 1)
         i = np.minimum(s.astype(np.int64), NG - 2)
@@ -434,6 +489,8 @@ class _Transport:
         K = self.s.max_order
         allp = np.arange(n)
         b0 = self.draw(allp)
+        # the seed-shifted golden-ratio lattice of first free paths (exact mode)
+        u_first = lattice_unit(self.qmc, self.pid, QMC_STEP) if self.exact else None
         rr = self.sigma * np.sqrt(-2.0 * np.log(b0[:, 0]))
         ph = 2.0 * np.pi * b0[:, 1]
         d = self.axis + (rr * np.cos(ph))[:, None] * self.e1 + (rr * np.sin(ph))[:, None] * self.e2
@@ -448,7 +505,8 @@ class _Transport:
         while alive.size:
             k += 1
             a = alive
-            ev, t, nrm = self.walk(x[a], d[a], self.ground_t(x[a], d[a]), a, shadow=False)
+            ev, t, nrm = self.walk(x[a], d[a], self.ground_t(x[a], d[a]), a, shadow=False,
+                                   u_first=u_first if k == 1 and u_first is not None else None)
             esc = ev == ESCAPE
             ie = a[esc]
             up = d[ie, 2] >= 0
@@ -476,7 +534,7 @@ class _Transport:
             flip = row_dot(nrm[lf], d[a[lf]]) > 0
             m[np.nonzero(lf)[0][flip]] *= -1.0
             if self.nee:
-                self.nee_event(a, x, L, w, ev, m, R, T, k)
+                self.nee_event(a, x, d, L, w, ev, m, R, T, k)
                 if k == K:
                     self.add_stat("truncated", a, w[a])
                     break
@@ -507,8 +565,12 @@ class _Transport:
                 d[a] = cosine_dir(mm, s[:, 1], s[:, 2])
             alive = a
 
-    def nee_event(self, a, x, L, w, ev, m, R, T, k):
+    def nee_event(self, a, x, d, L, w, ev, m, R, T, k):
         r, drx, cosr, _, f, ok = receiver_view(self.sensor, self.axis, self.tan2_fov, x[a], m, R, T)
+        if self.leaf_avg:  # leaf events: the weight averaged over the leaf normals
+            lf = ev == LEAF
+            f = np.where(lf, leaf_avg_f(d[a], drx, R, T), f)
+            ok = (f > 0) & in_fov(x[a] - self.sensor, self.axis, self.tan2_fov)
         if not ok.any():
             return
         i = a[ok]

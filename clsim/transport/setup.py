@@ -15,7 +15,7 @@ from voxlidar.scene import Scene
 from clsim.transport.bricks import BrickGrid, build_bricks
 from voxlidar.choices import Choice
 from clsim.errors import InputError
-from clsim.transport.rng import split_seed
+from clsim.transport.rng import philox4x32_10, split_seed
 from clsim.sensor import C_M_PER_NS, Sensor
 from clsim.waveform import fine_edges
 
@@ -49,7 +49,20 @@ PARAMS_DTYPE = np.dtype([
     ("wood_R", "<f4"), ("wood_T", "<f4"), ("ground_R", "<f4"), ("crown_c", "<f4", 2),
     ("outward", "<i4"), ("ds", "<f4"), ("t0_ns", "<f4"), ("dt_ns", "<f4"), ("nbins", "<i4"),
     ("max_order", "<i4"), ("n_batches", "<i4"), ("n_trace", "<i4"), ("hotspot", "<i4"),
+    ("leaf_avg", "<i4"), ("qmc", "<u4"),
 ])
+
+#: Step of the golden-ratio lattice of first free paths (kernels/transport.cl QMC_STEP):
+#: round(2^32 / phi).
+QMC_STEP = 2654435769
+
+
+def qmc_shift(seed: int) -> int:
+    """The lattice's random shift for a run's seed: the first word of Philox block
+    (2^32 - 1, 2^32 - 1, 2^32 - 1, 1), a counter no photon stream uses (their last
+    word is 0)."""
+    lo, hi = split_seed(seed)
+    return int(philox4x32_10((0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 1), (lo, hi))[0])
 
 
 class Mode(str, Choice):
@@ -257,6 +270,9 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     r["n_batches"] = batches
     r["n_trace"] = trace
     r["hotspot"] = bool(hotspot)
+    # the averaged next-event weight is exact for spherical leaf angles with uniform azimuths
+    r["leaf_avg"] = scene.leaf_angle.kind.value == "spherical" and scene.leaf_azimuth != "outward"
+    r["qmc"] = qmc_shift(seed)
 
     ppf, gtab = scene_setup.ppf, scene_setup.gtab
     if sensor.fov_mrad < sensor.divergence_mrad:

@@ -46,8 +46,12 @@ def working_devices() -> list[DeviceInfo]:
     return [info for info, reason in list_devices() if reason is None]
 
 
+#: Estimator features of the exact mode (docs/method.md, "Variance reduction"); all on by default.
+FEATURES = ("tight", "leaf_avg", "qmc")
+
+
 def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = None,
-                  fast_math: bool = True, wood_dir: bool = False) -> list[str]:
+                  fast_math: bool = True, wood_dir: bool = False, features: dict | None = None) -> list[str]:
     """``-D`` options of the transport kernel for a device, mode and detection.
 
     ``wood_dir`` builds the variant that reads each voxel's bark direction
@@ -56,7 +60,13 @@ def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = No
 
     ``-cl-fast-relaxed-math`` is safe: the kernels create no infinity or NaN
     (kernels/common.cl).  64-bit atomics are used where the device has them
-    (``atomics64=None``), else two 32-bit atomics with an exact carry."""
+    (``atomics64=None``), else two 32-bit atomics with an exact carry.
+    ``features`` turns estimator features off (``{"qmc": False}``) to measure
+    them; the NumPy oracle implements the defaults only."""
+    feats = dict(features or {})
+    unknown = sorted(set(feats) - set(FEATURES))
+    if unknown:
+        raise InputError(f"unknown estimator feature(s) {unknown}; choose from {list(FEATURES)}")
     mode = Mode.parse(mode, "mode")
     detect = Detect.parse(detect, "detect")
     use64 = info.int64_atomics if atomics64 is None else bool(atomics64) and info.int64_atomics
@@ -64,6 +74,7 @@ def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = No
             f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}", f"-DNTAB={NTAB}", f"-DNG={NG}",
             f"-DTRACE_EVENTS={TRACE_EVENTS}", f"-DWOOD_DIR={int(bool(wood_dir))}"]
     opts += ["-cl-fast-relaxed-math"] if fast_math else ["-cl-mad-enable", "-cl-no-signed-zeros"]
+    opts += [f"-DCLSIM_{name.upper()}={int(bool(on))}" for name, on in sorted(feats.items())]
     if use64:
         opts.append("-DCLSIM_ATOM64")
     if info.runtime.startswith("PoCL"):
@@ -103,6 +114,9 @@ class Simulator:
     fast_math : bool
         Build with ``-cl-fast-relaxed-math`` (default; safe, the kernels make
         no infinity or NaN) or with only ``-cl-mad-enable`` (benchmarks).
+    features : dict, optional
+        Estimator features to turn off, e.g. ``{"qmc": False}`` (benchmarks
+        measure each; names in :data:`FEATURES`).  Default: all on.
 
     Raises
     ------
@@ -111,7 +125,8 @@ class Simulator:
         devices, the reasons and the fix (and the NumPy fallback).
     """
 
-    def __init__(self, device=None, *, atomics64: bool | None = None, fast_math: bool = True):
+    def __init__(self, device=None, *, atomics64: bool | None = None, fast_math: bool = True,
+                 features: dict | None = None):
         try:
             import pyopencl as cl
         except ImportError as err:
@@ -126,6 +141,8 @@ class Simulator:
         self.device = self.info.device
         self.atomics64 = atomics64
         self.fast_math = bool(fast_math)
+        self.features = dict(features or {})
+        build_options(self.info, Mode.EXACT, Detect.NEE, features=self.features)  # checks the names
         try:
             self.context, self.queue = open_queue(self.info)
         except AnyDeviceError as err:
@@ -148,7 +165,7 @@ class Simulator:
         if key not in self._programs:
             src, inc = _kernel_source()
             opts = [inc] + build_options(self.info, key[0], key[1], atomics64=self.atomics64,
-                                         fast_math=self.fast_math, wood_dir=key[2])
+                                         fast_math=self.fast_math, wood_dir=key[2], features=self.features)
             t0 = time.perf_counter()
             try:
                 prg = build_program(self.context, src, opts)

@@ -3,7 +3,11 @@ reproducibility, replay, stability and bad input.
 
 Kernel-vs-oracle comparisons use independent seeds and require
 |a - b| < 4 sqrt(se_a^2 + se_b^2) (standard errors from 16 batch means); with
-~40 comparisons a false alarm has probability ~0.3 %.
+~40 comparisons a false alarm has probability ~0.3 %.  Where the oracle runs
+fewer photons its standard error is at least the kernel's scaled by
+sqrt(n_kernel / n_oracle) (the same estimator on the same scene): 16 batch means
+of a rare tally (analog detections, ~270 in the oracle run) can understate it by
+half, as seed 202 did once the exact mode's estimator changed (issue 16).
 """
 
 from __future__ import annotations
@@ -140,6 +144,7 @@ def test_kernel_matches_oracle(name, sim):
             ea, eb = a.energy(order=order, kind=kind), b.energy(order=order, kind=kind)
             if ea[0] == 0 and eb[0] == 0:
                 continue
+            eb = (eb[0], max(eb[1], ea[1] * np.sqrt(nk / no)))
             assert close(ea, eb), (order, kind, ea, eb)
             compared += 1
     for st in ("ground_direct", "escaped_up", "absorbed", "truncated"):
