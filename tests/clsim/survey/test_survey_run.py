@@ -169,3 +169,19 @@ def test_a_plot_of_many_trees_flies_from_its_file(tmp_path, sim):
     got = load_survey(tmp_path / "out")
     whole = sim.run_pulses(PlotScene.load(path), job.pulses(), BASE, photons=200, max_order=2)
     assert same(got, whole) and np.all(got.energy > 0)
+
+
+def test_survey_plot_example_runs_end_to_end(tmp_path, capsys):
+    """examples/survey_plot.py in a plain loop: the plot, the batches, the LAS and its four pictures;
+    run again, every batch is already on disk (resume)."""
+    import runpy
+
+    example = runpy.run_path(str(ROOT / "examples" / "survey_plot.py"))
+    args = [str(tmp_path), "--pulses", "600", "--photons", "50", "--workers", "0"]
+    assert example["main"](args) == 0
+    assert "600 pulses, 1 batches computed" in capsys.readouterr().out
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["plot.npz", "survey", "survey.las", "survey.wdp", "survey_plot_canopy.png",
+                     "survey_plot_footprints.png", "survey_plot_points.png", "survey_plot_radargram.png"]
+    assert example["main"](args) == 0
+    assert "0 batches computed, 1 already on disk" in capsys.readouterr().out
