@@ -134,12 +134,17 @@ class SceneSetup:
         return scene is self.scene and float(wavelength_nm) == self.wavelength_nm and bool(leaf_off) == self.leaf_off
 
 
-def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False) -> SceneSetup:
-    """The scene's part of :func:`prepare_run`: optics at the wavelength (checked),
-    the bricks, the leaf angle tables (inverse CDF and G)."""
+def _check_scene(scene) -> None:
+    """One line unless ``scene`` is a Scene or brings its own bricks (a :class:`clsim.scenes.PlotScene`)."""
     if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
         raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)) or a clsim.scenes.PlotScene, "
                          f"got {type(scene).__name__}")
+
+
+def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False) -> SceneSetup:
+    """The scene's part of :func:`prepare_run`: optics at the wavelength (checked),
+    the bricks, the leaf angle tables (inverse CDF and G)."""
+    _check_scene(scene)
     wl = float(wavelength_nm)
     optics = {}
     for mat in ("leaf", "bark", "ground"):
@@ -180,9 +185,7 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     ``scene_setup`` (from :func:`prepare_scene`) skips rebuilding what depends
     only on the scene, the wavelength and ``leaf_off`` (bricks, leaf angle
     tables, optics): a survey runs many pulses over one scene."""
-    if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
-        raise InputError(f"scene must be a voxlidar.scene.Scene (Scene.load(path)) or a clsim.scenes.PlotScene, "
-                         f"got {type(scene).__name__}")
+    _check_scene(scene)
     if not isinstance(sensor, Sensor):
         raise InputError(f"sensor must be a clsim.Sensor (Sensor.preset(name)), got {type(sensor).__name__}")
     mode = Mode.parse(mode, "mode")

@@ -210,28 +210,27 @@ class SyntheticTree:
         """
         origin = np.asarray(origin, dtype=np.float64)
         shape = tuple(int(v) for v in shape)
-        found = {}
-        for c in self.cylinders:
-            a, b, r = c[:3], c[3:6], float(c[6])
-            length = float(np.linalg.norm(b - a))
-            if length <= 0 or r <= 0:
-                continue
-            d = (b - a) / length
-            d = -d if d[2] < 0 else d
-            lo = np.maximum(np.floor((np.minimum(a, b) - r - origin) / voxel_size).astype(int), 0)
-            hi = np.minimum(np.floor((np.maximum(a, b) + r - origin) / voxel_size).astype(int), np.array(shape) - 1)
+        a, b, r = self.cylinders[:, :3], self.cylinders[:, 3:6], self.cylinders[:, 6]
+        length = np.linalg.norm(b - a, axis=1)
+        axes = (b - a) / np.where(length > 0, length, 1.0)[:, None]
+        axes *= np.where(axes[:, 2] < 0, -1.0, 1.0)[:, None]
+        flats, owner = [], []
+        for i in np.flatnonzero((length > 0) & (r > 0)):
+            lo = np.maximum(np.floor((np.minimum(a[i], b[i]) - r[i] - origin) / voxel_size).astype(int), 0)
+            hi = np.minimum(np.floor((np.maximum(a[i], b[i]) + r[i] - origin) / voxel_size).astype(int),
+                            np.array(shape) - 1)
             if np.any(hi < lo):
                 continue
             g = np.stack(np.meshgrid(*[np.arange(lo[k], hi[k] + 1) for k in range(3)], indexing="ij"),
                          -1).reshape(-1, 3)
-            x = origin + (g + 0.5) * voxel_size
-            t = np.clip((x - a) @ ((b - a) / length), 0.0, length)
-            inside = np.linalg.norm(x - (a + t[:, None] * ((b - a) / length)), axis=1) < r
-            for f in np.ravel_multi_index(g[inside].T, shape):
-                found[int(f)] = d
-        flat = np.array(sorted(found), dtype=np.int64)
-        axis = np.array([found[f] for f in flat.tolist()]).reshape(-1, 3)
-        return flat, axis
+            inside = _segment_distance(origin + (g + 0.5) * voxel_size, a[i], b[i]) < r[i]
+            flats.append(np.ravel_multi_index(g[inside].T, shape))
+            owner.append(np.full(int(inside.sum()), i))
+        if not flats:
+            return np.zeros(0, np.int64), np.zeros((0, 3))
+        # np.unique keeps each voxel's first occurrence: reversed, that is the last cylinder listed
+        flat, first = np.unique(np.concatenate(flats)[::-1], return_index=True)
+        return flat.astype(np.int64), axes[np.concatenate(owner)[::-1][first]]
 
     def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional",
                     solid_wood: bool = True):
@@ -336,12 +335,8 @@ class SyntheticTree:
         """True when ``point`` lies inside a bark cylinder (e.g. a scanner in the trunk)."""
         if not len(self.cylinders):
             return False
-        p = np.asarray(point, dtype=float)
-        a, b, r = self.cylinders[:, :3], self.cylinders[:, 3:6], self.cylinders[:, 6]
-        ab = b - a
-        t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.einsum("ij,ij->i", ab, ab), 0.0, 1.0)
-        d = np.linalg.norm(a + t[:, None] * ab - p, axis=1)
-        return bool(np.any(d < r))
+        d = _segment_distance(np.asarray(point, dtype=float), self.cylinders[:, :3], self.cylinders[:, 3:6])
+        return bool(np.any(d < self.cylinders[:, 6]))
 
     def material_colors(self) -> np.ndarray:
         """(V, 3) vertex colours by material (leaf green, bark brown, ground grey, target white)."""
@@ -408,6 +403,13 @@ def _orthonormal(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u = np.cross(d, helper)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     return u, np.cross(d, u)
+
+
+def _segment_distance(x, a, b) -> np.ndarray:
+    """Distance from points ``x`` (..., 3) to the segments ``a``-``b`` (broadcast against ``x``)."""
+    ab = b - a
+    t = np.clip(np.sum((x - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(a + t[..., None] * ab - x, axis=-1)
 
 
 def _cylinders_mesh(cyl: np.ndarray, sides: int = 8, *, caps: bool = False) -> tuple[np.ndarray, np.ndarray]:
