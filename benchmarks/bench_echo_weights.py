@@ -56,13 +56,14 @@ def scan_box(box, n_subrays: int, step_deg: float, *, min_reflectance_db: float 
     return scans
 
 
-def score(box, scans, rule: str, *, voxel_size: float = 0.5, estimator: str = "bcmle", tracer=None) -> dict:
-    """Mean LAD of the seen voxels against the mesh truth, for one rule."""
+def score(box, scans, rule: str, *, voxel_size: float = 0.5, estimator: str = "bcmle", tracer=None,
+          undetected: str = "ignore") -> dict:
+    """Mean LAD of the seen voxels against the mesh truth, for one rule (and detection-threshold correction)."""
     if rule == "fraction (reflectance)":
         scans = [dataclasses.replace(s, beam_fraction=None) for s in scans]
         rule = "fraction"
     res = voxelize(scans, voxel_size=voxel_size, leaf_angle="spherical", estimator=estimator, ground=None,
-                   bounds=BOUNDS, echo_weights=rule, progress=False, tracer=tracer)
+                   bounds=BOUNDS, echo_weights=rule, progress=False, tracer=tracer, undetected=undetected)
     tris = box.vertices[box.triangles]
     truth = area_per_voxel(tris, origin=res.grid.lower, voxel_size=res.grid.voxel_size,
                            shape=res.grid.shape) / res.grid.voxel_volume

@@ -69,6 +69,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from tlsvox.voxel.estimators import Estimator, FillMode
     from voxlidar.leafangle import LeafAngleKind
     from tlsvox.voxel.weights import EchoWeights
+    from tlsvox.voxel.detection import Undetected
     from tlsvox.voxel.wood import WoodMethod
 
     p.add_argument("scans", nargs="+", metavar="SCAN",
@@ -100,6 +101,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="nominal leaf reflectance of a full hit (fraction from reflectance, threshold); "
                         "default the leaf optics at the scanner's wavelength")
     p.add_argument("--wood-reflectance", type=float, help="nominal bark reflectance of a full hit (fraction)")
+    p.add_argument("--undetected", default="ignore", choices=[u.value for u in Undetected],
+                   help="leaf hits under the scanner's detection threshold: ignore (default; LAD biased low) or "
+                        "model (give the expected unrecorded interception back; docs/voxelize.md)")
+    p.add_argument("--detection-threshold-db", type=float,
+                   help="the scanner's detection threshold, dB of a white target (default: the scan's preset; "
+                        "the RIEGL VZ-400: -20)")
+    p.add_argument("--leaf-shape", default="0.05,0.025",
+                   help="leaf length,width in metres for --undetected model (default 0.05,0.025)")
     p.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
     p.add_argument("--min-explored", type=float, default=0.05,
                    help="explored depth fraction a voxel needs (else occluded; default 0.05)")
@@ -249,7 +258,9 @@ def run(args) -> int:
                        bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
                        socs_rotation=rot, max_range=args.max_range, progress=not args.quiet,
                        echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
-                       wood_reflectance=args.wood_reflectance,
+                       wood_reflectance=args.wood_reflectance, undetected=args.undetected,
+                       detection_threshold_db=args.detection_threshold_db,
+                       leaf_shape=_leaf_shape(args.leaf_shape),
                        tracer=Tracer(args.device) if args.device else None)
         for w in res.scene.meta["warnings"]:
             print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
@@ -278,10 +289,19 @@ def run(args) -> int:
                                                        for lay in measured.layers]}}),
                    "layout": s.meta["layout"], "grid_origin": [round(v, 6) for v in res.grid.origin],
                    "estimator": s.meta["estimator"], "echo_weights": s.meta["echo_weights"],
+                   "undetected": {k: v for k, v in s.meta["undetected"].items() if k != "models"},
                    "flags": s.meta["flags"], "beams": s.meta["beams"],
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
     return 0
+
+
+def _leaf_shape(text: str) -> tuple[float, float]:
+    try:
+        length, width = (float(v) for v in str(text).split(","))
+    except ValueError:
+        raise InputError(f"--leaf-shape {text!r} must be length,width in metres, e.g. 0.05,0.025") from None
+    return length, width
 
 
 def main(argv=None) -> int:

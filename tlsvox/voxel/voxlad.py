@@ -41,6 +41,7 @@ from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from voxlidar.choices import Choice
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
+from tlsvox.voxel.detection import DetectionModel, Undetected, unrecorded_echoes
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
 
 __all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "voxelize", "score_lad"]
@@ -165,7 +166,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
              fill="none", max_range: float | None = None, angular_grid: AngularGrid | None = None,
              socs_rotation=None, scanner_frame: bool = False, crown_center=None,
              echo_weights="auto", leaf_reflectance: float | None = None, wood_reflectance: float | None = None,
-             layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
+             undetected="ignore", detection_threshold_db: float | None = None, leaf_shape=(0.05, 0.025),
+             undetected_iterations: int = 4, layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
              progress: bool = True, plan_only: bool = False) -> VoxelizeResult:
     """Build the voxel scene from registered scans.
 
@@ -231,7 +233,23 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         ``scene.meta["echo_weights"]``.
     leaf_reflectance, wood_reflectance : float, optional
         Nominal reflectance of a full hit (``fraction`` from reflectance,
-        ``threshold``); default the optics at the scanner's wavelength.
+        ``threshold``, and the detection model); default the optics at the
+        scanner's wavelength.
+    undetected : {"ignore", "model"}
+        Leaf hits too weak for the scanner's detection threshold
+        (:mod:`tlsvox.voxel.detection`): ``ignore`` (default) counts the
+        share of the beam they stopped as travelling on (LAD biased low);
+        ``model`` gives each pulse's expected unrecorded interception back
+        as leaf echoes where the current estimate puts it, and estimates
+        again (``undetected_iterations`` times).  Stated in
+        ``scene.meta["undetected"]``.
+    detection_threshold_db : float, optional
+        The scanner's detection threshold (dB of a white Lambertian target);
+        default the scan's preset (``scan.meta["preset"]["min_reflectance_db"]``).
+    leaf_shape : (float, float), metres
+        Leaf length and width of the detection model (default 5 x 2.5 cm).
+    undetected_iterations : int
+        Estimates made with the correction, each from the one before (>= 1).
     tracer : Tracer, optional
         OpenCL tracer to reuse (default: a new one).
     max_bytes : int, optional
@@ -266,6 +284,17 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     weights = EchoWeights.parse(echo_weights, "echo_weights")
     for s in scans:
         resolve_rule(weights, s)  # the inputs the rule needs, checked before any work
+    undetected = Undetected.parse(undetected, "undetected")
+    detection = None
+    if undetected is Undetected.MODEL:
+        shape = np.asarray(leaf_shape, dtype=np.float64).reshape(-1)
+        if shape.shape != (2,):
+            raise InputError(f"leaf_shape={leaf_shape!r} must be (length, width) in metres, e.g. (0.05, 0.025)")
+        if int(undetected_iterations) < 1:
+            raise InputError(f"undetected_iterations={undetected_iterations!r} must be an integer >= 1, e.g. 2")
+        detection = [DetectionModel.for_scan(s, threshold_db=detection_threshold_db,
+                                             leaf_reflectance=leaf_reflectance, leaf_length=shape[0],
+                                             leaf_width=shape[1]) for s in scans]
     fill = FillMode.parse(fill, "fill")
     wood_m = WoodMethod.parse(wood, "wood")
     la = LeafAngle.from_dict(leaf_angle)
@@ -362,7 +391,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         parts.append(b)
         infos.append(info)
     beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
-    del parts  # the per-scan copies
+    if detection is None:
+        del parts  # the per-scan copies
     timings["pulses"] = time.perf_counter() - t1
 
     if plan_only:
@@ -390,6 +420,33 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     t3 = time.perf_counter()
     lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
                        small_voxel_factor=small_voxel_factor, fill=fill)
+    undetected_meta = {"rule": undetected.value}
+    if detection is not None:
+        rounds = []
+        leaf_weight = float(beams.echo_weight[beams.echo_kind == EchoKind.LEAF].sum())
+        for _ in range(int(undetected_iterations)):
+            lookup, box = _lad_lookup(grid, lad)
+            fixed, given = [], 0.0
+            for part, model in zip(parts, detection):
+                b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box)
+                fixed.append(b)
+                given += info["given_back"]
+            beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
+            del fixed
+            rows = Bricks.from_ijk(grid, echo_voxels(grid, beams)) if plan.layout is Layout.SPARSE else None
+            stats = tracer.trace(grid, beams, rows=rows, outward=outward, progress=progress,
+                                 max_bytes=None if max_bytes is None else max_bytes - plan.beams)
+            lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
+                               small_voxel_factor=small_voxel_factor, fill=fill)
+            rounds.append(round(given / leaf_weight, 5) if leaf_weight > 0 else 0.0)
+        undetected_meta.update(models=[m.to_dict() for m in detection], iterations=int(undetected_iterations),
+                               given_back_share=rounds,
+                               note="given_back_share: unrecorded leaf interception given back, per round, "
+                                    "over the recorded leaf echo weight")
+        del parts
+    else:
+        thr = [(s.meta.get("preset") or {}).get("min_reflectance_db") for s in scans]
+        undetected_meta["detection_threshold_db"] = thr
     wood_est = estimate_wood(stats, method=wood_m, percentile=wood_percentile, n_min=n_min)
     ijk, lad_v, wood_v, occ_v, std_v = _stored_voxels(grid, lad, wood_est, plane)
     if crown_center is None:
@@ -404,7 +461,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,
         "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
         "leaf_angle": la.to_dict(), "layout": plan.layout.value, "memory_plan": plan.describe(),
-        "echo_weights": [i["echo_weights"] for i in infos],
+        "echo_weights": [i["echo_weights"] for i in infos], "undetected": undetected_meta,
         "ground": None if plane is None else {"coefficients": list(plane.coefficients),
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
     }
@@ -415,6 +472,38 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                   wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la, leaf_azimuth=azimuth.value, crown_center=cc,
                   ground_z=None if plane is None else plane.z_center, meta=meta)
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
+
+
+def _lad_lookup(grid, lad: LadEstimate):
+    """LAD at flat voxel indices, where the detection model puts the unrecorded interception; and
+    the box (2, 3) of the voxels above 0 (None when there is none).
+
+    The seen voxels' estimates; occluded voxels (dense layout) take their height layer's mean
+    inside the crown hull (:func:`~tlsvox.voxel.estimators.fill_layers`), since a beam's optical
+    depth runs through them too; the sparse layout keeps their raw estimates.  Capped at
+    LAD_PLAUSIBLE_MAX.
+    """
+    from tlsvox.voxel.estimators import fill_layers, hull_mask
+
+    raw = np.clip(lad.lad_raw, 0.0, LAD_PLAUSIBLE_MAX) * float(lad.options.get("small_voxel_factor", 1.0))
+    if lad.rows is None:
+        occ = lad.occluded
+        seen = np.where(occ, 0.0, raw)
+        raw, _ = fill_layers(seen, occ, hull_mask(seen > 0, grid))
+    ijk = np.argwhere(raw > 0) if lad.rows is None else lad.rows.ijk[raw > 0]
+    box = (np.array([grid.lower + ijk.min(axis=0) * grid.voxel_size, grid.lower + (ijk.max(axis=0) + 1) * grid.voxel_size])
+           if len(ijk) else None)
+    if lad.rows is None:
+        flat_values = raw.reshape(-1)
+        return (lambda flat: flat_values[flat]), box
+    keys = grid.flat(lad.rows.ijk)
+    order = np.argsort(keys)
+    keys, values = keys[order], raw[order]
+
+    def lookup(flat):
+        i = np.minimum(np.searchsorted(keys, flat), len(keys) - 1)
+        return np.where(keys[i] == flat, values[i], 0.0) if len(keys) else np.zeros(np.shape(flat))
+    return lookup, box
 
 
 def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):
