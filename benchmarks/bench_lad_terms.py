@@ -115,9 +115,8 @@ def main(argv=None):
               "rho cos(i) / 7 and goes undetected; the beam share it stopped then counts as travelling on (the "
               "tail) and adds free path to every voxel behind it, where the true beam is already small. A few per "
               "cent of the leaf interception lost this way costs ten to sixteen points of leaf area (compare each "
-              "oak's rows at 20 cm). The estimators do not correct for it yet: the share a beam loses to an "
-              "undetected hit depends on how leaf orientation and beam share go together (edge-on leaves are "
-              "the ones a beam grazes), which a scan does not record.", ""]
+              "oak's rows at 20 cm). `voxelize(undetected=\"model\")` corrects for it "
+              "(`tlsvox.voxel.detection`): see the next section, measured at the VZ-400's -20 dB.", ""]
     out = Path(args.out)
     atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
     print(f"wrote {out}")
@@ -182,7 +181,7 @@ def threshold_table(args):
         lines.append(f"| {oak} | {threshold:g} dB | {rule} | {total['total_area']:.1f} of {total['true_area']:.1f} m2 "
                      f"({100 * total['area_error']:+.1f} %) | {seen['total_area']:.1f} of {seen['true_area']:.1f} m2 "
                      f"({100 * seen['area_error']:+.1f} %) | {gb} | {seconds:.0f} s |")
-    lines += ["", "`undetected=\"model\"` (:mod:`tlsvox.voxel.detection`, equations in docs/method.md) gives each "
+    lines += ["", "`undetected=\"model\"` (`tlsvox.voxel.detection`, equations in docs/voxelize.md and docs/method.md) gives each "
               "pulse's expected unrecorded leaf interception back as leaf echoes: the share of beam parts on a leaf "
               "at incidence cosine mu that read under the threshold (a Monte Carlo of the beam's sub-ray pattern "
               "over elliptical leaves), averaged over the leaf angle model into H, next to G; where along the beam "
