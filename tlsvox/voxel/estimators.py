@@ -181,7 +181,8 @@ def safe_divide(a, b):
 
 def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_explored: float = 0.05,
                  leaf_size: float | None = 0.05, large_leaf_ratio: float = 2.0,
-                 small_voxel_factor: float = 1.0, fill="none", fill_mask=None) -> LadEstimate:
+                 small_voxel_factor: float = 1.0, fill="none", fill_mask=None,
+                 weighted_count: bool = False) -> LadEstimate:
     """Estimate LAD per voxel from traced beam statistics.
 
     Parameters
@@ -206,6 +207,10 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     fill_mask : (nx, ny, nz) bool, optional
         Where filling is allowed (the crown); default :func:`hull_mask` of the
         voxels with leaf hits.
+    weighted_count : bool
+        Also flag ``FEW_BEAMS`` where the beam weight entering (``n_w``, in
+        pulses) is under ``n_min``: voxels reached only by the leftovers of
+        pulse tails (``voxelize(undetected="model")``; dense traces).
 
     Returns
     -------
@@ -267,9 +272,12 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
         saturated |= degenerate
 
     flags = np.zeros(count.shape, dtype=np.uint8)
-    flags[count < n_min] |= np.uint8(Flag.FEW_BEAMS)
+    few = count < n_min
+    if weighted_count:
+        few |= n_w < n_min
+    flags[few] |= np.uint8(Flag.FEW_BEAMS)
     explored = safe_divide(path, chord_w)
-    flags[(count >= n_min) & (explored < min_explored)] |= np.uint8(Flag.LOW_EXPLORED)
+    flags[~few & (explored < min_explored)] |= np.uint8(Flag.LOW_EXPLORED)
     flags[saturated] |= np.uint8(Flag.SATURATED)
     if leaf_size is not None:
         flags[(count > 0) & (mean_chord < large_leaf_ratio * leaf_size)] |= np.uint8(Flag.LARGE_LEAVES)
@@ -299,7 +307,7 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     std = std * float(small_voxel_factor)
     options = dict(n_min=int(n_min), min_explored=float(min_explored), leaf_size=leaf_size,
                    large_leaf_ratio=float(large_leaf_ratio), small_voxel_factor=float(small_voxel_factor),
-                   fill=fill.value)
+                   fill=fill.value, weighted_count=bool(weighted_count))
     return LadEstimate(lad=out, lad_std=std, lad_raw=lad_raw, flags=flags, g_eff=g_eff,
                        estimator=est, options=options, **sparse)
 

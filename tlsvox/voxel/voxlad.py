@@ -241,8 +241,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         share of the beam they stopped as travelling on (LAD biased low);
         ``model`` gives each pulse's expected unrecorded interception back
         as leaf echoes where the current estimate puts it, and estimates
-        again (``undetected_iterations`` times).  Stated in
-        ``scene.meta["undetected"]``.
+        again (``undetected_iterations`` times); its voxels entered by less
+        than ``n_min`` pulses' worth of beam weight count as occluded
+        (``weighted_count``).  Stated in ``scene.meta["undetected"]``.
     detection_threshold_db : float, optional
         The scanner's detection threshold (dB of a white Lambertian target);
         default the scan's preset (``scan.meta["preset"]["min_reflectance_db"]``).
@@ -436,8 +437,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
             rows = Bricks.from_ijk(grid, echo_voxels(grid, beams)) if plan.layout is Layout.SPARSE else None
             stats = tracer.trace(grid, beams, rows=rows, outward=outward, progress=progress,
                                  max_bytes=None if max_bytes is None else max_bytes - plan.beams)
+            # a voxel reached only by what the model leaves of pulse tails is not seen: count beams by weight
             lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
-                               small_voxel_factor=small_voxel_factor, fill=fill)
+                               small_voxel_factor=small_voxel_factor, fill=fill, weighted_count=True)
             rounds.append(round(given / leaf_weight, 5) if leaf_weight > 0 else 0.0)
         undetected_meta.update(models=[m.to_dict() for m in detection], iterations=int(undetected_iterations),
                                given_back_share=rounds,

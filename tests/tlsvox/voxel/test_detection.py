@@ -156,3 +156,22 @@ def test_the_rule_is_stated_and_the_sparse_layout_gives_back_alike(bench):
         given[layout] = meta["given_back_share"][-1]
     assert 0.002 < given["dense"] < 0.1
     assert given["sparse"] == pytest.approx(given["dense"], rel=0.1)
+
+
+def test_weighted_count_flags_voxels_reached_only_by_tail_leftovers():
+    """Ten beams of a tenth of a pulse each: ten beams, one pulse's worth of weight."""
+    from tlsvox.voxel.estimators import Flag, estimate_lad
+    from tlsvox.voxel.grid import VoxelGrid
+    from tlsvox.voxel.trace import Beams, trace
+
+    grid = VoxelGrid((0, 0, 0), 1.0, (1, 1, 1))
+    y = np.linspace(0.05, 0.95, 10)
+    rays = Beams.from_rays(np.column_stack([np.full(10, -1.0), y, np.full(10, 0.5)]), [[1, 0, 0]] * 10)
+    beams = Beams(rays.origin, rays.direction, rays.echo_start, rays.echo_range, rays.echo_weight, rays.echo_kind,
+                  np.full(10, 0.1), rays.max_range)
+    stats = trace(grid, beams)
+    assert stats.field("count")[0, 0, 0] == 10 and stats.field("n_w")[0, 0, 0] == pytest.approx(1.0)
+    plain = estimate_lad(stats, n_min=5)
+    weighted = estimate_lad(stats, n_min=5, weighted_count=True)
+    assert not plain.flags[0, 0, 0] & Flag.FEW_BEAMS
+    assert weighted.flags[0, 0, 0] & Flag.FEW_BEAMS and weighted.options["weighted_count"]
