@@ -50,7 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from clsim.sensor import C_M_PER_NS, Sensor  # noqa: E402
-from clsim.transport.setup import prepare_run  # noqa: E402
+from clsim.transport.setup import prepare_run, prepare_scene  # noqa: E402
 from clsim.transport.simulator import Simulator  # noqa: E402
 from clsim.validation import testscenes  # noqa: E402
 
@@ -101,18 +101,22 @@ def checks_from_hist(hist, edges_ns, R, top, H, bare=None):
 class Peer:
     """The mitransient worker in its own venv; None-like when it cannot start (reason kept)."""
 
-    def __init__(self, env: Path, tmp: Path):
+    def __init__(self, env: Path, tmp: Path, python: str | None = None, variant: str = "llvm_ad_mono"):
         self.reason = None
         self.proc = None
         self.tmp = tmp
-        py = env / "bin" / "python"
-        llvm = env / "llvm-path.txt"
-        if not py.exists() or not llvm.exists():
-            self.reason = (f"no peer environment at {env}: run `bash benchmarks/peers/setup_mitransient.sh`")
-            return
-        environ = dict(os.environ, DRJIT_LIBLLVM_PATH=llvm.read_text().strip(),
-                       DRJIT_CACHE_DIR=str(tmp / "drjit-cache"))
-        environ.pop("PYTHONPATH", None)
+        self.variant = variant
+        environ = dict(os.environ, DRJIT_CACHE_DIR=str(tmp / "drjit-cache"), MITRANSIENT_VARIANT=variant)
+        if python:  # an interpreter that imports mitransient as it is (a GPU machine's own Python)
+            py = Path(python)
+        else:
+            py = env / "bin" / "python"
+            llvm = env / "llvm-path.txt"
+            if not py.exists() or not llvm.exists():
+                self.reason = f"no peer environment at {env}: run `bash benchmarks/peers/setup_mitransient.sh`"
+                return
+            environ["DRJIT_LIBLLVM_PATH"] = llvm.read_text().strip()
+            environ.pop("PYTHONPATH", None)
         self.proc = subprocess.Popen([str(py), str(ROOT / "benchmarks" / "peers" / "mitransient_worker.py")],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=environ)
         self.versions = None
@@ -229,15 +233,18 @@ def run_scene(args, name, scene_fn, voxels, peer, lines, tmp):
     setup = prepare_run(scene, sensor, photons=1, seed=0, **kw)
     # clsim set-ups: the new default, the estimator before issue 16 (all features off), and
     # each feature off alone (on the first voxel size); the default on other voxel sizes
+    # each scene prepared once (bricks, tables; uploaded at the first run), as the peer loads
+    # its scene once: the timed calls are the runs themselves
+    prepared = {v: prepare_scene(scenes[v], wavelength_nm=sensor.wavelength_nm) for v in voxels}
     sims = {}
     for v in voxels:
-        sims[f"clsim {v:g} m"] = (Simulator(), scenes[v])
+        sims[f"clsim {v:g} m"] = (Simulator(), scenes[v], prepared[v])
     if args.variants:
-        sims[f"clsim {voxels[0]:g} m, before (no feature)"] = (Simulator(features=OLD), scene)
+        sims[f"clsim {voxels[0]:g} m, before (no feature)"] = (Simulator(features=OLD), scene, prepared[voxels[0]])
         for f in ("qmc", "leaf_avg", "tight"):
-            sims[f"clsim {voxels[0]:g} m, no {f}"] = (Simulator(features={f: False}), scene)
-    for s, sc in sims.values():  # build every program before anything is timed
-        s.run(sc, sensor, photons=2000, seed=0, **kw)
+            sims[f"clsim {voxels[0]:g} m, no {f}"] = (Simulator(features={f: False}), scene, prepared[voxels[0]])
+    for s, sc, prep in sims.values():  # build every program before anything is timed
+        s.run(sc, sensor, photons=2000, seed=0, scene_setup=prep, **kw)
     ref = Simulator().run(scene, sensor, photons=args.ref_photons, seed=987654, **kw).fine.sum(axis=(0, 1))
     refs = {k: ref for k in sims}
     peers = []
@@ -254,9 +261,9 @@ def run_scene(args, name, scene_fn, voxels, peer, lines, tmp):
         for label, _, _ in peers:  # Dr.Jit compiles per launch size: once, untimed
             peer.render(n, 1, name=label)
         for rep in range(args.repeats):
-            for label, (s, sc) in sims.items():
+            for label, (s, sc, prep) in sims.items():
                 t0 = time.perf_counter()
-                r = s.run(sc, sensor, photons=n, seed=10_000 + 97 * n + rep, **kw)
+                r = s.run(sc, sensor, photons=n, seed=10_000 + 97 * n + rep, scene_setup=prep, **kw)
                 dt = time.perf_counter() - t0
                 rows[label].append((n, dt, rel_l2(r.fine.sum(axis=(0, 1)), refs[label])))
             for label, end, sampler in peers:
@@ -441,10 +448,26 @@ DIFFERENCES = """### Where the physics differs, and what was matched
 """
 
 
+def command_line(argv) -> str:
+    """The command that wrote the page (the lock and interpreter as a user types them on this machine)."""
+    import shlex
+    import sys
+
+    rest = " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
+    return ("flock /tmp/voxlidar-bench.lock .venv/bin/python benchmarks/bench_mitransient.py " + rest).strip()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "mitransient.md"))
     ap.add_argument("--peer-env", default=str(PEER_ENV))
+    ap.add_argument("--peer-python", default=None,
+                    help="run the peer with this interpreter (with mitransient importable) instead of "
+                         "--peer-env's; PYTHONPATH is passed on")
+    ap.add_argument("--peer-variant", default="llvm_ad_mono",
+                    help="Mitsuba variant of the peer: llvm_ad_mono (CPU) or cuda_ad_mono (NVIDIA GPU)")
+    ap.add_argument("--scale", type=int, default=1,
+                    help="multiply every sample count by this (a GPU needs larger runs to be timed)")
     ap.add_argument("--quick", action="store_true", help="fewer samples (a few minutes)")
     ap.add_argument("--scenes", default="slab,oak")
     ap.add_argument("--no-profile", dest="profile", action="store_false",
@@ -461,6 +484,9 @@ def main(argv=None) -> int:
     args.cf_photons = 1_000_000 if q else 4_000_000
     args.cf_spp = 1 << 20 if q else 1 << 22
     args.profile_photons = 1 << 17 if q else 1 << 19
+    for k in ("ref_photons", "ref_spp", "cf_photons", "cf_spp", "profile_photons"):
+        setattr(args, k, getattr(args, k) * args.scale)
+    args.series = [n * args.scale for n in args.series]
     # Mitsuba's `ldsampler` was tried as a third set-up: its error stalled at 1.3-3.8 % on the slab
     # from 16k to 262k samples (quick run), so it is left out
     args.peer_setups = [("laser", "independent"), ("receiver", "independent")]
@@ -468,12 +494,11 @@ def main(argv=None) -> int:
     t_start = time.time()
     with tempfile.TemporaryDirectory(prefix="bench-mitransient-") as td:
         tmp = Path(td)
-        peer = Peer(Path(args.peer_env), tmp)
+        peer = Peer(Path(args.peer_env), tmp, python=args.peer_python, variant=args.peer_variant)
         lines = ["## clsim against mitransient (transient Mitsuba 3)", "",
-                 f"Written by `flock /tmp/voxlidar-bench.lock .venv/bin/python benchmarks/bench_mitransient.py"
-                 f"{' --quick' if q else ''}` on {time.strftime('%Y-%m-%d %H:%M')}; "
+                 f"Written by `{command_line(argv)}` on {time.strftime('%Y-%m-%d %H:%M')}; "
                  f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
-                 f"load average {load:.1f} at start (other work shares the 2 cores; runs alternate "
+                 f"load average {load:.1f} at start (runs alternate "
                  "between the programs at every sample count so the ratios stay fair, absolute speeds "
                  "are lower bounds). Peer set-up: `bash benchmarks/peers/setup_mitransient.sh`.", ""]
         try:
@@ -484,7 +509,7 @@ def main(argv=None) -> int:
                 peer.scene(spec)
                 v = peer.versions
                 lines += [f"Peer: mitransient {v['mitransient']}, Mitsuba {v['mitsuba']}, Dr.Jit {v['drjit']} "
-                          f"(`llvm_ad_mono`, {v['threads']} threads, integrator `transient_prbvolpath`, NEE, "
+                          f"(`{peer.variant}`, {v['threads']} threads, integrator `transient_prbvolpath`, NEE, "
                           "max_depth 4 = 3 scatterings, no Russian roulette); clsim "
                           f"{Simulator().device_name} (exact mode, NEE, max_order 3).", ""]
             else:
@@ -497,7 +522,8 @@ def main(argv=None) -> int:
                       "Error = relative L2 distance of the 942-bin (slab) return histogram, all orders, to the "
                       f"set-up's own reference (clsim {args.ref_photons:,} photons; mitransient "
                       f"{args.ref_chunks} x {args.ref_spp:,} samples per set-up); RMS over {args.repeats} seeds, wall "
-                      "time the median (whole `Simulator.run` / whole `render` call, kernels already built). "
+                      "time the median (whole `Simulator.run` over the scene prepared once by `prepare_scene`, as "
+                      "the peer loads its scene once / whole `render` call; kernels already built). "
                       "Time to 1 %: the fitted a t^-b; the b = 1/2 column assumes plain Monte Carlo.", ""]
             results = {}
             if "slab" in args.scenes:

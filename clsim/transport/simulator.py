@@ -154,6 +154,9 @@ class Simulator:
         # +9 %, PoCL 3.0 -2 %; docs/benchmarks.md): photons diverge, so a group gains
         # nothing from running in lock step.  GPUs: the runtime's choice.
         self.local_size = None if self.info.is_gpu else (1,)
+        # the device copies of the last SceneSetup given to run() (runs over one prepared
+        # scene upload it once)
+        self._kept = (None, None)
 
     @property
     def device_name(self) -> str:
@@ -179,7 +182,8 @@ class Simulator:
     def run(self, scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
             detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
             bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
-            chunk: int = 1 << 20, progress: bool = False, hotspot: bool = False) -> SimulationResult:
+            chunk: int = 1 << 20, progress: bool = False, hotspot: bool = False,
+            scene_setup: SceneSetup | None = None) -> SimulationResult:
         """Simulate one pulse of ``sensor`` over ``scene``.
 
         Parameters
@@ -220,11 +224,23 @@ class Simulator:
             which was free, so its transmittance is 1 (exact for explicit
             leaves; a turbid medium would apply exp(-tau) twice).  Higher
             orders return independently.  See docs/method.md.
+        scene_setup : SceneSetup, optional
+            The scene prepared once by :func:`~clsim.transport.setup.prepare_scene`
+            for many runs over it: its bricks and tables are not rebuilt, and they
+            are uploaded to the device once (this Simulator keeps the copies of the
+            last one given).  The result is bit for bit the same.
         """
         setup = prepare_run(scene, sensor, photons=photons, seed=seed, mode=mode, detect=detect,
                             max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
-                            step_m=step_m, target=target, trace=trace, hotspot=hotspot)
-        return self.run_setup(setup, chunk=chunk, progress=progress)
+                            step_m=step_m, target=target, trace=trace, hotspot=hotspot,
+                            scene_setup=scene_setup)
+        bufs = None
+        if scene_setup is not None:
+            kept, bufs = self._kept
+            if kept is not scene_setup:
+                bufs = self._scene_buffers(setup)
+                self._kept = (scene_setup, bufs)
+        return self.run_setup(setup, chunk=chunk, progress=progress, buffers=bufs)
 
     def run_pulses(self, scene: Scene, pulses, base: Sensor, *, photons: int, mode="exact", detect="nee",
                    max_order: int = 3, leaf_off: bool = False, batches: int = 1, bin_ns: float = 0.05,
@@ -319,10 +335,12 @@ class Simulator:
             raise DeviceError(f"cannot upload the scene ({g.nbytes / 2**20:.0f} MiB of bricks) to "
                               f"{self.device_name}: {short_reason(err)}") from err
 
-    def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False) -> SimulationResult:
+    def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False,
+                  buffers: dict | None = None) -> SimulationResult:
+        """Run a :func:`prepare_run` set-up (``buffers``: its scene already on the device)."""
         B = setup.batches
-        hist, stats, traces, elapsed = self._launch(setup, self._scene_buffers(setup), chunk=chunk,
-                                                    progress=progress)
+        bufs = self._scene_buffers(setup) if buffers is None else buffers
+        hist, stats, traces, elapsed = self._launch(setup, bufs, chunk=chunk, progress=progress)
         stats = stats.reshape(B, len(STAT_NAMES)).astype(np.float64)
         weight_cols = [i for i, n in enumerate(STAT_NAMES) if n not in COUNT_STATS]
         stats[:, weight_cols] /= FIXED_SCALE

@@ -92,6 +92,10 @@ class DeviceFitter:
         # runtime's choice
         self.local_size = None if info.is_gpu else (1,)
         self._detector = None
+        # kernels (k, fit_baseline) this device cannot launch: their private arrays, of
+        # (3k+1)^2 floats, exceed what the driver reserves per work-item (NVIDIA's OpenCL
+        # answers OUT_OF_HOST_MEMORY at k = 40); those groups are fitted by NumPy
+        self.too_large: set = set()
         # chunks run in threads (decompose_batch): a kernel object's arguments and its
         # launch must not interleave with another thread's, nor two builds
         self.lock = threading.RLock()
@@ -201,11 +205,18 @@ class BoundFitter:
                           hostbuf=np.ascontiguousarray(rows, dtype=np.int32))
         d_q = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=q)
         d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+        key = (int(k), bool(fit_baseline))
+        if key in self.fitter.too_large:
+            return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
         kern = self.fitter.kernel(k, fit_baseline)
         with self.fitter.lock:
             kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out,
                           g, max_iter, tol, int(bool(linear) and bool(fit_baseline)))
-            cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
+            try:
+                cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
+            except cl.Error:  # more private memory than the device gives a work-item
+                self.fitter.too_large.add(key)
+                return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
         done = cl.enqueue_copy(queue, out, d_out, is_blocking=False)
 
         def finish() -> GroupFit:
@@ -220,6 +231,29 @@ class BoundFitter:
                             out[:, npar + 3 + nf * nf:npar + 3 + nf * nf + self.n_samples])
 
         return finish
+
+    def _host_fit(self, rows, a, m, s, b, fit_baseline, linear, max_iter, tol):
+        """``finish`` of the NumPy fit (:func:`._batch_fit.fit_group`) of ``rows``, from
+        the chunk's samples read back from the device once."""
+        from clsim.waveforms.decompose._batch_fit import fit_group, linear_start
+
+        if getattr(self, "_host", None) is None:
+            cl, queue = self.fitter._cl, self.fitter.queue
+            n_rows = self.noise.size // 4
+            y = np.empty((n_rows, self.n), dtype=np.float32)
+            flags = np.empty((n_rows, self.n), dtype=np.uint8)
+            noise = np.empty(n_rows, dtype=np.float32)
+            for host, dev in ((y, self.y), (flags, self.flags), (noise, self.noise)):
+                cl.enqueue_copy(queue, host, dev)
+            k = self.n_samples
+            self._host = (y[:, :k].astype(float), (flags[:, :k] & _USE) > 0, (flags[:, :k] & _CENS) > 0,
+                          noise.astype(float))
+        y, use, cens, noise = (v[rows] for v in self._host)
+        if linear and fit_baseline:
+            a, b = linear_start(y, use & ~cens, a, m, s, b)
+        res = fit_group(y, use, a, m, s, b, fit_baseline=fit_baseline, noise=noise, cens=cens,
+                        max_iter=max_iter, tol=tol)
+        return lambda: res
 
 
 #: Fitters built in this process, by device key (a context and built programs each).
