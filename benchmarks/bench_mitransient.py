@@ -467,7 +467,8 @@ def main(argv=None) -> int:
     ap.add_argument("--peer-variant", default="llvm_ad_mono",
                     help="Mitsuba variant of the peer: llvm_ad_mono (CPU) or cuda_ad_mono (NVIDIA GPU)")
     ap.add_argument("--scale", type=int, default=1,
-                    help="multiply every sample count by this (a GPU needs larger runs to be timed)")
+                    help="references this many times larger, and the series extended by factors of 4 up to "
+                         "this many times its largest count (a GPU needs larger runs to be timed)")
     ap.add_argument("--quick", action="store_true", help="fewer samples (a few minutes)")
     ap.add_argument("--scenes", default="slab,oak")
     ap.add_argument("--no-profile", dest="profile", action="store_false",
@@ -486,7 +487,9 @@ def main(argv=None) -> int:
     args.profile_photons = 1 << 17 if q else 1 << 19
     for k in ("ref_photons", "ref_spp", "cf_photons", "cf_spp", "profile_photons"):
         setattr(args, k, getattr(args, k) * args.scale)
-    args.series = [n * args.scale for n in args.series]
+    top = args.series[-1]
+    while args.series[-1] * 4 <= top * args.scale:  # the same small counts (1 % is crossed there), then larger
+        args.series.append(args.series[-1] * 4)
     # Mitsuba's `ldsampler` was tried as a third set-up: its error stalled at 1.3-3.8 % on the slab
     # from 16k to 262k samples (quick run), so it is left out
     args.peer_setups = [("laser", "independent"), ("receiver", "independent")]
