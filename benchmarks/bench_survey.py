@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import pickle
 import platform
@@ -72,20 +71,14 @@ def make_job(scene_path, *, count: int, photons: int, batch: int, seed: int = 1,
     """The flight line over the scene's middle, long enough for ``count`` pulses."""
     from clsim.sensor import Sensor
     from clsim.scenes import load_scene
-    from clsim.survey import ScanPattern, SurveyJob, Trajectory, typical_flight
+    from clsim.survey import SurveyJob, centre_line
 
     scene = load_scene(scene_path)
     lo = np.asarray(scene.origin, float)
-    hi = lo + scene.voxel_size * np.asarray(scene.shape)
-    H, v = typical_flight(PRESET)
-    fov = 2.0 * math.degrees(math.atan(0.5 * (hi[1] - lo[1]) / H))
-    pattern = ScanPattern.preset(PRESET, fov_deg=fov)
-    length = max(hi[0] - lo[0], 1.001 * count * v / pattern.pulse_rate_hz)
-    xm, ym = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])
-    tr = Trajectory.line((xm - 0.5 * length, ym), (xm + 0.5 * length, ym), altitude_m=H, speed_mps=v)
-    first = max(0, int((tr.duration_s * pattern.pulse_rate_hz - count) / 2))   # centred on the scene
-    return SurveyJob(scene_path=str(scene_path), trajectory=tr, pattern=pattern, sensor=Sensor.preset(PRESET),
-                     photons=photons, first=first, count=count, batch_size=batch, seed=seed, device=device), fov
+    line = centre_line(lo, lo + scene.voxel_size * np.asarray(scene.shape), PRESET, count=count)
+    return SurveyJob(scene_path=str(scene_path), trajectory=line.trajectory, pattern=line.pattern,
+                     sensor=Sensor.preset(PRESET), photons=photons, first=line.first, count=count, batch_size=batch,
+                     seed=seed, device=device), line.fov_deg
 
 
 def quiet_dask():
