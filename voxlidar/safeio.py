@@ -31,7 +31,7 @@ from voxlidar.errors import InputError, VoxlidarError
 
 __all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path",
            "check_distinct", "check_inputs", "check_outputs", "describe_kind", "file_kind",
-           "json_text", "save_figure", "staged"]
+           "json_text", "open_npz", "save_figure", "staged", "write_npz"]
 
 
 class OutputConflictError(VoxlidarError, ValueError):
@@ -236,6 +236,35 @@ def atomic_write(path: "str | os.PathLike", write) -> Path:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def write_npz(path: "str | os.PathLike", arrays: dict) -> Path:
+    """Write ``arrays`` (name -> array) as one compressed NPZ, atomically (:func:`atomic_write`).
+
+    >>> import tempfile, numpy as np
+    >>> p = write_npz(Path(tempfile.mkdtemp()) / "a.npz", {"x": np.arange(3)})
+    >>> with open_npz(p, "test") as z:
+    ...     z["x"].tolist()
+    [0, 1, 2]
+    """
+    import numpy as np
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+    return atomic_write(path, write)
+
+
+def open_npz(path: "str | os.PathLike", what: str):
+    """``np.load(path)`` of an NPZ (no pickles), or one :class:`InputError` naming
+    the file as not a readable NPZ ``what`` file (``what``: "scene", "plot", ...)."""
+    import numpy as np
+
+    try:
+        return np.load(path, allow_pickle=False)
+    except Exception as err:  # noqa: BLE001 - re-raised with the file named
+        raise InputError(f"{str(path)!r} is not a readable NPZ {what} file: {err}") from err
 
 
 @contextlib.contextmanager

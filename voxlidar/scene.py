@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import atomic_write, describe_kind, file_kind, json_text
+from voxlidar.safeio import describe_kind, file_kind, json_text, open_npz, write_npz
 
 from voxlidar.errors import InputError
 from voxlidar.leafangle import LeafAngle
@@ -264,12 +264,7 @@ class Scene:
         if self.wood_directional:
             arrays["wood_axis"] = self.wood_axis
             arrays["wood_beta"] = self.wood_beta
-
-        def write(tmp):
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, **arrays)
-
-        return atomic_write(path, write)
+        return write_npz(path, arrays)
 
     @classmethod
     def load(cls, path: "str | os.PathLike") -> "Scene":
@@ -283,11 +278,7 @@ class Scene:
         if kind != "npz":
             hint = " (read it with tlsvox.voxel.amapvox.read_vox)" if kind == "vox" else ""
             raise InputError(f"{str(path)!r} is not a readable NPZ scene file: it is {describe_kind(kind)}{hint}")
-        try:
-            z = np.load(path, allow_pickle=False)
-        except Exception as err:  # noqa: BLE001 - re-raised with the file named
-            raise InputError(f"{str(path)!r} is not a readable NPZ scene file: {err}") from err
-        with z:
+        with open_npz(path, "scene") as z:
             missing = [k for k in ("format_version", "origin", "voxel_size", "shape", "ijk", "lad") if k not in z]
             if missing:
                 raise InputError(f"{str(path)!r} is not a voxlidar scene: missing keys {missing}")
