@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from _page import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -43,7 +45,6 @@ def main(argv=None):
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
     from tlsvox.voxel.voxlad import score_lad, voxelize
-    from voxlidar.safeio import atomic_write
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
@@ -104,9 +105,7 @@ def main(argv=None):
               "oak's rows at 20 cm). The estimators do not correct for it yet: the share a beam loses to an "
               "undetected hit depends on how leaf orientation and beam share go together (edge-on leaves are "
               "the ones a beam grazes), which a scan does not record.", ""]
-    out = Path(args.out)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(args.out, lines)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from _page import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1
 #: (layout, fill) per voxel size
@@ -150,7 +152,7 @@ def main(argv=None):
 
 
 def write(rows, args, t_sim, load_before, load_after):
-    from voxlidar.safeio import atomic_write, save_figure
+    from voxlidar.safeio import save_figure
 
     lines = [
         "# Memory and time against voxel size (synthetic oak, two scans)", "",
@@ -181,8 +183,7 @@ def write(rows, args, t_sim, load_before, load_after):
                      f"{100 * vis_err:+.1f} % | {r['true_area']:.1f} |")
     lines += ["", "Goals (issue 14): 2 cm at most 4 GiB peak and 10 minutes; 5 cm at most 1.5 GiB.", ""]
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
+    write_page(out, lines)
 
     import matplotlib
 

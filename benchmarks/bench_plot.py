@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from _page import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -113,7 +115,6 @@ def run_pulse(plot, args) -> dict:
 
 
 def write(rows, pulse, args, load_before, load_after):
-    from voxlidar.safeio import atomic_write
 
     mib = 2.0**20
     lines = [
@@ -152,9 +153,7 @@ def write(rows, pulse, args, load_before, load_after):
         f"(received energy {e:.4g} +- {se:.2g} of the emitted).", "",
     ]
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(out, lines)
 
 
 if __name__ == "__main__":

@@ -22,12 +22,13 @@ import statistics
 import time
 from pathlib import Path
 
-import numpy as np
 
 from tlsvox.classify import classify_scan, score
 from tlsvox.register import RegistrationError, pose_error, register_pair, true_relative_transform
 from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
 from tlsvox.truth.synthetic import TreeParams, make_tree
+
+from _page import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -129,9 +130,7 @@ def main(argv=None):
         lines.append(f"| {sn} | {n:,} | {name} | {ref} | {t:.2f} | {lp:.3f} | {lr:.3f} | {wp:.3f} | {wr:.3f} "
                      f"| {nn:,} |")
     lines += ["", "Confusion matrices (rows truth, columns label):", ""] + tables
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    print(f"wrote {out}")
+    write_page(out, lines)
 
 
 if __name__ == "__main__":

@@ -49,6 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
+from _page import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 PRESET = "riegl-lms-q680i"
 
@@ -362,9 +364,7 @@ def main(argv=None) -> int:
         f"({wf.bin_ns:.3f} ns); {np.mean(wf.energy > 0):.1%} of the pulses returned energy. LAS 1.4: {las_note}.",
         "",
     ]
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("\n".join(lines))
-    log(f"wrote {args.out}")
+    write_page(args.out, lines)
     return 0
 
 

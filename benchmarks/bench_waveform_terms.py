@@ -23,6 +23,8 @@ import platform
 import time
 from pathlib import Path
 
+from _page import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -38,7 +40,6 @@ def main(argv=None):
     from clsim.validation.budget import default_pulses, waveform_metrics
     from clsim.validation.meshref import MeshReferenceSimulator
     from tlsvox.truth.synthetic import TreeParams, make_tree
-    from voxlidar.safeio import atomic_write
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
@@ -99,9 +100,7 @@ def main(argv=None):
               "beam far more squarely than the side of an upright cylinder seen 15 degrees off its axis, so they "
               "backscatter more; 'directional' gives each voxel its bark axis and anisotropy from the bark "
               "normals (docs/method.md, directional wood; now the default).", ""]
-    out = Path(args.out)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(args.out, lines)
 
 
 if __name__ == "__main__":
