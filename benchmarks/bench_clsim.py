@@ -35,7 +35,7 @@ from clsim.sensor import Sensor
 from clsim.transport.simulator import Simulator, list_devices
 from clsim.transport.reference import ReferenceSimulator
 
-from _page import write_page
+from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 

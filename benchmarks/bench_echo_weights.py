@@ -34,7 +34,7 @@ from tlsvox.truth.meshtruth import area_per_voxel
 from tlsvox.truth.scanner import ScannerPreset, ScanPose, simulate_scan
 from tlsvox.truth.synthetic import make_leaf_slab
 
-from _page import write_page
+from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 BOUNDS = np.array([[-1.0, -1.0, 1.0], [1.0, 1.0, 3.0]])

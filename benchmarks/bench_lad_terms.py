@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
-from _page import write_page
+from _bench import machine_line, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -80,8 +79,7 @@ def main(argv=None):
     minutes = (time.perf_counter() - t0) / 60
     lines = ["# Where the leaf area goes (synthetic oak, the estimators' assumptions one at a time)", "",
              f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py --sizes {args.sizes}` ({minutes:.1f} min). "
-             f"Machine: {platform.machine()}, {os.cpu_count()} CPU(s); load average before "
-             f"{', '.join(f'{v:.2f}' for v in load0)}. Two VZ-400 scans (7 sub-rays, echoes weighted by "
+             + machine_line(load0) + " Two VZ-400 scans (7 sub-rays, echoes weighted by "
              "their beam share), true poses and classes, `bcmle`, uniform leaf inclination (the truth), "
              "dense layout. The default oak is the first row pair.", "",
              "| leaf azimuth | leaf clusters (sigma) | scanner's detection threshold | voxel | estimators' G | "

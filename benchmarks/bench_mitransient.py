@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import quad
 
-from _page import write_page  # noqa: E402
+from _bench import write_page  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

@@ -24,25 +24,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
 
-from _page import write_page
+from _bench import machine_line, median_time, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def median_time(fn, repeats):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), out
 
 
 def host_bytes(scene) -> int:
@@ -119,11 +109,8 @@ def write(rows, pulse, args, load_before, load_after):
     mib = 2.0**20
     lines = [
         "# A plot of many trees: shared bricks against copies", "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} CPU(s) shared with other work, Python "
-        f"{platform.python_version()}. Command: `.venv/bin/python benchmarks/bench_plot.py --sizes {args.sizes} "
-        f"--repeats {args.repeats} --pulse-voxel {args.pulse_voxel:g} --photons {args.photons}`. Load average "
-        f"(1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in load_before)}; after: "
-        f"{', '.join(f'{v:.2f}' for v in load_after)}.", "",
+        f"Command: `.venv/bin/python benchmarks/bench_plot.py --sizes {args.sizes} --repeats {args.repeats} "
+        f"--pulse-voxel {args.pulse_voxel:g} --photons {args.photons}`. " + machine_line(load_before, load_after), "",
         "The plot is `make_plot(seed=0)`: 50 m x 50 m, 30 synthetic trees drawn from 6 models (2 each of broad, "
         "narrow and small crowns; 5 instances per model), trunks on the brick lattice, at least 4 m apart. "
         "*Shared*: `plot.brick_grid()` (one pool copy per model, merged bricks where crowns share a brick cell); "

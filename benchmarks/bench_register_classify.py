@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
-import time
 from pathlib import Path
 
 
@@ -28,18 +26,9 @@ from tlsvox.register import RegistrationError, pose_error, register_pair, true_r
 from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
 from tlsvox.truth.synthetic import TreeParams, make_tree
 
-from _page import write_page
+from _bench import median_time, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def timed(fn, repeats):
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def main(argv=None):
@@ -63,7 +52,7 @@ def main(argv=None):
     for method in ("targets", "fpfh"):
         reps = args.repeats if method == "targets" else max(1, args.repeats // 3)
         try:
-            t, r = timed(lambda: register_pair(B, A, method=method), reps)
+            t, r = median_time(lambda: register_pair(B, A, method=method), reps)
         except RegistrationError as err:  # reported, not hidden: the table says it failed
             failures.append(f"{method}: {err}")
             print(failures[-1])
@@ -103,7 +92,7 @@ def main(argv=None):
     cls_rows, tables = [], []
     for s in (A, B):
         for name, kw, reps in variants:
-            t, c = timed(lambda: classify_scan(s, **kw), reps)
+            t, c = median_time(lambda: classify_scan(s, **kw), reps)
             sc = score(c.labels, s.truth_material)
             cls_rows.append((s.name, len(s), name, c.refined, t, sc.precision["leaf"], sc.recall["leaf"],
                              sc.precision["wood"], sc.recall["wood"], c.counts["noise"]))

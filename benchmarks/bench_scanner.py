@@ -20,7 +20,7 @@ import numpy as np
 from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
 from tlsvox.truth.synthetic import make_tree
 
-from _page import write_page
+from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 

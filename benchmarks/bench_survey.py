@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _page import write_page
+from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESET = "riegl-lms-q680i"
