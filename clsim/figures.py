@@ -9,27 +9,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import save_figure
+from voxlidar.safeio import finish_figure
 
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
 
 __all__ = ["plot_result", "plot_traces", "plot_waveforms", "render_traces", "settings_caption", "trace_paths"]
-
-
-def _save(fig, path, caption: str | None = None) -> Path:
-    """Lay out, write (format by suffix, atomically) and close a figure; ``caption`` goes under the axes."""
-    import matplotlib.pyplot as plt
-
-    if caption:
-        lines = caption.count("\n") + 1
-        fig.tight_layout(rect=(0, 0.035 * lines, 1, 1))
-        fig.text(0.01, 0.01, caption, fontsize=6.5, ha="left", va="bottom", color="0.25")
-    else:
-        fig.tight_layout()
-    out = save_figure(fig, Path(path))
-    plt.close(fig)
-    return out
 
 
 def trace_paths(result, top: float):
@@ -94,7 +79,7 @@ def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis
     if caption is None:
         caption = next((settings_caption(item[1].settings) for item in curves
                         if len(item) == 2 and getattr(item[1], "settings", None)), None)
-    return _save(fig, path, caption)
+    return finish_figure(fig, path, caption=caption)
 
 
 def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: float = 8.0,
@@ -202,7 +187,7 @@ def plot_result(res, path) -> Path:
     ax.set_xlabel("time after emission (ns)")
     ax.set_ylabel("received power (fraction of emitted energy / ns)")
     ax.legend(fontsize=8)
-    return _save(fig, path, settings_caption(s))
+    return finish_figure(fig, path, caption=settings_caption(s))
 
 
 def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
@@ -235,4 +220,4 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.set_title(f"{len(res.traces)} photon paths")
-    return _save(fig, path, settings_caption(res.settings))
+    return finish_figure(fig, path, caption=settings_caption(res.settings))

@@ -30,7 +30,7 @@ from pathlib import Path
 from voxlidar.errors import InputError, VoxlidarError
 
 __all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path",
-           "check_distinct", "check_inputs", "check_outputs", "describe_kind", "file_kind",
+           "check_distinct", "check_inputs", "check_outputs", "describe_kind", "file_kind", "finish_figure",
            "json_text", "open_npz", "save_figure", "staged", "write_npz"]
 
 
@@ -219,6 +219,23 @@ def save_figure(fig, path, *, dpi: int = 110) -> Path:
     check_figure_path("picture", path)
     fmt = path.suffix.lower().lstrip(".")
     return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="jpeg" if fmt == "jpg" else fmt))
+
+
+def finish_figure(fig, path, *, caption: str | None = None, dpi: int = 110) -> Path:
+    """Lay out a Matplotlib figure (tight), write it (:func:`save_figure`: format by
+    suffix, atomically) and close it; ``caption`` goes in small grey type under the axes."""
+    import matplotlib.pyplot as plt
+
+    if caption:
+        lines = caption.count("\n") + 1
+        fig.tight_layout(rect=(0, 0.035 * lines, 1, 1))
+        fig.text(0.01, 0.01, caption, fontsize=6.5, ha="left", va="bottom", color="0.25")
+    else:
+        fig.tight_layout()
+    try:
+        return save_figure(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
 
 
 def atomic_write(path: "str | os.PathLike", write) -> Path:

@@ -152,7 +152,7 @@ def _picture(path, scene, centres, colors, chosen, results, sensor, args) -> Non
     import matplotlib.pyplot as plt
 
     from clsim.sensor import C_M_PER_NS
-    from voxlidar.safeio import save_figure
+    from voxlidar.safeio import finish_figure
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 5.5), gridspec_kw={"width_ratios": [1.1, 1]})
     a.scatter(centres[:, 0], centres[:, 2], s=4, c=colors, alpha=0.5, linewidths=0)
@@ -175,6 +175,4 @@ def _picture(path, scene, centres, colors, chosen, results, sensor, args) -> Non
     b.set_title(f"{sensor.name}, nadir, {args.photons:,} photons, seed {args.seed}", fontsize=10)
     b.legend(fontsize=8)
     fig.suptitle(f"clsim pick: {Path(args.scene).name}", fontsize=11)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.cli import number
-from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, save_figure, staged
+from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, finish_figure, staged
 
 from clsim.errors import InputError
 
@@ -338,6 +338,4 @@ def _plot(path: Path, wf, results, count: int, source: str = "") -> None:
     axes[-1, 0].set_xlabel("time from first sample (ns)")
     axes[0, 0].legend(loc="upper right", fontsize=7)
     fig.suptitle(f"Gaussian decomposition of {source or wf.kind}: samples, fit and its echoes", fontsize=10)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
