@@ -28,13 +28,13 @@ import numpy as np
 from voxlidar.safeio import describe_kind, file_kind, json_text, open_npz, write_npz
 
 from voxlidar.errors import InputError
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leafangle import LeafAngle, LeafAzimuth
 
 __all__ = ["Scene", "FORMAT_VERSION", "WOOD_KINDS"]
 
 FORMAT_VERSION = 1
 WOOD_KINDS = ("probability", "area_density")
-LEAF_AZIMUTHS = ("uniform", "outward")
+LEAF_AZIMUTHS = tuple(a.value for a in LeafAzimuth)
 
 
 def _default_materials() -> dict:
@@ -152,8 +152,7 @@ class Scene:
         if self.wood_kind == "probability" and np.any((self.wood < 0) | (self.wood > 1)):
             raise InputError("wood probabilities must lie in [0, 1]")
         self.leaf_angle = LeafAngle.from_dict(self.leaf_angle)
-        if self.leaf_azimuth not in LEAF_AZIMUTHS:
-            raise InputError(f"leaf_azimuth={self.leaf_azimuth!r} must be one of {LEAF_AZIMUTHS}")
+        self.leaf_azimuth = LeafAzimuth.parse(self.leaf_azimuth, "leaf_azimuth").value
         self.crown_center = np.asarray(self.crown_center, dtype=np.float64).reshape(2)
         if self.ground_z is not None:
             self.ground_z = float(self.ground_z)

@@ -28,7 +28,7 @@ import numpy as np
 from voxlidar.safeio import json_text, staged
 
 from tlsvox.errors import InputError
-from voxlidar.leafangle import LeafAngle, sample_leaf_normals
+from voxlidar.leafangle import LeafAngle, LeafAzimuth, sample_leaf_normals
 from voxlidar.materials import Material
 from tlsvox.truth._mesh import cylinders_mesh, leaf_mesh, orthonormal, polygon_area_factor, segment_distance
 from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
@@ -83,8 +83,8 @@ class TreeParams:
             raise InputError(
                 f"TreeParams.total_leaf_area={self.total_leaf_area!r} must be >= 0 m2 (0 = leaf-off)"
             )
-        if self.leaf_azimuth not in ("outward", "uniform"):
-            raise InputError(f"TreeParams.leaf_azimuth={self.leaf_azimuth!r} must be 'outward' or 'uniform'")
+        azimuth = LeafAzimuth.parse(self.leaf_azimuth, "TreeParams.leaf_azimuth").value
+        object.__setattr__(self, "leaf_azimuth", azimuth)
         if self.n_scaffolds < 1 or self.branch_levels < 0 or self.children_per_branch < 1:
             raise InputError("TreeParams: n_scaffolds and children_per_branch must be >= 1, branch_levels >= 0")
         if self.n_targets < 0:
