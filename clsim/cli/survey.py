@@ -45,7 +45,7 @@ def register(subparsers) -> None:
                     "packets) when the LAS writer is available.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("scene", help="scene file (.npz, voxlidar.scene.Scene.save); every worker loads it")
-    p.add_argument("-o", "--out", required=True, help="output folder (survey.json, batches/, survey.las)")
+    p.add_argument("-o", "--output", required=True, help="output folder (survey.json, batches/, survey.las)")
     p.add_argument("--sensor", default="riegl-lms-q680i",
                    help=f"preset with a [survey] table ({', '.join(list_presets())}) or a .toml file")
     p.add_argument("--start", default=None, metavar="X,Y",
@@ -129,7 +129,7 @@ def cmd_survey(args) -> int:
     job = SurveyJob(scene_path=args.scene, trajectory=tr, pattern=pattern, sensor=sensor, photons=args.photons,
                     count=count, seed=args.seed, batch_size=args.batch_size, max_order=args.max_order,
                     device=args.device)
-    out = Path(args.out)
+    out = Path(args.output)
     if args.restart and out.is_dir():
         shutil.rmtree(out / "batches", ignore_errors=True)
         (out / "survey.json").unlink(missing_ok=True)
