@@ -35,6 +35,8 @@ from clsim.sensor import Sensor
 from clsim.transport.simulator import Simulator, list_devices
 from clsim.transport.reference import ReferenceSimulator
 
+from _bench import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -306,11 +308,7 @@ def main(argv=None) -> int:
     section_nee_vs_analog(args, lines, sim, img)
     section_precision(args, lines, sim, img)
     out = Path(args.out)
-    from voxlidar.safeio import atomic_write
-
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print("\n".join(lines))
-    print(f"\nwrote {out}")
+    write_page(out, lines, echo=True)
     return 0
 
 

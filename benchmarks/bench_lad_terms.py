@@ -24,11 +24,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+
+from _bench import machine_line, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +44,6 @@ def main(argv=None):
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
     from tlsvox.voxel.voxlad import score_lad, voxelize
-    from voxlidar.safeio import atomic_write
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
@@ -79,8 +79,7 @@ def main(argv=None):
     minutes = (time.perf_counter() - t0) / 60
     lines = ["# Where the leaf area goes (synthetic oak, the estimators' assumptions one at a time)", "",
              f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py --sizes {args.sizes}` ({minutes:.1f} min). "
-             f"Machine: {platform.machine()}, {os.cpu_count()} CPU(s); load average before "
-             f"{', '.join(f'{v:.2f}' for v in load0)}. Two VZ-400 scans (7 sub-rays, echoes weighted by "
+             + machine_line(load0) + " Two VZ-400 scans (7 sub-rays, echoes weighted by "
              "their beam share), true poses and classes, `bcmle`, uniform leaf inclination (the truth), "
              "dense layout. The default oak is the first row pair.", "",
              "| leaf azimuth | leaf clusters (sigma) | scanner's detection threshold | voxel | estimators' G | "
@@ -104,9 +103,7 @@ def main(argv=None):
               "oak's rows at 20 cm). The estimators do not correct for it yet: the share a beam loses to an "
               "undetected hit depends on how leaf orientation and beam share go together (edge-on leaves are "
               "the ones a beam grazes), which a scan does not record.", ""]
-    out = Path(args.out)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(args.out, lines)
 
 
 if __name__ == "__main__":

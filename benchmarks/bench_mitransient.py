@@ -46,6 +46,8 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import quad
 
+from _bench import write_page  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -588,11 +590,7 @@ def main(argv=None) -> int:
             peer.close()
     lines.append(f"Total benchmark time {time.time() - t_start:.0f} s.")
     out = Path(args.out)
-    from voxlidar.safeio import atomic_write
-
-    atomic_write(out, lambda tmp_path: Path(tmp_path).write_text("\n".join(lines) + "\n"))
-    print("\n".join(lines))
-    print(f"\nwrote {out}")
+    write_page(out, lines, echo=True)
     return 0
 
 

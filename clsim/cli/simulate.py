@@ -73,8 +73,8 @@ def register(subparsers) -> None:
     p.add_argument("--fov", type=float, default=None, help="override the receiver FOV half angle, mrad")
     p.add_argument("--batches", type=int, default=16, help="batches for standard errors")
     p.add_argument("--trace", type=int, default=0, help="record the first events of this many photons")
-    p.add_argument("--plot", default=None, metavar="PNG", help="also write a waveform plot")
-    p.add_argument("--trace-plot", default=None, metavar="PNG",
+    p.add_argument("--plot", default=None, metavar="PATH", help="also write a waveform plot")
+    p.add_argument("--trace-plot", default=None, metavar="PATH",
                    help="also draw the traced photon paths over the scene (needs --trace N)")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
