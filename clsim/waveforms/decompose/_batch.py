@@ -619,13 +619,26 @@ def _keep_resid(st, rows, resid):
     st.resid_ok[rows] = ok
 
 
-def _prune(st, y, use, cens, u, sigma, lengths, rounds=4):
+def _broken(a, m, s, n):
+    """Echoes that collapsed (height not positive, sigma under the resolvable limit) or
+    left the record (peak more than one sigma beyond its ends)."""
+    with np.errstate(invalid="ignore"):
+        return (~np.isfinite(a) | (a <= 0) | (s < _MIN_SIGMA_SAMPLES) | (s > n[:, None])
+                | (m < -s) | (m > n[:, None] - 1 + s))
+
+
+def _prune(st, y, use, cens, u, sigma, lengths, rounds=5):
     """Drop weak, unresolvable or misplaced echoes and refit, until none is left to drop.
-    A waveform whose echoes all fail keeps its strongest well-formed one (a detected
+    A fit that stopped because an echo collapsed or left the record (the fits stop
+    there) has only those echoes dropped first: its residual sum, and so the standard
+    errors and significance of the others, are not yet those of a converged fit. A
+    waveform whose echoes all fail keeps its strongest well-formed one (a detected
     echo exists), refitted alone and not pruned again."""
     locked = np.zeros(st.on.shape[0], bool)
     for _ in range(rounds):
         bad = _bad(st.a, st.m, st.s, st.se[:, 0], u, sigma, lengths) & st.on
+        broken = _broken(st.a, st.m, st.s, lengths) & st.on
+        bad = np.where(broken.any(axis=1)[:, None], broken, bad)
         bad[locked] = False
         rows = np.flatnonzero(bad.any(axis=1))
         if rows.size == 0:
