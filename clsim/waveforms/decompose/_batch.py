@@ -281,15 +281,28 @@ def _bad(a, m, s, se_a, u, sigma, n):
                 | (np.isfinite(se_a) & (a < 2.0 * se_a)))
 
 
+#: Separation, in sums of the pair's sigmas, beyond which two echoes count as resolved
+#: without a look at their curvature: each echo's inflection points then lie 6 or more
+#: of the other's sigmas from that one's peak, where its curvature is under 1e-6 of its
+#: peak value; it could remove them only if its peak curvature ``a / s^2`` exceeded
+#: the other's about a million times.
+_FAR = 6.0
+
+
 def _resolved_rows(a, m, s, on, a1, m1, s1):
     """Sparrow's criterion between the new echo (a1, m1, s1) (R,) and each active
-    echo (R, K): the pair's sum has four inflection points."""
-    k = int(on.sum(axis=1).max()) if on.size else 0
-    if k < on.shape[1]:  # only the columns some row uses, active ones first
-        order = np.argsort(~on, axis=1, kind="stable")[:, :k]
-        a, m, s, on = (np.take_along_axis(v, order, axis=1) for v in (a, m, s, on))
-    lo = np.minimum(m - 3 * s, (m1 - 3 * s1)[:, None])
-    hi = np.maximum(m + 3 * s, (m1 + 3 * s1)[:, None])
+    echo (R, K): the pair's sum has four inflection points (looked for on a grid of
+    160 points, for the pairs closer than :data:`_FAR` sigmas)."""
+    with np.errstate(invalid="ignore"):
+        near = on & ~(np.abs(m - m1[:, None]) >= _FAR * (s + s1[:, None]))
+    r, c = np.nonzero(near)
+    ok = np.ones(on.shape[0], bool)
+    if r.size == 0:
+        return ok
+    a, m, s = a[r, c], m[r, c], s[r, c]
+    a1, m1, s1 = a1[r], m1[r], s1[r]
+    lo = np.minimum(m - 3 * s, m1 - 3 * s1)
+    hi = np.maximum(m + 3 * s, m1 + 3 * s1)
     # in float32 (the exponentials are most of the search's time on many-echo
     # waveforms; a sign of the curvature is not changed by the rounding except within
     # 1e-6 of an inflection point)
@@ -297,20 +310,20 @@ def _resolved_rows(a, m, s, on, a1, m1, s1):
     f32 = np.float32
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         # z^2 of each echo of the pair on the grid x = lo + (hi - lo) * grid
-        z0 = ((lo - m) / s).astype(f32)[..., None] + ((hi - lo) / s).astype(f32)[..., None] * grid
-        z1 = (((lo - m1[:, None]) / s1[:, None]).astype(f32)[..., None]
-              + ((hi - lo) / s1[:, None]).astype(f32)[..., None] * grid)
+        z0 = ((lo - m) / s).astype(f32)[:, None] + ((hi - lo) / s).astype(f32)[:, None] * grid
+        z1 = ((lo - m1) / s1).astype(f32)[:, None] + ((hi - lo) / s1).astype(f32)[:, None] * grid
         z0 *= z0
         z1 *= z1
         e0 = np.exp(np.multiply(z0, f32(-0.5)))
         e1 = np.exp(np.multiply(z1, f32(-0.5)))
         z0 -= f32(1.0)
         z1 -= f32(1.0)
-        curv = z0 * e0 * (a / s ** 2).astype(f32)[..., None]
-        curv += z1 * e1 * (a1 / s1 ** 2).astype(f32)[:, None, None]
+        curv = z0 * e0 * (a / s ** 2).astype(f32)[:, None]
+        curv += z1 * e1 * (a1 / s1 ** 2).astype(f32)[:, None]
     sign = np.sign(curv)
-    changes = np.count_nonzero(sign[..., 1:] != sign[..., :-1], axis=-1)
-    return np.all((changes >= 4) | ~on, axis=1)
+    changes = np.count_nonzero(sign[:, 1:] != sign[:, :-1], axis=-1)
+    ok[r[changes < 4]] = False
+    return ok
 
 
 def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
@@ -725,35 +738,47 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
             r[redo] = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
             if cens is not None:
                 r[redo] = np.where(cens[rows[redo]], 0.0, r[redo])
-        fm = filter_output(r, pl) / level[rows][:, None]
-        fs = gaussian_filter1d(r, 1.0, axis=1, mode="constant") / (4.0 * sigma[rows])[:, None]
         out = ~use[rows] | skipped[rows]
-        fm[out], fs[out] = -np.inf, -np.inf
-        use_m = fm.max(axis=1) >= fs.max(axis=1)
-        score = np.where(use_m[:, None], fm, fs)
-        j = np.argmax(score, axis=1)
-        go = score[np.arange(rows.size), j] >= 1.0
+        fm = filter_output(r, pl)
+        fm /= level[rows][:, None]
+        fm[out] = -np.inf
+        fs = gaussian_filter1d(r, 1.0, axis=1, mode="constant")
+        fs /= (4.0 * sigma[rows])[:, None]
+        fs[out] = -np.inf
+        # the search follows whichever filter stands higher above its threshold
+        ii = np.arange(rows.size)
+        jm, js = np.argmax(fm, axis=1), np.argmax(fs, axis=1)
+        use_m = fm[ii, jm] >= fs[ii, js]
+        j = np.where(use_m, jm, js)
+        go = np.where(use_m, fm[ii, jm], fs[ii, js]) >= 1.0
         search[rows[~go]] = False
-        rows, j, r, use_m, on = rows[go], j[go], r[go], use_m[go], on[go]
+        rows, j, use_m, on, ii = rows[go], j[go], use_m[go], on[go], ii[go]
         if rows.size == 0:
             return
         # the new echo's start: a log-parabola through the filtered residual's maximum
-        # (the filter's own width removed); amplitude from the residual
-        filt = np.where(use_m[:, None], fm[go] * level[rows][:, None],
-                        fs[go] * (4.0 * sigma[rows])[:, None])
-        m1, var = _log_parabola(filt, np.arange(rows.size), j, n)
+        # and its two neighbours (the filter's own width removed); amplitude from the
+        # residual
+        near3 = np.clip(j[:, None] + np.arange(-1, 2), 0, n - 1)
+        filt = np.where(use_m[:, None], fm[ii[:, None], near3] * level[rows][:, None],
+                        fs[ii[:, None], near3] * (4.0 * sigma[rows])[:, None])
+        m1, var = _log_parabola(filt, np.arange(rows.size), np.ones_like(j), 3)
+        # (a maximum on the first or last sample has no neighbour on that side)
+        inner = (j > 0) & (j < n - 1)
+        m1 = np.where(inner, m1 + j - 1, j)
+        var = np.where(inner, var, np.nan)
         var = np.where(use_m, var - pl.sigma ** 2, var - 1.0)
         s0 = np.clip(np.where(np.isfinite(var) & (var > 0.25), np.sqrt(np.abs(var)),
                               pl.sigma), 0.5, n / 2.0)
         s1 = s0
-        a1 = np.maximum(r[np.arange(rows.size), j], filt[np.arange(rows.size), j])
+        a1 = np.maximum(r[ii, j], filt[:, 1])
         res = _resolved_rows(st.a[rows], st.m[rows], st.s[rows], on, a1, m1, s1)
         res &= np.isfinite(a1) & (a1 > 0)
         # unresolved: pass over this feature (mask it) and try the next, up to 3 times
         un = rows[~res]
-        half = np.ceil(2.0 * s0[~res]).astype(int)
-        for r_i, j_i, h_i in zip(un, j[~res], half):
-            skipped[r_i, max(0, j_i - h_i):j_i + h_i + 1] = True
+        if un.size:
+            half = np.ceil(2.0 * s0[~res]).astype(int)[:, None]
+            dist = np.abs(np.arange(n) - j[~res][:, None])
+            skipped[un] |= dist <= half
         passes[un] += 1
         search[un[passes[un] >= 3]] = False
         if not res.any():
