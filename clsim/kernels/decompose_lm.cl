@@ -239,27 +239,47 @@ CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float 
 
 /* What a work-item returns, one row of OUT (floats): the fit (NP), the residual
  * sum of squares, the samples that count, the iterations, J^T J at the fit
- * (NF x NF, for the standard errors, inverted in float64 on the host), and the
+ * (NF x NF, for the standard errors, inverted in float64 on the host), the
  * samples minus the model at the fit (n; zero where a sample does not count or
- * is censored).  One row, so one copy back per launch. */
+ * is censored), and that residual through the host's two filters for its search
+ * of further echoes (n each): the matched filter and the Gaussian of sigma 1
+ * sample.  One row, so one copy back per launch. */
 #define OUT_RSS NP
 #define OUT_NEFF (NP + 1)
 #define OUT_ITER (NP + 2)
 #define OUT_H (NP + 3)
 #define OUT_RES (NP + 3 + NF * NF)
 
+/* x (zero outside [b0, b1)) correlated with the weights w[0..size), lag 0 at
+ * centre, at samples [b0, b1) into out; zero elsewhere in [0, n). */
+CLSIM_INLINE void correlate(global const float *x, const int b0, const int b1, const int n,
+                            global const float *w, const int size, const int centre,
+                            global float *out)
+{
+    for (int j = 0; j < b0; ++j) out[j] = 0.0f;
+    for (int j = b1; j < n; ++j) out[j] = 0.0f;
+    for (int j = b0; j < b1; ++j) {
+        const int t0 = max(0, b0 - j + centre), t1 = min(size, b1 - j + centre);
+        float acc = 0.0f;
+        for (int t = t0; t < t1; ++t) acc += w[t] * x[j - centre + t];
+        out[j] = acc;
+    }
+}
+
 /* One launch: waveform `row[w]` of the uploaded samples for each work-item w,
- * from the start values Q (G x NP). */
+ * from the start values Q (G x NP).  FW: the matched filter's weights (np_, lag 0
+ * at pc), then the 9 of the Gaussian of sigma 1 (lag 0 at 4). */
 kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const int *row, global const int2 *span,
                    global const float *noise, global const float *Q, global float *OUT,
-                   const int G, const int max_iter, const float tol, const int linear)
+                   const int G, const int max_iter, const float tol, const int linear,
+                   global const float *FW, const int np_, const int pc)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
     global const float *y = Y + (size_t)row[w] * n;
     global const uchar *fl = FL + (size_t)row[w] * n;
-    global float *out = OUT + (size_t)w * (OUT_RES + n);
+    global float *out = OUT + (size_t)w * (OUT_RES + 3 * n);
     float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
     float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
     for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
@@ -361,6 +381,8 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         vstore8(select((float8)(0.0f), vload8(0, y + i0) - model, (f & (USE | CENS)) == USE),
                 0, res + i0);
     }
+    correlate(res, b0, b1, n, FW, np_, pc, res + n);
+    correlate(res, b0, b1, n, FW + np_, 9, 4, res + 2 * n);
     for (int p = 0; p < NP; ++p) out[p] = q[p];
     out[OUT_RSS] = cost;
     out[OUT_NEFF] = (float)n_eff;

@@ -226,8 +226,9 @@ class _State:
         self.b_se = np.full(n_rows, np.nan)
         self.rss = np.full(n_rows, np.nan)
         self.n_eff = np.zeros(n_rows, int)
-        # samples minus model of the last fit kept (float32, from the device), where ok
-        self.resid = np.zeros((n_rows, n), dtype=np.float32)
+        # samples minus model of the last fit, its matched filter and smoothing (float32,
+        # from the device), kept where ok
+        self.resid = np.zeros((n_rows, 3, n), dtype=np.float32)
         self.resid_ok = np.zeros(n_rows, bool)
 
     def k(self):
@@ -266,10 +267,11 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
         out_b[sel], out_rss[sel], out_neff[sel] = res.b, res.rss, res.n_eff
         if fit_baseline:
             out_bse[sel] = res.se[:, 3 * k]
-        if res.resid is not None:
+        if res.resid is not None and res.filtered is not None:
             if out_resid is None:
-                out_resid = np.full((R, res.resid.shape[1]), np.nan, dtype=np.float32)
-            out_resid[sel] = res.resid
+                out_resid = np.full((R, 3, res.resid.shape[1]), np.nan, dtype=np.float32)
+            out_resid[sel, 0] = res.resid
+            out_resid[sel, 1:] = res.filtered
     return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff, out_resid
 
 
@@ -455,13 +457,15 @@ def _table(parts, t0, dt):
                      **{k: np.concatenate(v) for k, v in per.items()})
 
 
-def _group_fitter(device, y, use, cens, noise):
+def _group_fitter(device, y, use, cens, noise, pulse):
     """``fit(rows, a, m, s, b, fit_baseline, linear) -> finish`` for rows of a chunk,
     ``finish() -> GroupFit``: one launch on the OpenCL device (its samples uploaded
     once; the groups of one round are all enqueued before the first wait), else
     :func:`fit_group`."""
     if device is not None:
-        return _bound_fit(device.bind(y, use, cens, noise))
+        bound = device.bind(y, use, cens, noise)
+        bound.set_pulse(pulse)
+        return _bound_fit(bound)
 
     def fit(rows, a, m, s, b, fb, linear):
         c = None if cens is None else cens[rows]
@@ -588,8 +592,12 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     st.a, st.m, st.s, st.on = a, m, s, cand
     st.b = b.copy()
     st.noise = sigma
-    st.fit = (_bound_fit(det.fitter()) if det is not None
-              else _group_fitter(device, y, use, cens, sigma))
+    if det is not None:
+        bound = det.fitter()
+        bound.set_pulse(pl)
+        st.fit = _bound_fit(bound)
+    else:
+        st.fit = _group_fitter(device, y, use, cens, sigma, pl)
     start = (st.a.copy(), st.m.copy(), st.s.copy(), st.on.copy(), st.b.copy())
     # fit (amplitudes and baseline first by linear least squares), prune, add
     _refit(st, rows[st.k() > 0], y, use, cens, linear=True)
@@ -623,11 +631,12 @@ def _store(st, rows, a, m, s, se, b, bse, rss, neff, resid):
 
 
 def _keep_resid(st, rows, resid):
-    """Keep the fits' residuals (R, n) of ``rows`` (None, or NaN rows: not kept)."""
+    """Keep the fits' residuals and their filtered twins (R, 3, n) of ``rows`` (None,
+    or NaN rows: not kept)."""
     if resid is None:
         st.resid_ok[rows] = False
         return
-    ok = ~np.isnan(resid[:, 0])
+    ok = ~np.isnan(resid[:, 0, 0]) & ~np.isnan(resid[:, 1, 0])
     st.resid[rows[ok]] = resid[ok]
     st.resid_ok[rows] = ok
 
@@ -731,18 +740,21 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         if rows.size == 0:
             return
         on = st.on[rows]
-        # the residual of the last fit, kept from the device (else computed here)
-        r = st.resid[rows].astype(float)
+        # the residual of the last fit and its matched filter and smoothing, kept from
+        # the device (else computed here)
+        kept = st.resid[rows]
+        r, fm, fs = (kept[:, c].astype(float) for c in range(3))
         redo = np.flatnonzero(~st.resid_ok[rows])
         if redo.size:
-            r[redo] = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
+            rr = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
             if cens is not None:
-                r[redo] = np.where(cens[rows[redo]], 0.0, r[redo])
+                rr = np.where(cens[rows[redo]], 0.0, rr)
+            r[redo] = rr
+            fm[redo] = filter_output(rr, pl)
+            fs[redo] = gaussian_filter1d(rr, 1.0, axis=1, mode="constant")
         out = ~use[rows] | skipped[rows]
-        fm = filter_output(r, pl)
         fm /= level[rows][:, None]
         fm[out] = -np.inf
-        fs = gaussian_filter1d(r, 1.0, axis=1, mode="constant")
         fs /= (4.0 * sigma[rows])[:, None]
         fs[out] = -np.inf
         # the search follows whichever filter stands higher above its threshold
