@@ -204,11 +204,7 @@ def run_clsim_single(waves, **kw):
 
 def run_clsim_batch(waves, **kw):
     table = decompose_batch(waves, **kw)
-    out = []
-    for i in range(len(table)):
-        c = table[i]
-        out.append((c.amplitude, c.location_ns, c.sigma_ns, c.baseline))
-    return out
+    return [(c.amplitude, c.location_ns, c.sigma_ns, c.baseline) for c in table.components()]
 
 
 def _sum_model(t, *p):

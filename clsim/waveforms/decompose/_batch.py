@@ -64,7 +64,11 @@ def _pad(waveforms):
         lengths = np.full(y.shape[0], y.shape[1])
     else:
         try:
-            rows = [np.asarray(w, dtype=float).reshape(-1) for w in waveforms]
+            if isinstance(waveforms, (list, tuple)) and all(
+                    isinstance(w, np.ndarray) and w.ndim == 1 for w in waveforms):
+                rows = waveforms  # 1-D arrays already (concatenated as float below)
+            else:
+                rows = [np.asarray(w, dtype=float).reshape(-1) for w in waveforms]
         except (TypeError, ValueError) as err:
             raise InputError("waveforms must be a 2-D array (N, n) or a sequence of 1-D "
                              f"arrays of numbers; got {type(waveforms).__name__}") from err
@@ -72,7 +76,11 @@ def _pad(waveforms):
             raise InputError("waveforms is empty; pass at least one waveform")
         lengths = np.array([r.size for r in rows])
         y = np.zeros((len(rows), lengths.max()))
-        y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
+        try:
+            y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
+        except (TypeError, ValueError) as err:
+            raise InputError("waveforms must be a 2-D array (N, n) or a sequence of 1-D "
+                             "arrays of numbers; got arrays that are not numbers") from err
     if y.shape[0] == 0:
         raise InputError("waveforms is empty; pass at least one waveform")
     short = np.flatnonzero(lengths < 4)

@@ -134,6 +134,22 @@ def test_table_records_and_csv(tmp_path):
     np.testing.assert_array_equal(stacked.amplitude, table.amplitude)
 
 
+def test_table_components_equal_indexing():
+    """``components()`` gives ``table[i]`` for every waveform, those without an echo
+    (noise only) included."""
+    rng = np.random.default_rng(6)
+    ys = np.concatenate([_three(rng, 3), 12.0 + rng.normal(0.0, 2.0, (2, 110))])[[0, 3, 1, 4, 2]]
+    table = decompose_batch(ys)
+    assert table.counts.tolist() == [3, 0, 3, 0, 3]
+    every = table.components()
+    assert len(every) == len(table)
+    for i, c in enumerate(every):
+        ref = table[i]
+        for col in EchoTable.COLUMNS:
+            np.testing.assert_array_equal(getattr(c, col), getattr(ref, col))
+        assert (c.baseline, c.noise_sigma, c.rss) == (ref.baseline, ref.noise_sigma, ref.rss)
+
+
 @pytest.mark.parametrize("bad, match", [
     ([], "empty"),
     ([np.ones(3)], "at least 4"),
