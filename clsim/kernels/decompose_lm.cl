@@ -241,45 +241,48 @@ CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float 
  * sum of squares, the samples that count, the iterations, J^T J at the fit
  * (NF x NF, for the standard errors, inverted in float64 on the host), the
  * samples minus the model at the fit (n; zero where a sample does not count or
- * is censored), and that residual through the host's two filters for its search
- * of further echoes (n each): the matched filter and the Gaussian of sigma 1
- * sample.  One row, so one copy back per launch. */
+ * is censored) with M zeros on either side (the filters' reach), and that residual
+ * through the host's two filters for its search of further echoes (n each): the
+ * matched filter and the Gaussian of sigma 1 sample.  One row (OUT_RES + 2 M + 3 n
+ * floats), so one copy back per launch. */
 #define OUT_RSS NP
 #define OUT_NEFF (NP + 1)
 #define OUT_ITER (NP + 2)
 #define OUT_H (NP + 3)
 #define OUT_RES (NP + 3 + NF * NF)
 
-/* x (zero outside [b0, b1)) correlated with the weights w[0..size), lag 0 at
- * centre, at samples [b0, b1) into out; zero elsewhere in [0, n). */
+/* x (zero outside [b0, b1), and zero-padded far enough beyond [0, n)) correlated
+ * with the weights w[0..size), lag 0 at centre, at samples [b0, b1) into out, eight
+ * at a time; zero elsewhere in [0, n). */
 CLSIM_INLINE void correlate(global const float *x, const int b0, const int b1, const int n,
                             global const float *w, const int size, const int centre,
                             global float *out)
 {
-    for (int j = 0; j < b0; ++j) out[j] = 0.0f;
-    for (int j = b1; j < n; ++j) out[j] = 0.0f;
-    for (int j = b0; j < b1; ++j) {
-        const int t0 = max(0, b0 - j + centre), t1 = min(size, b1 - j + centre);
-        float acc = 0.0f;
-        for (int t = t0; t < t1; ++t) acc += w[t] * x[j - centre + t];
-        out[j] = acc;
+    for (int j0 = 0; j0 < b0; j0 += 8) vstore8((float8)(0.0f), 0, out + j0);
+    for (int j0 = b1; j0 < n; j0 += 8) vstore8((float8)(0.0f), 0, out + j0);
+    for (int j0 = b0; j0 < b1; j0 += 8) {
+        float8 acc = (float8)(0.0f);
+        global const float *p = x + j0 - centre;
+        for (int t = 0; t < size; ++t) acc += w[t] * vload8(0, p + t);
+        vstore8(acc, 0, out + j0);
     }
 }
 
 /* One launch: waveform `row[w]` of the uploaded samples for each work-item w,
  * from the start values Q (G x NP).  FW: the matched filter's weights (np_, lag 0
- * at pc), then the 9 of the Gaussian of sigma 1 (lag 0 at 4). */
+ * at pc), then the 9 of the Gaussian of sigma 1 (lag 0 at 4); M at least
+ * max(pc, np_ - 1 - pc, 4) + 8. */
 kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const int *row, global const int2 *span,
                    global const float *noise, global const float *Q, global float *OUT,
                    const int G, const int max_iter, const float tol, const int linear,
-                   global const float *FW, const int np_, const int pc)
+                   global const float *FW, const int np_, const int pc, const int M)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
     global const float *y = Y + (size_t)row[w] * n;
     global const uchar *fl = FL + (size_t)row[w] * n;
-    global float *out = OUT + (size_t)w * (OUT_RES + 3 * n);
+    global float *out = OUT + (size_t)w * (OUT_RES + 2 * M + 3 * n);
     float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
     float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
     for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
@@ -360,7 +363,9 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
     for (int i = b0; i < b1; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);
     for (int p = 0; p < NF * NF; ++p) out[OUT_H + p] = h[p];
     /* the residual at the fit, for the host's search for further echoes */
-    global float *res = out + OUT_RES;
+    global float *res = out + OUT_RES + M;
+    for (int i = -M; i < 0; ++i) res[i] = 0.0f;
+    for (int i = n; i < n + M; ++i) res[i] = 0.0f;
     float inv_s[K];
     for (int k = 0; k < K; ++k) inv_s[k] = 1.0f / q[2 * K + k];
     const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
@@ -381,8 +386,8 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         vstore8(select((float8)(0.0f), vload8(0, y + i0) - model, (f & (USE | CENS)) == USE),
                 0, res + i0);
     }
-    correlate(res, b0, b1, n, FW, np_, pc, res + n);
-    correlate(res, b0, b1, n, FW + np_, 9, 4, res + 2 * n);
+    correlate(res, b0, b1, n, FW, np_, pc, res + n + M);
+    correlate(res, b0, b1, n, FW + np_, 9, 4, res + 2 * n + M);
     for (int p = 0; p < NP; ++p) out[p] = q[p];
     out[OUT_RSS] = cost;
     out[OUT_NEFF] = (float)n_eff;

@@ -6,15 +6,17 @@ clipped samples, the matched filter and its threshold, candidates, start
 widths (a log-parabola through the three samples around each maximum, exact
 for a Gaussian: Caruana et al. 1986), then the Levenberg-Marquardt fit of all
 waveforms with the same number of echoes together, its start amplitudes and
-baseline by linear least squares, pruning of weak echoes, and rounds of
-adding a resolved echo at the highest residual feature while the BIC falls.
+baseline by linear least squares, pruning of weak echoes (after a fit that stopped
+on a collapsed echo, that echo first), and rounds of adding a resolved echo at the
+highest residual feature while the BIC falls.
 On an OpenCL device the detection runs there too, one waveform per work-item
 (:mod:`._detect_cl`, ``clsim/kernels/decompose_detect.cl``; the NumPy steps
 :func:`noise_stats_numpy` and :func:`candidates_numpy` are its reference), the
 samples stay on the device, and the fits run there, one waveform per work-item
 (:mod:`._batch_cl`, ``clsim/kernels/decompose_lm.cl``), which also returns each
-fit's residual for the search; two chunks are in flight at once (threads), so one
-chunk's host steps overlap the other's kernels. Without a device, everything is
+fit's residual and its matched-filtered and smoothed twins for the search; two
+chunks are in flight at once (threads), so one chunk's host steps overlap the
+other's kernels. Without a device, everything is
 vectorised in NumPy (:mod:`._batch_fit`).
 
 Differences from :func:`decompose`, for speed: one pulse for the whole batch

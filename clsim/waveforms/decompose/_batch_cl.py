@@ -130,7 +130,7 @@ class DeviceFitter:
             # the scalar arguments' types, declared once (set_args is then 30x faster)
             kern.set_scalar_arg_dtypes([None, None, np.int32, None, None, None, None, None,
                                         np.int32, np.int32, np.float32, np.int32, None,
-                                        np.int32, np.int32])
+                                        np.int32, np.int32, np.int32])
             self._kernels[key] = kern
         return self._kernels[key]
 
@@ -188,8 +188,11 @@ class BoundFitter:
         p, pc = (np.ones(1), 0) if pulse is None else (pulse.shape / float(np.sum(
             pulse.shape ** 2)), pulse.centre)
         w = np.concatenate([p, _SMOOTH[:9]]).astype(np.float32)
+        # the residual's zero padding on either side: the filters' reach and a block
+        self.pad = max(int(pc), p.size - 1 - int(pc), 4) + 8
         self.filters = (cl.Buffer(self.fitter.context, cl.mem_flags.READ_ONLY
-                                  | cl.mem_flags.COPY_HOST_PTR, hostbuf=w), p.size, int(pc))
+                                  | cl.mem_flags.COPY_HOST_PTR, hostbuf=w), p.size, int(pc),
+                        self.pad)
 
     def fit(self, rows, a, m, s, b, *, fit_baseline=True, linear=False, max_iter=40,
             tol=_TOL) -> GroupFit:
@@ -213,7 +216,8 @@ class BoundFitter:
         q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1] = a, m, s, b
         # one row per waveform: fit, rss, n_eff, iterations, J^T J, residual, its matched
         # filter and smoothing (the kernel's OUT)
-        out = np.empty((g, npar + 3 + nf * nf + 3 * self.n), dtype=np.float32)
+        base, pad = npar + 3 + nf * nf, self.pad
+        out = np.empty((g, base + 2 * pad + 3 * self.n), dtype=np.float32)
         mf = cl.mem_flags
         ctx = self.fitter.context
         d_row = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
@@ -235,9 +239,11 @@ class BoundFitter:
             n_eff = out[:, npar + 1].astype(int)
             hess = out[:, npar + 3:npar + 3 + nf * nf].reshape(g, nf, nf).astype(float)
             se = standard_errors(hess, rss, n_eff, k)
-            res = out[:, npar + 3 + nf * nf:].reshape(g, 3, self.n)[:, :, :self.n_samples]
+            ns = self.n_samples
+            r = out[:, base + pad:base + pad + ns]
+            flt = out[:, base + 2 * pad + self.n:].reshape(g, 2, self.n)[:, :, :ns]
             return GroupFit(fit[:, :k], fit[:, k:2 * k], fit[:, 2 * k:3 * k], fit[:, -1], rss,
-                            se, n_eff, out[:, npar + 2].astype(int), res[:, 0], res[:, 1:])
+                            se, n_eff, out[:, npar + 2].astype(int), r, flt)
 
         return finish
 
