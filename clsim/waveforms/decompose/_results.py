@@ -24,7 +24,8 @@ class EchoTable:
     baseline, baseline_se, noise_sigma, rss : (N,) float64
         Per waveform.
 
-    ``table[i]`` is waveform ``i``'s :class:`Components`; ``len(table)`` is N.
+    ``table[i]`` is waveform ``i``'s :class:`Components` (:meth:`components`: all of
+    them); ``len(table)`` is N.
     """
 
     waveform: np.ndarray
