@@ -141,3 +141,16 @@ def test_uniform_segments_are_deterministic(sim):
     r2 = Simulator(device=sim.info).run(scene, SENSOR.replace(off_nadir_deg=20.0), photons=20_000, seed=3)
     assert np.array_equal(r1.fine, r2.fine)
     assert r1.stat("walk_steps")[0] < r1.stat("voxel_steps")[0] / 2
+
+
+def test_simulator_rebuilds_the_bricks_of_a_scene_changed_in_place(sim):
+    """Simulator.run keeps the last scene's bricks; changing the scene's LAD in place is noticed
+    (bricks_key fingerprints the arrays), so the result equals a fresh simulator's."""
+    scene = testscenes.homogeneous_layer(width=4.0, voxel_size=0.25)
+    kw = dict(photons=5_000, seed=4, max_order=2)
+    a = sim.run(scene, SENSOR, **kw)
+    assert np.array_equal(a.fine, sim.run(scene, SENSOR, **kw).fine)  # from the kept bricks
+    scene.lad *= 3.0
+    b = sim.run(scene, SENSOR, **kw)
+    assert b.energy(order=1, kind="ground")[0] < 0.5 * a.energy(order=1, kind="ground")[0]
+    assert np.array_equal(b.fine, Simulator(device=sim.info).run(scene, SENSOR, **kw).fine)
