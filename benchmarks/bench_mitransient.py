@@ -447,7 +447,8 @@ DIFFERENCES = """### Where the physics differs, and what was matched
   medium samples free paths analytically and its heterogeneous medium by delta tracking
   against one global majorant (the oak's densest voxel, about 16 /m, everywhere in the
   12 m box; Mitsuba 3.9's `heterogeneous` plugin rejects a `majorant_resolution_factor`);
-  clsim by regular tracking voxel by voxel with the tight majorant G u, the leaf-averaged
+  clsim by regular tracking voxel by voxel (a brick of one value in one segment) with the
+  tight majorant G u, the leaf-averaged
   next-event weight and the lattice first free path (docs/method.md, "Variance
   reduction"). Mitsuba's error is measured against its own reference at each end (the
   ends differ in their cone quantisation). Mitsuba's `ldsampler` (low-discrepancy) was
