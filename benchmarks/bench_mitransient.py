@@ -60,7 +60,8 @@ PEER_ENV = ROOT / ".peer-venv" / "mitransient"
 R_L, T_L, RHO_G = 0.437, 0.478, 0.30
 MAX_ORDER = 3
 BIN_NS = 0.25
-OLD = dict(tight=False, leaf_avg=False, qmc=False)
+OLD = dict(tight=False, leaf_avg=False, qmc=False, uniform=False)
+NO_UNIFORM = dict(uniform=False)  # the voxel-by-voxel walk (uniform bricks not crossed in one segment)
 
 
 # -- physics shared by both programs ----------------------------------------------------------
@@ -247,6 +248,8 @@ def run_scene(args, name, scene_fn, voxels, peer, lines, tmp):
     sims = {}
     for v in voxels:
         sims[f"clsim {v:g} m"] = (Simulator(), scenes[v], prepared[v])
+        if args.variants:
+            sims[f"clsim {v:g} m, no uniform"] = (Simulator(features=NO_UNIFORM), scenes[v], prepared[v])
     if args.variants:
         sims[f"clsim {voxels[0]:g} m, before (no feature)"] = (Simulator(features=OLD), scene, prepared[voxels[0]])
         for f in ("qmc", "leaf_avg", "tight"):
@@ -391,6 +394,11 @@ def write_scene(lines, name, desc, summary, peers):
                          f"mitransient's fastest ({best_sps}); time to 1 % "
                          f"{summary[best_t1]['t1'] / summary[k]['t1']:.2f} x faster than mitransient's best "
                          f"({best_t1}, {summary[best_t1]['t1']:.3g} s) (goals: 1.5 x and 2 x).")
+    for k in clsim_keys:
+        if f"{k}, no uniform" in summary:
+            u = summary[f"{k}, no uniform"]
+            lines.append(f"- {k} against the voxel-by-voxel walk (`uniform` off), same run: samples/s "
+                         f"{summary[k]['sps'] / u['sps']:.2f} x, time to 1 % {u['t1'] / summary[k]['t1']:.2f} x shorter.")
     before = [k for k in summary if k.endswith("before (no feature)")]
     if before and clsim_keys:
         k0 = clsim_keys[0]
@@ -409,13 +417,15 @@ def profile_section(args, lines):
     """Where the voxel walk costs: the slab at 0.5, 0.25 and 0.1 m voxels, the default estimator."""
     sensor = Sensor.preset("ahab-chiroptera-i")
     kw = dict(bin_ns=BIN_NS, max_order=MAX_ORDER)
-    sim = Simulator()
+    sims = {True: Simulator(), False: Simulator(features=NO_UNIFORM)}
     n = args.profile_photons
     rows = []
     for v in (0.5, 0.25, 0.1):
         sc = slab_scene(v)
-        sim.run(sc, sensor, photons=2000, seed=0, **kw)
-        for hot in (False, True):
+        for s in sims.values():
+            s.run(sc, sensor, photons=2000, seed=0, **kw)
+        for hot, uni in ((False, True), (True, True), (False, False)):
+            sim = sims[uni]
             walls, kern, res = [], [], None
             for rep in range(3):
                 t0 = time.perf_counter()
@@ -424,29 +434,34 @@ def profile_section(args, lines):
                 kern.append(res.elapsed_s)
             t_small = statistics.median(
                 [sim.run(sc, sensor, photons=256, seed=9, hotspot=hot, **kw).elapsed_s for _ in range(3)])
-            st = {k: res.stat(k)[0] for k in ("voxel_steps", "events", "shadow_rays")}
+            st = {k: res.stat(k)[0] for k in ("voxel_steps", "walk_steps", "events", "shadow_rays")}
             wall, k = statistics.median(walls), statistics.median(kern)
-            rows.append((v, hot, n / wall, st["voxel_steps"] / n, st["events"] / n, st["shadow_rays"] / n,
-                         1e9 * k / st["voxel_steps"], wall - k, t_small))
+            rows.append((v, hot, uni, n / wall, st["voxel_steps"] / n, st["walk_steps"] / n, st["events"] / n,
+                         st["shadow_rays"] / n, 1e9 * k / st["walk_steps"], wall - k, t_small, n / k))
     lines += ["### Where the voxel walk costs (slab, clsim default estimator)", "",
               f"{n:,} photons, median of 3 runs, `max_order=3`; `hotspot=True` drops the order-1 shadow "
               "rays (their return path is the free incoming one), so the difference between the two rows of "
-              "a voxel size is the cost of those shadow walks. ns/step = kernel seconds / voxel steps (all the "
-              "kernel's work divided by its steps); host = wall - kernel (set-up, buffers, digitising).", "",
-              "| voxel | hotspot | photons/s | voxel steps / photon | events / photon | shadow rays / photon | "
-              "ns per step | host s | kernel s for 256 photons |", "|---|---|---|---|---|---|---|---|---|"]
-    for v, hot, ps, sp, ev, sh, ns, host, small in rows:
-        lines.append(f"| {v:g} m | {hot} | {ps / 1e6:.2f} M | {sp:.1f} | {ev:.2f} | {sh:.2f} | {ns:.1f} | "
-                     f"{host:.3f} | {small:.4f} |")
-    r5 = [r for r in rows if r[0] == 0.5 and not r[1]][0]
-    r1 = [r for r in rows if r[0] == 0.1 and not r[1]][0]
-    lines += ["", f"From 0.5 m to 0.1 m voxels the voxel steps per photon grow {r1[3] / r5[3]:.1f} x and the "
-              f"time per step changes {r1[6] / r5[6]:.2f} x; photons/s fall {r5[2] / r1[2]:.1f} x. The walk's "
-              "cost is its number of steps: every step is one DDA advance and one pool load inside an occupied "
-              "brick (the empty bricks above the canopy are crossed in one step each). What would remove most "
-              "of it on uniform canopies: a brick-level record of bricks whose 512 voxels share one value, "
-              "crossed as one segment like an empty brick (8 x fewer steps in this slab at 0.1 m; not done "
-              "here).", ""]
+              "a voxel size is the cost of those shadow walks; `uniform` off walks voxel by voxel through the "
+              "uniform bricks instead of crossing each in one segment (docs/method.md, \"Uniform bricks\"). "
+              "Voxel steps count the voxels the walk crosses (a segment counts its voxels); walk steps what "
+              "it does (a voxel, an empty brick, a uniform brick's segment). ns/walk step = kernel seconds "
+              "/ walk steps (all the kernel's work divided by its steps); host = wall - kernel (set-up, "
+              "buffers, digitising).", "",
+              "| voxel | hotspot | uniform | photons/s (wall) | photons/s (kernel) | voxel steps / photon | "
+              "walk steps / photon | events / photon | shadow rays / photon | ns per walk step | host s | "
+              "kernel s for 256 photons |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for v, hot, uni, ps, sp, wp, ev, sh, ns, host, small, pk in rows:
+        lines.append(f"| {v:g} m | {hot} | {uni} | {ps / 1e6:.2f} M | {pk / 1e6:.2f} M | {sp:.1f} | {wp:.1f} | "
+                     f"{ev:.2f} | {sh:.2f} | {ns:.1f} | {host:.3f} | {small:.4f} |")
+    pick = {(r[0], r[1], r[2]): r for r in rows}
+    r5, r1, r1w = pick[(0.5, False, True)], pick[(0.1, False, True)], pick[(0.1, False, False)]
+    lines += ["", f"From 0.5 m to 0.1 m voxels the walk steps per photon grow {r1[5] / r5[5]:.1f} x "
+              f"(voxel by voxel: {r1w[5] / pick[(0.5, False, False)][5]:.1f} x); photons/s (kernel) fall "
+              f"{r5[11] / r1[11]:.1f} x. Crossing the uniform bricks in one segment cuts the walk steps at 0.1 m "
+              f"{r1w[5] / r1[5]:.1f} x and makes the kernel {r1[11] / r1w[11]:.2f} x faster there. What is left "
+              "at 0.1 m: a brick is 0.8 m wide, so an oblique path still takes a segment per brick it "
+              "crosses, and the host's share per run (the fingerprint of the scene's arrays that keeps its "
+              "bricks cached, the histogram's transfer).", ""]
 
 
 DIFFERENCES = """### Where the physics differs, and what was matched
@@ -478,7 +493,8 @@ DIFFERENCES = """### Where the physics differs, and what was matched
   medium samples free paths analytically and its heterogeneous medium by delta tracking
   against one global majorant (the oak's densest voxel, about 16 /m, everywhere in the
   12 m box; Mitsuba 3.9's `heterogeneous` plugin rejects a `majorant_resolution_factor`);
-  clsim by regular tracking voxel by voxel with the tight majorant G u, the leaf-averaged
+  clsim by regular tracking voxel by voxel (a brick of one value in one segment) with the
+  tight majorant G u, the leaf-averaged
   next-event weight and the lattice first free path (docs/method.md, "Variance
   reduction"). Mitsuba's error is measured against its own reference at each end (the
   ends differ in their cone quantisation). Mitsuba's `ldsampler` (low-discrepancy) was
