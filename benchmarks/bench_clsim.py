@@ -35,6 +35,8 @@ from clsim.sensor import Sensor
 from clsim.transport.simulator import Simulator, list_devices
 from clsim.transport.reference import ReferenceSimulator
 
+from _bench import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -59,13 +61,16 @@ def section_devices(args, lines, img):
               f"Scene: homogeneous layer 10 m x 10 m x 2 m, voxel 0.1 m (LAD 1, spherical), ground; "
               f"sensor `{sensor.name}` at nadir; `max_order=3`. Medians of {args.repeats} runs "
               f"(after a warm-up run that builds the program).", "",
-              "| device | runtime | mode | detect | photons | photons/s | voxel steps/s | range over the runs |",
-              "|---|---|---|---|---|---|---|---|"]
+              "Voxel steps count the voxels crossed (a uniform brick crossed in one segment counts its voxels), "
+              "walk steps what the walker does; `uniform` no: the voxel-by-voxel walk (docs/method.md).", "",
+              "| device | runtime | mode | detect | uniform | photons | photons/s | voxel steps/s | range over the runs "
+              "| walk steps/s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lo, hi = r["steps_per_s_range"]
-        lines.append(f"| {r['device']} | {r['runtime']} | {r['mode']} | {r['detect']} | {r['photons']:,} | "
+        lines.append(f"| {r['device']} | {r['runtime']} | {r['mode']} | {r['detect']} | "
+                     f"{'yes' if r['uniform'] else 'no'} | {r['photons']:,} | "
                      f"{r['photons_per_s']:,.0f} | {r['steps_per_s'] / 1e6:,.1f} M | "
-                     f"{lo / 1e6:,.1f} - {hi / 1e6:,.1f} M |")
+                     f"{lo / 1e6:,.1f} - {hi / 1e6:,.1f} M | {r['walk_steps_per_s'] / 1e6:,.1f} M |")
     # oracle on the same scene
     n_or = args.photons_dev // 20
     ref = ReferenceSimulator()
@@ -78,7 +83,7 @@ def section_devices(args, lines, img):
     lines += ["", f"NumPy float64 oracle, same scene: {ops:,.0f} photons/s ({n_or:,} photons).", "",
               "| device | kernel / oracle (photons/s, exact + nee) |", "|---|---|"]
     for r in rows:
-        if r["mode"] == "exact" and r["detect"] == "nee":
+        if r["mode"] == "exact" and r["detect"] == "nee" and r["uniform"]:
             lines.append(f"| {r['device']} | {r['photons_per_s'] / ops:.1f} x |")
     lines.append("")
     lines += [f"Goals: at least 20 x the oracle (issue 5); at least 150 M voxel steps/s on 2 cores on the best "
@@ -90,7 +95,8 @@ def section_devices(args, lines, img):
 def chart_devices(rows, oracle_ps, img) -> str:
     import matplotlib.pyplot as plt
 
-    labels = [f"{r['runtime'][:22]}\n{r['mode']} + {r['detect']}" for r in rows]
+    labels = [f"{r['runtime'][:22]}\n{r['mode']} + {r['detect']}{'' if r['uniform'] else ', voxel walk'}"
+              for r in rows]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     y = np.arange(len(rows))
     axes[0].barh(y, [r["photons_per_s"] for r in rows], color="tab:blue", label="kernel")
@@ -100,7 +106,7 @@ def chart_devices(rows, oracle_ps, img) -> str:
     axes[0].legend(fontsize=8)
     axes[1].barh(y, [r["steps_per_s"] / 1e6 for r in rows], color="tab:green")
     axes[1].axvline(150, color="grey", ls=":", label="goal, 2 CPU cores")
-    axes[1].set_xlabel("voxel steps / s (millions)")
+    axes[1].set_xlabel("voxel steps / s (millions; equivalent with uniform bricks)")
     axes[1].legend(fontsize=8)
     for ax in axes:
         ax.set_yticks(y)
@@ -306,11 +312,7 @@ def main(argv=None) -> int:
     section_nee_vs_analog(args, lines, sim, img)
     section_precision(args, lines, sim, img)
     out = Path(args.out)
-    from voxlidar.safeio import atomic_write
-
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print("\n".join(lines))
-    print(f"\nwrote {out}")
+    write_page(out, lines, echo=True)
     return 0
 
 

@@ -19,7 +19,7 @@ out of its figures. Without that environment the gdecomp columns say "not run".
 
 Writes docs/bench/decompose.md and docs/img/decompose_neon.png.
 
-Run:  .venv/bin/python benchmarks/bench_decompose.py [--repeats 5]
+Run:  .venv/bin/python benchmarks/bench_decompose.py [--repeats 5] [--device gpu]
 """
 
 from __future__ import annotations
@@ -204,11 +204,7 @@ def run_clsim_single(waves, **kw):
 
 def run_clsim_batch(waves, **kw):
     table = decompose_batch(waves, **kw)
-    out = []
-    for i in range(len(table)):
-        c = table[i]
-        out.append((c.amplitude, c.location_ns, c.sigma_ns, c.baseline))
-    return out
+    return [(c.amplitude, c.location_ns, c.sigma_ns, c.baseline) for c in table.components()]
 
 
 def _sum_model(t, *p):
@@ -421,14 +417,14 @@ NOTE = {
 }
 
 
-def make_runners(gd_ok: bool, gd_timeout: float, failures: dict):
+def make_runners(gd_ok: bool, gd_timeout: float, failures: dict, device=None):
     def gd(waves):
         res, failed = run_gdecomp(waves, timeout=gd_timeout)
         failures.setdefault("gdecomp", []).append(len(failed))
         return res
 
     return {
-        "clsim batched": lambda w, dt=1.0: run_clsim_batch(w, dt_ns=dt),
+        "clsim batched": lambda w, dt=1.0: run_clsim_batch(w, dt_ns=dt, device=device),
         "clsim batched NumPy": lambda w, dt=1.0: run_clsim_batch(w, dt_ns=dt, device="numpy"),
         "clsim single": lambda w, dt=1.0: run_clsim_single(w, dt_ns=dt),
         "clsim before": lambda w, dt=1.0: run_clsim_single(w, dt_ns=dt, detection="amplitude"),
@@ -457,11 +453,12 @@ def time_methods(waves, runners, repeats, gd_skip):
             for m, t in times.items() if t}
 
 
-def device_label() -> str:
-    """The device ``decompose_batch`` chooses by default, with its runtime."""
+def device_label(device=None) -> str:
+    """The device ``decompose_batch`` runs on (by default: its own choice), with its
+    runtime."""
     from clsim.waveforms.decompose._batch_cl import device_fitter
 
-    fitter = device_fitter(None)
+    fitter = device_fitter(device)
     if fitter is None:
         return "none found (NumPy fits)"
     return f"{fitter.info.label} ({fitter.info.runtime})"
@@ -481,6 +478,9 @@ def main(argv=None) -> int:
                     help="Leica waveforms (the first N) for the comparison of all methods "
                          "(gdecomp and curve_fit need 0.4-0.9 s per Leica waveform: ~16 "
                          "echoes each at 4 sigma of 8-bit noise); clsim batched also runs all")
+    ap.add_argument("--device", default=None,
+                    help="OpenCL device of the clsim batched runs (as decompose_batch's "
+                         "device: '0:1', 'cpu', 'gpu', ...); default: decompose_batch's choice")
     ap.add_argument("--scale", type=int, default=20000,
                     help="synthetic waveforms for the batched throughput at scale")
     args = ap.parse_args(argv)
@@ -489,7 +489,7 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()
     gd_ok = gdecomp_available()
     failures: dict = {}
-    runners = make_runners(gd_ok, args.gdecomp_timeout, failures)
+    runners = make_runners(gd_ok, args.gdecomp_timeout, failures, args.device)
     neon = load_neon(data)
     leica, leica_t = load_leica(data)
     peer_path = data / "riegl-pulsewaves" / "adapt_gaussianfitter_tests.json"
@@ -541,8 +541,8 @@ def main(argv=None) -> int:
     neon8 = neon * 8
     at_scale = {"scale": [], "scale NumPy": [], "neon8": []}
     for _ in range(args.repeats):
-        for key, waves, dev in (("scale", scale, None), ("scale NumPy", scale, "numpy"),
-                                ("neon8", neon8, None)):
+        for key, waves, dev in (("scale", scale, args.device), ("scale NumPy", scale, "numpy"),
+                                ("neon8", neon8, args.device)):
             t0 = time.perf_counter()
             decompose_batch(waves, device=dev)
             at_scale[key].append(len(waves) / (time.perf_counter() - t0))
@@ -553,7 +553,8 @@ def main(argv=None) -> int:
     peer = score_peer(peer_path)
     figure(neon, ROOT / "docs" / "img" / "decompose_neon.png")
 
-    cmd = f".venv/bin/python benchmarks/bench_decompose.py --repeats {args.repeats}"
+    cmd = f".venv/bin/python benchmarks/bench_decompose.py --repeats {args.repeats}" + (
+        f" --device {args.device}" if args.device else "")
     lines = [
         "# Gaussian decomposition benchmark",
         "",
@@ -594,7 +595,7 @@ def main(argv=None) -> int:
         f"fits: {scale_np_rate:,.0f}); on the 500 NEON waveforms repeated 8 times "
         f"({len(neon8):,}, chunks of 2,000): {neon8_rate:,.0f} waveforms/s.",
         "",
-        f"OpenCL device of `decompose_batch`: {device_label()}.",
+        f"OpenCL device of `decompose_batch` (clsim batched): {device_label(args.device)}.",
         "",
         "## Accuracy, same waveforms for every method",
         "",

@@ -115,14 +115,19 @@ def markdown(report, clsim_rows, trace_rows, args, load0, load1, wall, choice_ro
         lines.append(f"| {info.key} | {info.name} | {info.runtime} | {info.kind} | {state_text(verdict)} |")
     lines += ["", "## clsim transport, per runtime", "",
               "Benchmark layer (10 x 10 x 2 m, 0.1 m voxels, LAD 1, ground), `max_order=3`; medians of "
-              f"{args.repeats} runs, devices and variants taking turns.", ""]
+              f"{args.repeats} runs, devices and variants taking turns. Voxel steps count the voxels the walk "
+              "crosses (a uniform brick crossed in one segment counts its voxels: equivalent steps), walk steps "
+              "what the walker does (a voxel, an empty brick, a segment); `uniform` no: the voxel-by-voxel walk "
+              "(docs/method.md, \"Uniform bricks\").", ""]
     for runtime in dict.fromkeys(r["runtime"] for r in clsim_rows):
-        lines += [f"### {runtime}", "", "| device | mode | detect | photons per run | photons/s | voxel steps/s (median) | range |",
-                  "|---|---|---|---:|---:|---:|---|"]
+        lines += [f"### {runtime}", "", "| device | mode | detect | uniform | photons per run | photons/s | "
+                  "voxel steps/s (median) | range | walk steps/s |", "|---|---|---|---|---:|---:|---:|---|---:|"]
         for r in (r for r in clsim_rows if r["runtime"] == runtime):
             lo, hi = r["steps_per_s_range"]
-            lines.append(f"| {r['key']} {r['device']} | {r['mode']} | {r['detect']} | {r['photons']:,} | "
-                         f"{r['photons_per_s']:,.0f} | {r['steps_per_s'] / 1e6:,.1f} M | {lo / 1e6:,.1f}-{hi / 1e6:,.1f} M |")
+            lines.append(f"| {r['key']} {r['device']} | {r['mode']} | {r['detect']} | "
+                         f"{'yes' if r.get('uniform', True) else 'no'} | {r['photons']:,} | "
+                         f"{r['photons_per_s']:,.0f} | {r['steps_per_s'] / 1e6:,.1f} M | {lo / 1e6:,.1f}-{hi / 1e6:,.1f} M | "
+                         f"{r.get('walk_steps_per_s', r['steps_per_s']) / 1e6:,.1f} M |")
         lines.append("")
     lines += ["## tlsvox tracer, per runtime", "",
               f"Synthetic scan: {trace_rows[0]['beams']:,} beams into 150 x 150 x 100 voxels of 0.2 m "
@@ -170,8 +175,9 @@ def main(argv=None) -> int:
     if gpus:
         clsim_rows += device_benchmark(photons=args.photons * args.gpu_factor, repeats=args.repeats, devices=gpus)
     for r in clsim_rows:
-        print(f"clsim {r['key']} {r['runtime']:22s} {r['mode']:5s} {r['detect']:6s} {r['photons_per_s']:14,.0f} photons/s "
-              f"{r['steps_per_s'] / 1e6:10,.1f} M steps/s")
+        print(f"clsim {r['key']} {r['runtime']:22s} {r['mode']:5s} {r['detect']:6s} uniform={r['uniform']!s:5s} "
+              f"{r['photons_per_s']:14,.0f} photons/s {r['steps_per_s'] / 1e6:10,.1f} M steps/s "
+              f"{r['walk_steps_per_s'] / 1e6:10,.1f} M walk steps/s")
     trace_rows = bench_tracer(tr_ok, args.beams, args.repeats) if tr_ok else []
     for r in trace_rows:
         print(f"tracer {r['key']} {r['runtime']:22s} {r['mode']:18s} {r['beams_per_s']:14,.0f} beams/s "

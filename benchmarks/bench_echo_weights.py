@@ -34,6 +34,8 @@ from tlsvox.truth.meshtruth import area_per_voxel
 from tlsvox.truth.scanner import ScannerPreset, ScanPose, simulate_scan
 from tlsvox.truth.synthetic import make_leaf_slab
 
+from _bench import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 BOUNDS = np.array([[-1.0, -1.0, 1.0], [1.0, 1.0, 3.0]])
 POSES = (ScanPose(position=(-8.0, -3.0, 1.7), yaw_deg=10.0), ScanPose(position=(6.0, 7.0, 1.7), yaw_deg=-150.0))
@@ -108,9 +110,7 @@ def main(argv=None) -> int:
             beam += f", detection floor {floor:g} dB (not -20)"
         lines.append(f"| {beam} | {rule} | {r['mean']:.3f} | {r['true']:.3f} | {100 * r['error']:+.1f} % | "
                      f"{100 * r['se'] / r['true']:.1f} % |")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("\n".join(lines) + "\n")
-    print(f"wrote {args.out}")
+    write_page(args.out, lines)
     return 0
 
 

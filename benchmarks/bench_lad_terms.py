@@ -31,11 +31,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+
+from _bench import machine_line, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,7 +58,6 @@ def main(argv=None):
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
     from tlsvox.voxel.voxlad import score_lad, voxelize
-    from voxlidar.safeio import atomic_write
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
@@ -93,8 +93,7 @@ def main(argv=None):
     minutes = (time.perf_counter() - t0) / 60
     lines = ["# Where the leaf area goes (synthetic oak, the estimators' assumptions one at a time)", "",
              f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py --sizes {args.sizes}` ({minutes:.1f} min). "
-             f"Machine: {platform.machine()}, {os.cpu_count()} CPU(s); load average before "
-             f"{', '.join(f'{v:.2f}' for v in load0)}. Two VZ-400 scans (7 sub-rays, echoes weighted by "
+             + machine_line(load0) + " Two VZ-400 scans (7 sub-rays, echoes weighted by "
              "their beam share), true poses and classes, `bcmle`, uniform leaf inclination (the truth), "
              "dense layout. The default oak is the first row pair.", "",
              "| leaf azimuth | leaf clusters (sigma) | scanner's detection threshold | voxel | estimators' G | "
@@ -117,9 +116,7 @@ def main(argv=None):
               "cent of the leaf interception lost this way costs ten to sixteen points of leaf area (compare each "
               "oak's rows at 20 cm). `voxelize(undetected=\"model\")` corrects for it "
               "(`tlsvox.voxel.detection`): see the next section, measured at the VZ-400's -20 dB.", ""]
-    out = Path(args.out)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(args.out, lines)
 
 
 def _oak_scans(azimuth, sigma, threshold):
@@ -140,8 +137,6 @@ def threshold_table(args):
     """The default oak and the most random one at -20 dB, with and without the detection model."""
     from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import score_lad, voxelize
-    from voxlidar.safeio import atomic_write
-
     load0 = os.getloadavg()
     t_all = time.perf_counter()
     tracer = Tracer()
@@ -167,8 +162,7 @@ def threshold_table(args):
     minutes = (time.perf_counter() - t_all) / 60
     lines = ["## The detection threshold corrected (synthetic oak, 20 cm)", "",
              f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py --threshold-only --iterations {args.iterations}` "
-             f"({minutes:.1f} min). Machine: {platform.machine()}, {os.cpu_count()} CPU(s); load average before "
-             f"{', '.join(f'{v:.2f}' for v in load0)}. The default oak (outward leaves, clusters of 0.35 m; the "
+             f"({minutes:.1f} min). " + machine_line(load0) + " The default oak (outward leaves, clusters of 0.35 m; the "
              "estimators' G per voxel for outward leaves) and the most random one (uniform azimuth, clusters of "
              "3 m), two VZ-400 scans each, true poses and classes, echoes weighted by their beam share, `bcmle`, "
              "uniform leaf inclination (the truth), dense layout, 20 cm voxels.", "",
@@ -188,9 +182,7 @@ def threshold_table(args):
               "the unrecorded stop lay follows from H u e^-tau of the current estimate, none within the range "
               "resolution of a recorded echo of the same pulse. The -60 dB rows are the floor the correction can "
               "reach: what is left there is not the scanner's term.", ""]
-    out = Path(args.threshold_out)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(args.threshold_out, lines)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,6 @@ import argparse
 import json
 import os
 import pickle
-import platform
 import subprocess
 import sys
 import tempfile
@@ -32,6 +31,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from _bench import machine_line, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1
@@ -150,14 +151,12 @@ def main(argv=None):
 
 
 def write(rows, args, t_sim, load_before, load_after):
-    from voxlidar.safeio import atomic_write, save_figure
+    from voxlidar.safeio import save_figure
 
     lines = [
         "# Memory and time against voxel size (synthetic oak, two scans)", "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} CPU(s) shared with other work, Python "
-        f"{platform.python_version()}. Command: `.venv/bin/python benchmarks/bench_memory.py --sizes {args.sizes} "
-        f"--repeats {args.repeats}`. Load average (1, 5, 15 min) before: "
-        f"{', '.join(f'{v:.2f}' for v in load_before)}; after: {', '.join(f'{v:.2f}' for v in load_after)}.",
+        f"Command: `.venv/bin/python benchmarks/bench_memory.py --sizes {args.sizes} --repeats {args.repeats}`. "
+        + machine_line(load_before, load_after),
         "",
         f"The two scans (4.1 M pulses, 1.7 M echoes) were simulated once ({t_sim:.0f} s, not counted). Each "
         "row is a fresh process: *scans loaded* is its RSS with the scans in memory, *peak* its peak RSS "
@@ -181,8 +180,7 @@ def write(rows, args, t_sim, load_before, load_after):
                      f"{100 * vis_err:+.1f} % | {r['true_area']:.1f} |")
     lines += ["", "Goals (issue 14): 2 cm at most 4 GiB peak and 10 minutes; 5 cm at most 1.5 GiB.", ""]
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
+    write_page(out, lines)
 
     import matplotlib
 

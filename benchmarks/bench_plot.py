@@ -24,23 +24,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
 
+from _bench import machine_line, median_time, write_page
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def median_time(fn, repeats):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), out
 
 
 def host_bytes(scene) -> int:
@@ -113,16 +105,12 @@ def run_pulse(plot, args) -> dict:
 
 
 def write(rows, pulse, args, load_before, load_after):
-    from voxlidar.safeio import atomic_write
 
     mib = 2.0**20
     lines = [
         "# A plot of many trees: shared bricks against copies", "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} CPU(s) shared with other work, Python "
-        f"{platform.python_version()}. Command: `.venv/bin/python benchmarks/bench_plot.py --sizes {args.sizes} "
-        f"--repeats {args.repeats} --pulse-voxel {args.pulse_voxel:g} --photons {args.photons}`. Load average "
-        f"(1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in load_before)}; after: "
-        f"{', '.join(f'{v:.2f}' for v in load_after)}.", "",
+        f"Command: `.venv/bin/python benchmarks/bench_plot.py --sizes {args.sizes} --repeats {args.repeats} "
+        f"--pulse-voxel {args.pulse_voxel:g} --photons {args.photons}`. " + machine_line(load_before, load_after), "",
         "The plot is `make_plot(seed=0)`: 50 m x 50 m, 30 synthetic trees drawn from 6 models (2 each of broad, "
         "narrow and small crowns; 5 instances per model), trunks on the brick lattice, at least 4 m apart. "
         "*Shared*: `plot.brick_grid()` (one pool copy per model, merged bricks where crowns share a brick cell); "
@@ -152,9 +140,7 @@ def write(rows, pulse, args, load_before, load_after):
         f"(received energy {e:.4g} +- {se:.2g} of the emitted).", "",
     ]
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(out, lines)
 
 
 if __name__ == "__main__":

@@ -18,27 +18,17 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
-import time
 from pathlib import Path
 
-import numpy as np
 
 from tlsvox.classify import classify_scan, score
 from tlsvox.register import RegistrationError, pose_error, register_pair, true_relative_transform
 from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
 from tlsvox.truth.synthetic import TreeParams, make_tree
 
+from _bench import median_time, write_page
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def timed(fn, repeats):
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def main(argv=None):
@@ -62,7 +52,7 @@ def main(argv=None):
     for method in ("targets", "fpfh"):
         reps = args.repeats if method == "targets" else max(1, args.repeats // 3)
         try:
-            t, r = timed(lambda: register_pair(B, A, method=method), reps)
+            t, r = median_time(lambda: register_pair(B, A, method=method), reps)
         except RegistrationError as err:  # reported, not hidden: the table says it failed
             failures.append(f"{method}: {err}")
             print(failures[-1])
@@ -102,7 +92,7 @@ def main(argv=None):
     cls_rows, tables = [], []
     for s in (A, B):
         for name, kw, reps in variants:
-            t, c = timed(lambda: classify_scan(s, **kw), reps)
+            t, c = median_time(lambda: classify_scan(s, **kw), reps)
             sc = score(c.labels, s.truth_material)
             cls_rows.append((s.name, len(s), name, c.refined, t, sc.precision["leaf"], sc.recall["leaf"],
                              sc.precision["wood"], sc.recall["wood"], c.counts["noise"]))
@@ -129,9 +119,7 @@ def main(argv=None):
         lines.append(f"| {sn} | {n:,} | {name} | {ref} | {t:.2f} | {lp:.3f} | {lr:.3f} | {wp:.3f} | {wr:.3f} "
                      f"| {nn:,} |")
     lines += ["", "Confusion matrices (rows truth, columns label):", ""] + tables
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    print(f"wrote {out}")
+    write_page(out, lines)
 
 
 if __name__ == "__main__":

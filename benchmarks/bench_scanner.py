@@ -20,6 +20,8 @@ import numpy as np
 from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
 from tlsvox.truth.synthetic import make_tree
 
+from _bench import write_page
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -66,11 +68,7 @@ def main(argv=None) -> int:
     for n_sub, n_p, n_e, med, pps, sps in rows:
         lines.append(f"| {n_sub} | {n_p:,} | {n_e:,} | {med:.2f} | {pps:,.0f} | {sps:,.0f} | {med / base:.2f}x |")
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, out)
-    print(f"wrote {out}")
+    write_page(out, lines)
     return 0
 
 

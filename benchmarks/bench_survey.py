@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import pickle
 import platform
@@ -49,6 +48,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESET = "riegl-lms-q680i"
@@ -72,20 +73,14 @@ def make_job(scene_path, *, count: int, photons: int, batch: int, seed: int = 1,
     """The flight line over the scene's middle, long enough for ``count`` pulses."""
     from clsim.sensor import Sensor
     from clsim.scenes import load_scene
-    from clsim.survey import ScanPattern, SurveyJob, Trajectory, typical_flight
+    from clsim.survey import SurveyJob, centre_line
 
     scene = load_scene(scene_path)
     lo = np.asarray(scene.origin, float)
-    hi = lo + scene.voxel_size * np.asarray(scene.shape)
-    H, v = typical_flight(PRESET)
-    fov = 2.0 * math.degrees(math.atan(0.5 * (hi[1] - lo[1]) / H))
-    pattern = ScanPattern.preset(PRESET, fov_deg=fov)
-    length = max(hi[0] - lo[0], 1.001 * count * v / pattern.pulse_rate_hz)
-    xm, ym = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])
-    tr = Trajectory.line((xm - 0.5 * length, ym), (xm + 0.5 * length, ym), altitude_m=H, speed_mps=v)
-    first = max(0, int((tr.duration_s * pattern.pulse_rate_hz - count) / 2))   # centred on the scene
-    return SurveyJob(scene_path=str(scene_path), trajectory=tr, pattern=pattern, sensor=Sensor.preset(PRESET),
-                     photons=photons, first=first, count=count, batch_size=batch, seed=seed, device=device), fov
+    line = centre_line(lo, lo + scene.voxel_size * np.asarray(scene.shape), PRESET, count=count)
+    return SurveyJob(scene_path=str(scene_path), trajectory=line.trajectory, pattern=line.pattern,
+                     sensor=Sensor.preset(PRESET), photons=photons, first=line.first, count=count, batch_size=batch,
+                     seed=seed, device=device), line.fov_deg
 
 
 def quiet_dask():
@@ -369,9 +364,7 @@ def main(argv=None) -> int:
         f"({wf.bin_ns:.3f} ns); {np.mean(wf.energy > 0):.1%} of the pulses returned energy. LAS 1.4: {las_note}.",
         "",
     ]
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("\n".join(lines))
-    log(f"wrote {args.out}")
+    write_page(args.out, lines)
     return 0
 
 

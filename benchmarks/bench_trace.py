@@ -24,6 +24,8 @@ from tlsvox.voxel.pulses import beams_from_scan, rotation_from_rpy
 from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.trace import Beams, Tracer, trace_reference
 
+from _bench import write_section
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("VOXLIDAR_SHARED_DATA", ROOT.parent / "shared" / "data"))
 GRID = AngularGrid(30.0, 0.048, 2082, 0.0, 0.622, 580)
@@ -37,20 +39,6 @@ def subset(b: Beams, idx) -> Beams:
     return Beams(origin=b.origin[idx], direction=b.direction[idx], echo_start=st, echo_range=b.echo_range[e],
                  echo_weight=b.echo_weight[e], echo_kind=b.echo_kind[e], tail=b.tail[idx],
                  max_range=b.max_range[idx], g=b.g[idx])
-
-
-def write_section(path: Path, title: str, body: str) -> None:
-    """Replace (or append) the ``## title`` section of a markdown file, atomically."""
-    from voxlidar.safeio import atomic_write
-
-    text = path.read_text() if path.exists() else "# Voxelisation benchmarks\n\nWritten by benchmarks/bench_*.py.\n"
-    head = f"## {title}\n"
-    if head in text:
-        start = text.index(head)
-        nxt = text.find("\n## ", start + len(head))
-        text = text[:start] + text[nxt + 1:] if nxt >= 0 else text[:start]
-    text = text.rstrip() + "\n\n" + head + body.rstrip() + "\n"
-    atomic_write(path, lambda tmp: Path(tmp).write_text(text))
 
 
 def main(argv=None):

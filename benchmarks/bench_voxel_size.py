@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_trace import write_section
+from _bench import write_section
 from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, estimate_lad
 from tlsvox.voxel.trace import Tracer

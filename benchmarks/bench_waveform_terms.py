@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 from pathlib import Path
+
+from _bench import machine_line, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,7 +39,6 @@ def main(argv=None):
     from clsim.validation.budget import default_pulses, waveform_metrics
     from clsim.validation.meshref import MeshReferenceSimulator
     from tlsvox.truth.synthetic import TreeParams, make_tree
-    from voxlidar.safeio import atomic_write
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
@@ -77,8 +77,8 @@ def main(argv=None):
     minutes = (time.perf_counter() - t0) / 60
     lines = ["# Where the exact-LAD waveform error comes from (leaves, wood, hot spot)", "",
              f"Command: `.venv/bin/python benchmarks/bench_waveform_terms.py --voxel {args.voxel:g} --photons "
-             f"{args.photons}` ({minutes:.1f} min). Machine: {platform.machine()}, {os.cpu_count()} CPU(s); load "
-             f"average before {', '.join(f'{v:.2f}' for v in load0)}. Device: {sim.device_name}.", "",
+             f"{args.photons}` ({minutes:.1f} min). " + machine_line(load0)
+             + f" Device: {sim.device_name}.", "",
              f"Default oak, sensor `ahab-chiroptera-i`, the four budget pulses; mesh reference against the "
              f"exact-LAD twin at {args.voxel * 100:g} cm, {args.photons:,} photons each, 3 orders. r: Pearson "
              "correlation of the waveforms; E: received energy, twin / mesh (total, from vegetation, from the "
@@ -99,9 +99,7 @@ def main(argv=None):
               "beam far more squarely than the side of an upright cylinder seen 15 degrees off its axis, so they "
               "backscatter more; 'directional' gives each voxel its bark axis and anisotropy from the bark "
               "normals (docs/method.md, directional wood; now the default).", ""]
-    out = Path(args.out)
-    atomic_write(out, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-    print(f"wrote {out}")
+    write_page(args.out, lines)
 
 
 if __name__ == "__main__":

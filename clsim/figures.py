@@ -1,4 +1,5 @@
-"""Pictures of simulated waveforms and photon paths (the paper's Fig. 8 and 9).
+"""The clsim pictures: simulated waveforms and photon paths (the paper's Fig. 8 and 9), the
+picked pulses of `clsim pick` and the decomposed waveforms of `clsim waveforms decompose`.
 
 Open3D is imported only inside :func:`render_traces`; matplotlib inside each
 function, so importing this module stays light.
@@ -9,27 +10,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import save_figure
+from voxlidar.safeio import finish_figure
 
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
 
-__all__ = ["plot_result", "plot_traces", "plot_waveforms", "render_traces", "settings_caption", "trace_paths"]
-
-
-def _save(fig, path, caption: str | None = None) -> Path:
-    """Lay out, write (format by suffix, atomically) and close a figure; ``caption`` goes under the axes."""
-    import matplotlib.pyplot as plt
-
-    if caption:
-        lines = caption.count("\n") + 1
-        fig.tight_layout(rect=(0, 0.035 * lines, 1, 1))
-        fig.text(0.01, 0.01, caption, fontsize=6.5, ha="left", va="bottom", color="0.25")
-    else:
-        fig.tight_layout()
-    out = save_figure(fig, Path(path))
-    plt.close(fig)
-    return out
+__all__ = ["plot_decomposition", "plot_picks", "plot_result", "plot_traces", "plot_waveforms", "render_traces",
+           "settings_caption", "trace_paths"]
 
 
 def trace_paths(result, top: float):
@@ -94,7 +81,7 @@ def plot_waveforms(curves, path, *, ground_time_ns=None, title=None, height_axis
     if caption is None:
         caption = next((settings_caption(item[1].settings) for item in curves
                         if len(item) == 2 and getattr(item[1], "settings", None)), None)
-    return _save(fig, path, caption)
+    return finish_figure(fig, path, caption=caption)
 
 
 def render_traces(result, scene, path, *, max_voxels: int = 40_000, approach_m: float = 8.0,
@@ -202,7 +189,7 @@ def plot_result(res, path) -> Path:
     ax.set_xlabel("time after emission (ns)")
     ax.set_ylabel("received power (fraction of emitted energy / ns)")
     ax.legend(fontsize=8)
-    return _save(fig, path, settings_caption(s))
+    return finish_figure(fig, path, caption=settings_caption(s))
 
 
 def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
@@ -235,4 +222,98 @@ def plot_traces(res, scene, path, *, max_voxels: int = 20000) -> Path:
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.set_title(f"{len(res.traces)} photon paths")
-    return _save(fig, path, settings_caption(res.settings))
+    return finish_figure(fig, path, caption=settings_caption(res.settings))
+
+
+def plot_picks(path, scene, centres, colors, chosen, results, sensor, *, photons: int, seed: int,
+               name: str = "") -> Path:
+    """The scene seen from the side with the picked voxels marked, beside their waveforms against height
+    (``clsim pick --plot``).
+
+    Parameters
+    ----------
+    path : str or Path
+        Picture file; the format follows the suffix (png, pdf, svg, jpg).
+    scene : voxlidar.scene.Scene
+    centres : (M, 3) float, metres
+        Voxel centres drawn; ``colors`` (M, 3) their colours.
+    chosen : list of int
+        Indices into ``centres`` of the picked voxels (a nadir pulse each).
+    results : list of SimulationResult
+        One per picked voxel.
+    sensor : Sensor
+    photons, seed : int
+        What the pulses were run with (for the title).
+    name : str
+        The scene file's name (for the title).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 5.5), gridspec_kw={"width_ratios": [1.1, 1]})
+    a.scatter(centres[:, 0], centres[:, 2], s=4, c=colors, alpha=0.5, linewidths=0)
+    ground = scene.ground_z if scene.ground_z is not None else float(centres[:, 2].min())
+    for k, i in enumerate(chosen):
+        x = centres[i, 0]
+        a.plot([x, x], [ground, centres[:, 2].max() + 1.0], color=f"C{k}", lw=1.2)
+        a.plot(x, centres[i, 2], "o", color=f"C{k}", ms=7, mec="k")
+    a.set_xlabel("x (m)")
+    a.set_ylabel("height z (m)")
+    a.set_title("the scene (voxels by LAD) and the picked pulses", fontsize=10)
+    a.set_aspect("equal", adjustable="datalim")
+    tg = 2.0 * sensor.range_m / C_M_PER_NS
+    for k, (i, r) in enumerate(zip(chosen, results)):
+        h = (tg - r.time_ns) * C_M_PER_NS / 2.0 + (scene.ground_z or 0.0)
+        b.plot(r.waveform, h, color=f"C{k}", lw=1.2, label=f"voxel {i}")
+    b.set_xlabel("received power (fraction of emitted energy / ns)")
+    b.set_ylabel("height z (m)")
+    b.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
+    b.set_title(f"{sensor.name}, nadir, {photons:,} photons, seed {seed}", fontsize=10)
+    b.legend(fontsize=8)
+    fig.suptitle(f"clsim pick: {name}", fontsize=11)
+    return finish_figure(fig, path)
+
+
+def plot_decomposition(path, wf, results, count: int, source: str = "") -> Path:
+    """The first ``count`` decomposed waveforms: samples, the fitted sum and each echo
+    (``clsim waveforms decompose --plot``).
+
+    Parameters
+    ----------
+    path : str or Path
+        Picture file; the format follows the suffix (png, pdf, svg, jpg).
+    wf : the waveforms read by ``clsim waveforms`` (``waves``, ``dt_ns``, ``pulse_id``, ``kind``)
+    results : list of Components or None
+        One per waveform (None: not decomposed).
+    count : int
+    source : str
+        The file's name (for the title).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from clsim.waveforms.decompose import gaussian_sum
+
+    idx = [i for i, c in enumerate(results) if c is not None][:max(1, count)]
+    fig, axes = plt.subplots(len(idx), 1, figsize=(7, 1.8 * len(idx)), squeeze=False,
+                             sharex=False)
+    for ax, i in zip(axes[:, 0], idx):
+        c = results[i]
+        t = np.arange(wf.waves[i].size) * wf.dt_ns[i]
+        tf = np.linspace(t[0], t[-1], 8 * t.size)
+        ax.plot(t, wf.waves[i], ".", ms=3, color="k", label="samples")
+        ax.plot(tf, c.model(tf), "-", color="C3", lw=1.2, label="fit")
+        for k in range(len(c)):
+            ax.plot(tf, c.baseline + gaussian_sum(tf, c.amplitude[k:k + 1],
+                                                  c.location_ns[k:k + 1], c.sigma_ns[k:k + 1]),
+                    "--", lw=0.8)
+        ax.set_ylabel(f"pulse {wf.pulse_id[i]}\n(counts)", fontsize=8)
+        ax.set_title(f"waveform {i}: {len(c)} echo{'es' if len(c) != 1 else ''}", fontsize=8, loc="left")
+    axes[-1, 0].set_xlabel("time from first sample (ns)")
+    axes[0, 0].legend(loc="upper right", fontsize=7)
+    fig.suptitle(f"Gaussian decomposition of {source or wf.kind}: samples, fit and its echoes", fontsize=10)
+    return finish_figure(fig, path)

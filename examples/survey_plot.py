@@ -22,7 +22,6 @@ takes about a minute on 2 cores with the defaults.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
@@ -42,8 +41,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from clsim import Sensor
     from clsim.scenes import make_plot, plot_canopy
-    from clsim.survey import (ScanPattern, SurveyJob, Trajectory, load_survey, plot_footprints, plot_point_cloud,
-                              plot_radargram, read_survey_las, run_survey, typical_flight, write_survey_las)
+    from clsim.survey import (SurveyJob, centre_line, load_survey, plot_footprints, plot_point_cloud, plot_radargram,
+                              read_survey_las, run_survey, write_survey_las)
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -56,18 +55,14 @@ def main(argv=None) -> int:
     plot = PlotScene.load(plot_path)
     print(f"plot: {len(plot.table())} trees, leaf area {plot.total_leaf_area():,.0f} m2")
 
-    H, v = typical_flight(PRESET)
-    cx, cy = plot.origin_xy + 0.5 * np.array([plot.width_m, plot.length_m])
-    fov = 2.0 * math.degrees(math.atan(0.5 * plot.length_m / H))
     # the line crosses the whole plot with --pulses pulses: the pulse rate scaled down from the
     # instrument's 266 kHz (scan lines 2 m apart), so that a quick run covers every tree
-    length = plot.width_m
-    rate = args.pulses * v / length
-    pattern = ScanPattern.preset(PRESET, fov_deg=fov, pulse_rate_hz=rate, scan_rate_hz=v / 2.0)
-    tr = Trajectory.line((cx - 0.5 * length, cy), (cx + 0.5 * length, cy), altitude_m=H, speed_mps=v)
+    line = centre_line(plot.origin_xy, plot.origin_xy + [plot.width_m, plot.length_m], PRESET, count=args.pulses,
+                       fill=True, line_spacing_m=2.0)
+    (H, v), fov, rate = line.flight, line.fov_deg, line.pattern.pulse_rate_hz
     sensor = Sensor.preset(PRESET)
-    job = SurveyJob(scene_path=str(plot_path), trajectory=tr, pattern=pattern, sensor=sensor,
-                    photons=args.photons, count=args.pulses, batch_size=1000, seed=args.seed)
+    job = SurveyJob(scene_path=str(plot_path), trajectory=line.trajectory, pattern=line.pattern, sensor=sensor,
+                    photons=args.photons, first=line.first, count=args.pulses, batch_size=1000, seed=args.seed)
     run = run_survey(job, out / "survey", workers=args.workers, direct=args.workers == 0)
     print(f"survey: {run.pulses:,} pulses, {run.computed} batches computed, {run.skipped} already on disk")
 

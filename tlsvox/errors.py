@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from voxlidar.errors import DeviceError, InputError, VoxlidarError
 
-__all__ = ["DeviceError", "InputError", "RegistrationError", "ScanFileError", "TlsvoxError"]
+__all__ = ["DeviceError", "InputError", "RegistrationError", "RenderError", "ScanFileError", "TlsvoxError"]
 
 
 class TlsvoxError(VoxlidarError):
@@ -34,3 +34,7 @@ class RegistrationError(TlsvoxError, RuntimeError):
     def __init__(self, message: str, figures: dict | None = None):
         super().__init__(message)
         self.figures = dict(figures or {})
+
+
+class RenderError(TlsvoxError, RuntimeError):
+    """The off-screen Open3D renderer failed (``backend="open3d"``; ``"auto"`` falls back to matplotlib)."""

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.errors import InputError
-from voxlidar.safeio import save_figure
+from voxlidar.safeio import atomic_write, save_figure
 
-from voxlidar.safeio import atomic_write
+from tlsvox.errors import RenderError
 
 __all__ = ["render", "colormap", "reflectance_colors"]
 
@@ -166,7 +166,8 @@ def _render_o3d_subprocess(items, path, eye, center, up, fov, width, height, poi
         done = subprocess.run([sys.executable, "-m", "tlsvox.render", str(tmp / "spec.json")],
                               capture_output=True, text=True, timeout=RENDER_TIMEOUT_S)
         if done.returncode != 0 or not Path(path).exists():
-            raise RuntimeError(f"offscreen renderer failed: {done.stderr[-500:]}")
+            raise RenderError(f"the off-screen Open3D renderer failed: {done.stderr[-500:]}; "
+                              "backend='matplotlib' draws without it")
 
 
 def _load_items(files):

@@ -27,10 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import describe_kind, file_kind, json_text, staged
+from voxlidar.safeio import describe_kind, file_kind, json_text, staged, write_npz
 
 from tlsvox.errors import InputError, ScanFileError
-from voxlidar.safeio import atomic_write
 
 __all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "read_pose_sidecar", "sidecar_paths"]
 
@@ -124,12 +123,7 @@ class PulseTable:
         arrays = dict(direction=self.direction, n_echoes=self.n_echoes, origin=self.origin)
         if self.grid is not None:
             arrays["grid"] = np.str_(json.dumps(self.grid.to_dict()))
-
-        def write(tmp):
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, **arrays)
-
-        return atomic_write(path, write)
+        return write_npz(path, arrays)
 
     @classmethod
     def load(cls, path) -> "PulseTable":

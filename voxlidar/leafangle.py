@@ -38,7 +38,7 @@ import numpy as np
 from voxlidar.choices import Choice
 from voxlidar.errors import InputError
 
-__all__ = ["LeafAngle", "LeafAngleKind", "ross_kernel", "sample_leaf_normals"]
+__all__ = ["LeafAngle", "LeafAngleKind", "LeafAzimuth", "ross_kernel", "sample_leaf_normals"]
 
 HALF_PI = 0.5 * np.pi
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(96)
@@ -50,6 +50,13 @@ def _beta(a: float, b: float):
     from scipy import stats
 
     return stats.beta(a, b)
+
+
+class LeafAzimuth(str, Choice):
+    """Azimuths of the leaf normals."""
+
+    UNIFORM = "uniform"  #: any azimuth, equally likely: G depends on the beam's zenith only
+    OUTWARD = "outward"  #: facing away from the crown axis (the paper's oak)
 
 
 class LeafAngleKind(str, Choice):

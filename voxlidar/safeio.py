@@ -30,8 +30,8 @@ from pathlib import Path
 from voxlidar.errors import InputError, VoxlidarError
 
 __all__ = ["FIGURE_FORMATS", "FigurePathError", "OutputConflictError", "atomic_write", "check_figure_path",
-           "check_distinct", "check_inputs", "check_outputs", "describe_kind", "file_kind",
-           "json_text", "save_figure", "staged"]
+           "check_distinct", "check_inputs", "check_outputs", "describe_kind", "file_kind", "finish_figure",
+           "json_text", "open_npz", "save_figure", "staged", "write_npz"]
 
 
 class OutputConflictError(VoxlidarError, ValueError):
@@ -221,6 +221,23 @@ def save_figure(fig, path, *, dpi: int = 110) -> Path:
     return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="jpeg" if fmt == "jpg" else fmt))
 
 
+def finish_figure(fig, path, *, caption: str | None = None, dpi: int = 110) -> Path:
+    """Lay out a Matplotlib figure (tight), write it (:func:`save_figure`: format by
+    suffix, atomically) and close it; ``caption`` goes in small grey type under the axes."""
+    import matplotlib.pyplot as plt
+
+    if caption:
+        lines = caption.count("\n") + 1
+        fig.tight_layout(rect=(0, 0.035 * lines, 1, 1))
+        fig.text(0.01, 0.01, caption, fontsize=6.5, ha="left", va="bottom", color="0.25")
+    else:
+        fig.tight_layout()
+    try:
+        return save_figure(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
+
+
 def atomic_write(path: "str | os.PathLike", write) -> Path:
     """Call ``write(tmp_path)`` then rename the temporary file onto ``path``.
 
@@ -236,6 +253,35 @@ def atomic_write(path: "str | os.PathLike", write) -> Path:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def write_npz(path: "str | os.PathLike", arrays: dict) -> Path:
+    """Write ``arrays`` (name -> array) as one compressed NPZ, atomically (:func:`atomic_write`).
+
+    >>> import tempfile, numpy as np
+    >>> p = write_npz(Path(tempfile.mkdtemp()) / "a.npz", {"x": np.arange(3)})
+    >>> with open_npz(p, "test") as z:
+    ...     z["x"].tolist()
+    [0, 1, 2]
+    """
+    import numpy as np
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+    return atomic_write(path, write)
+
+
+def open_npz(path: "str | os.PathLike", what: str):
+    """``np.load(path)`` of an NPZ (no pickles), or one :class:`InputError` naming
+    the file as not a readable NPZ ``what`` file (``what``: "scene", "plot", ...)."""
+    import numpy as np
+
+    try:
+        return np.load(path, allow_pickle=False)
+    except Exception as err:  # noqa: BLE001 - re-raised with the file named
+        raise InputError(f"{str(path)!r} is not a readable NPZ {what} file: {err}") from err
 
 
 @contextlib.contextmanager

@@ -25,16 +25,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import atomic_write, describe_kind, file_kind, json_text
+from voxlidar.safeio import describe_kind, file_kind, json_text, open_npz, write_npz
 
 from voxlidar.errors import InputError
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leafangle import LeafAngle, LeafAzimuth
 
 __all__ = ["Scene", "FORMAT_VERSION", "WOOD_KINDS"]
 
 FORMAT_VERSION = 1
 WOOD_KINDS = ("probability", "area_density")
-LEAF_AZIMUTHS = ("uniform", "outward")
+LEAF_AZIMUTHS = tuple(a.value for a in LeafAzimuth)
 
 
 def _default_materials() -> dict:
@@ -152,8 +152,7 @@ class Scene:
         if self.wood_kind == "probability" and np.any((self.wood < 0) | (self.wood > 1)):
             raise InputError("wood probabilities must lie in [0, 1]")
         self.leaf_angle = LeafAngle.from_dict(self.leaf_angle)
-        if self.leaf_azimuth not in LEAF_AZIMUTHS:
-            raise InputError(f"leaf_azimuth={self.leaf_azimuth!r} must be one of {LEAF_AZIMUTHS}")
+        self.leaf_azimuth = LeafAzimuth.parse(self.leaf_azimuth, "leaf_azimuth").value
         self.crown_center = np.asarray(self.crown_center, dtype=np.float64).reshape(2)
         if self.ground_z is not None:
             self.ground_z = float(self.ground_z)
@@ -264,12 +263,7 @@ class Scene:
         if self.wood_directional:
             arrays["wood_axis"] = self.wood_axis
             arrays["wood_beta"] = self.wood_beta
-
-        def write(tmp):
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, **arrays)
-
-        return atomic_write(path, write)
+        return write_npz(path, arrays)
 
     @classmethod
     def load(cls, path: "str | os.PathLike") -> "Scene":
@@ -283,11 +277,7 @@ class Scene:
         if kind != "npz":
             hint = " (read it with tlsvox.voxel.amapvox.read_vox)" if kind == "vox" else ""
             raise InputError(f"{str(path)!r} is not a readable NPZ scene file: it is {describe_kind(kind)}{hint}")
-        try:
-            z = np.load(path, allow_pickle=False)
-        except Exception as err:  # noqa: BLE001 - re-raised with the file named
-            raise InputError(f"{str(path)!r} is not a readable NPZ scene file: {err}") from err
-        with z:
+        with open_npz(path, "scene") as z:
             missing = [k for k in ("format_version", "origin", "voxel_size", "shape", "ijk", "lad") if k not in z]
             if missing:
                 raise InputError(f"{str(path)!r} is not a voxlidar scene: missing keys {missing}")

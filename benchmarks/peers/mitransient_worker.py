@@ -115,7 +115,7 @@ def main() -> int:
     sys.stdout = sys.stderr
     import mitsuba as mi
 
-    mi.set_variant("llvm_ad_mono")
+    mi.set_variant(os.environ.get("MITRANSIENT_VARIANT", "llvm_ad_mono"))
     import drjit as dr
     import mitransient  # noqa: F401  (registers the transient plugins)
 

@@ -127,6 +127,7 @@ def cmd_pick(args) -> int:
         print("no voxel picked (shift + left click picks one); nothing simulated")
         return 0
     sensor = Sensor.preset(args.sensor)
+    from clsim.figures import plot_picks
     from clsim.transport.simulator import Simulator
 
     sim = Simulator(device=args.device)
@@ -134,7 +135,8 @@ def cmd_pick(args) -> int:
     results = [sim.run(scene, sensor, photons=args.photons, seed=args.seed, max_order=3, target=t,
                        progress=not args.quiet) for t in targets]
     with staged([args.plot, args.output]) as tmp:
-        _picture(tmp[args.plot], scene, centres, colors, chosen, results, sensor, args)
+        plot_picks(tmp[args.plot], scene, centres, colors, chosen, results, sensor, photons=args.photons,
+                   seed=args.seed, name=Path(args.scene).name)
         if args.output:
             save_results(results, targets, tmp[args.output])
     for i, t, r in zip(chosen, targets, results):
@@ -142,39 +144,3 @@ def cmd_pick(args) -> int:
         print(f"voxel {i} at x={t[0]:.2f} m, y={t[1]:.2f} m: received energy {e:.4g} +- {se:.2g}")
     print(f"wrote {args.plot}" + (f" and {args.output}" if args.output else ""))
     return 0
-
-
-def _picture(path, scene, centres, colors, chosen, results, sensor, args) -> None:
-    """The scene seen from the side with the picks marked, beside the waveforms against height."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from clsim.sensor import C_M_PER_NS
-    from voxlidar.safeio import save_figure
-
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 5.5), gridspec_kw={"width_ratios": [1.1, 1]})
-    a.scatter(centres[:, 0], centres[:, 2], s=4, c=colors, alpha=0.5, linewidths=0)
-    ground = scene.ground_z if scene.ground_z is not None else float(centres[:, 2].min())
-    for k, i in enumerate(chosen):
-        x = centres[i, 0]
-        a.plot([x, x], [ground, centres[:, 2].max() + 1.0], color=f"C{k}", lw=1.2)
-        a.plot(x, centres[i, 2], "o", color=f"C{k}", ms=7, mec="k")
-    a.set_xlabel("x (m)")
-    a.set_ylabel("height z (m)")
-    a.set_title("the scene (voxels by LAD) and the picked pulses", fontsize=10)
-    a.set_aspect("equal", adjustable="datalim")
-    tg = 2.0 * sensor.range_m / C_M_PER_NS
-    for k, (i, r) in enumerate(zip(chosen, results)):
-        h = (tg - r.time_ns) * C_M_PER_NS / 2.0 + (scene.ground_z or 0.0)
-        b.plot(r.waveform, h, color=f"C{k}", lw=1.2, label=f"voxel {i}")
-    b.set_xlabel("received power (fraction of emitted energy / ns)")
-    b.set_ylabel("height z (m)")
-    b.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
-    b.set_title(f"{sensor.name}, nadir, {args.photons:,} photons, seed {args.seed}", fontsize=10)
-    b.legend(fontsize=8)
-    fig.suptitle(f"clsim pick: {Path(args.scene).name}", fontsize=11)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)

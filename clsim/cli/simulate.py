@@ -73,8 +73,8 @@ def register(subparsers) -> None:
     p.add_argument("--fov", type=float, default=None, help="override the receiver FOV half angle, mrad")
     p.add_argument("--batches", type=int, default=16, help="batches for standard errors")
     p.add_argument("--trace", type=int, default=0, help="record the first events of this many photons")
-    p.add_argument("--plot", default=None, metavar="PNG", help="also write a waveform plot")
-    p.add_argument("--trace-plot", default=None, metavar="PNG",
+    p.add_argument("--plot", default=None, metavar="PATH", help="also write a waveform plot")
+    p.add_argument("--trace-plot", default=None, metavar="PATH",
                    help="also draw the traced photon paths over the scene (needs --trace N)")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
@@ -289,36 +289,46 @@ def benchmark_scene():
 
 
 def device_benchmark(*, photons: int = 200_000, repeats: int = 3, devices=None) -> list[dict]:
-    """photons/s and voxel steps/s (medians) for each working device and transport variant.
+    """photons/s, voxel steps/s and walk steps/s (medians) for each working device and transport variant.
 
-    Devices and variants take turns run by run, so that a slow spell of a
-    shared machine falls on all of them alike; broken devices are skipped
-    (``clsim devices`` says why)."""
+    Variants: exact+nee, exact+analog, paper+nee, and exact+nee walking voxel
+    by voxel through uniform bricks (``uniform`` False: the walk before uniform
+    bricks were crossed in one segment; docs/method.md).  Voxel steps count the
+    voxels crossed, walk steps what the walker did (a segment through a uniform
+    brick is one walk step and many voxel steps).  Devices and variants take
+    turns run by run, so that a slow spell of a shared machine falls on all of
+    them alike; broken devices are skipped (``clsim devices`` says why)."""
     from clsim.transport.simulator import Simulator, working_devices
 
     scene, sensor = benchmark_scene()
-    variants = (("exact", "nee", photons), ("exact", "analog", photons), ("paper", "nee", max(1, photons // 10)))
-    sims = [Simulator(device=dev) for dev in (working_devices() if devices is None else devices)]
+    variants = (("exact", "nee", photons, True), ("exact", "analog", photons, True),
+                ("paper", "nee", max(1, photons // 10), True), ("exact", "nee", photons, False))
+    devs = working_devices() if devices is None else devices
+    sims = [{uni: Simulator(device=dev, features=None if uni else {"uniform": False}) for uni in (True, False)}
+            for dev in devs]
     for sim in sims:
-        for mode, detect, _ in variants:
-            sim.run(scene, sensor, photons=2000, seed=0, mode=mode, detect=detect)  # build
+        for mode, detect, _, uni in variants:
+            sim[uni].run(scene, sensor, photons=2000, seed=0, mode=mode, detect=detect)  # build
     el = {(i, v): [] for i in range(len(sims)) for v in variants}
     steps = {k: [] for k in el}
+    walks = {k: [] for k in el}
     for r in range(repeats):
         for i, sim in enumerate(sims):
             for v in variants:
-                mode, detect, n = v
-                res = sim.run(scene, sensor, photons=n, seed=r + 1, mode=mode, detect=detect, max_order=3)
+                mode, detect, n, uni = v
+                res = sim[uni].run(scene, sensor, photons=n, seed=r + 1, mode=mode, detect=detect, max_order=3)
                 el[i, v].append(res.elapsed_s)
                 steps[i, v].append(res.stat("voxel_steps")[0] / res.elapsed_s)
+                walks[i, v].append(res.stat("walk_steps")[0] / res.elapsed_s)
     rows = []
     for (i, v), times in el.items():
-        mode, detect, n = v
-        sim = sims[i]
+        mode, detect, n, uni = v
+        sim = sims[i][uni]
         rows.append(dict(device=sim.device_name, runtime=sim.info.runtime, key=sim.info.key, kind=sim.info.kind,
-                         mode=mode, detect=detect, photons=n, photons_per_s=n / statistics.median(times),
+                         mode=mode, detect=detect, uniform=uni, photons=n, photons_per_s=n / statistics.median(times),
                          steps_per_s=statistics.median(steps[i, v]),
-                         steps_per_s_range=(min(steps[i, v]), max(steps[i, v]))))
+                         steps_per_s_range=(min(steps[i, v]), max(steps[i, v])),
+                         walk_steps_per_s=statistics.median(walks[i, v])))
     return rows
 
 
@@ -330,8 +340,10 @@ def cmd_bench(args) -> int:
 
         print(f"no working OpenCL device (clsim devices says why); fix: {FIX_NO_DEVICE}", file=sys.stderr)
         return 1
-    print(f"{'device':44s} {'runtime':22s} {'mode':6s} {'detect':7s} {'photons/s':>12s} {'voxel steps/s':>14s}")
+    print(f"{'device':44s} {'runtime':22s} {'mode':6s} {'detect':7s} {'uniform':7s} {'photons/s':>12s} "
+          f"{'voxel steps/s':>14s} {'walk steps/s':>14s}")
     for r in rows:
         print(f"{r['key'] + ' ' + r['device']:44.44s} {r['runtime']:22.22s} {r['mode']:6s} {r['detect']:7s} "
-              f"{r['photons_per_s']:12,.0f} {r['steps_per_s'] / 1e6:12,.1f} M")
+              f"{'yes' if r['uniform'] else 'no':7s} {r['photons_per_s']:12,.0f} {r['steps_per_s'] / 1e6:12,.1f} M "
+              f"{r['walk_steps_per_s'] / 1e6:12,.1f} M")
     return 0

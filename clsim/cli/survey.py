@@ -45,7 +45,7 @@ def register(subparsers) -> None:
                     "packets) when the LAS writer is available.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("scene", help="scene file (.npz, voxlidar.scene.Scene.save); every worker loads it")
-    p.add_argument("-o", "--out", required=True, help="output folder (survey.json, batches/, survey.las)")
+    p.add_argument("-o", "--output", required=True, help="output folder (survey.json, batches/, survey.las)")
     p.add_argument("--sensor", default="riegl-lms-q680i",
                    help=f"preset with a [survey] table ({', '.join(list_presets())}) or a .toml file")
     p.add_argument("--start", default=None, metavar="X,Y",
@@ -101,16 +101,14 @@ def _xy(text, name):
 
 def line_through(scene, start=None, end=None):
     """(start, end) of the default line: across the scene along x at its middle y."""
-    lo = np.asarray(scene.origin, dtype=np.float64)
-    hi = lo + scene.voxel_size * np.asarray(scene.shape)
+    lo, hi = scene.extent
     ym = 0.5 * (lo[1] + hi[1])
     return (start or (float(lo[0]), float(ym))), (end or (float(hi[0]), float(ym)))
 
 
 def cmd_survey(args) -> int:
     from clsim.sensor import Sensor
-    from clsim.survey import ScanPattern, Trajectory, typical_flight
-    from clsim.survey._pulses import _ceil
+    from clsim.survey import ScanPattern, Trajectory, pulse_count, typical_flight
     from clsim.survey.distributed import SurveyJob, load_survey, run_survey
     from voxlidar.scene import Scene
 
@@ -127,11 +125,11 @@ def cmd_survey(args) -> int:
                          speed_mps=args.speed or flight.speed_mps)
     count = args.pulses
     if args.duration is not None:
-        count = _ceil(args.duration * pattern.pulse_rate_hz)          # the pulses with t_k < duration
+        count = pulse_count(args.duration, pattern.pulse_rate_hz)         # the pulses with t_k < duration
     job = SurveyJob(scene_path=args.scene, trajectory=tr, pattern=pattern, sensor=sensor, photons=args.photons,
                     count=count, seed=args.seed, batch_size=args.batch_size, max_order=args.max_order,
                     device=args.device)
-    out = Path(args.out)
+    out = Path(args.output)
     if args.restart and out.is_dir():
         shutil.rmtree(out / "batches", ignore_errors=True)
         (out / "survey.json").unlink(missing_ok=True)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.cli import number
-from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, save_figure, staged
+from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, staged
 
 from clsim.errors import InputError
 
@@ -286,10 +286,12 @@ def cmd_decompose(args) -> int:
                                + [f"{c.baseline:.6g}"] + v
                                + [("" if not np.isfinite(xv) else f"{xv:.4f}") for xv in xyz[k]])
 
+    from clsim.figures import plot_decomposition
+
     with staged([args.output, args.plot]) as tmp:  # the table and its picture: both or neither
         write(tmp[args.output])
         if args.plot is not None:
-            _plot(tmp[args.plot], wf, results, int(args.plot_count), Path(args.file).name)
+            plot_decomposition(tmp[args.plot], wf, results, int(args.plot_count), Path(args.file).name)
     n_echo = sum(len(c) for c in results if c is not None)
     print(f"{n} waveforms, {n_echo} echoes -> {args.output}" + (f"; plot -> {args.plot}" if args.plot else ""))
     return 0
@@ -310,34 +312,3 @@ def _decompose_batched(wf, n: int, args) -> list:
         for k, i in enumerate(idx):
             results[i] = table[k]
     return results
-
-
-def _plot(path: Path, wf, results, count: int, source: str = "") -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from clsim.waveforms.decompose import gaussian_sum
-
-    idx = [i for i, c in enumerate(results) if c is not None][:max(1, count)]
-    fig, axes = plt.subplots(len(idx), 1, figsize=(7, 1.8 * len(idx)), squeeze=False,
-                             sharex=False)
-    for ax, i in zip(axes[:, 0], idx):
-        c = results[i]
-        t = np.arange(wf.waves[i].size) * wf.dt_ns[i]
-        tf = np.linspace(t[0], t[-1], 8 * t.size)
-        ax.plot(t, wf.waves[i], ".", ms=3, color="k", label="samples")
-        ax.plot(tf, c.model(tf), "-", color="C3", lw=1.2, label="fit")
-        for k in range(len(c)):
-            ax.plot(tf, c.baseline + gaussian_sum(tf, c.amplitude[k:k + 1],
-                                                  c.location_ns[k:k + 1], c.sigma_ns[k:k + 1]),
-                    "--", lw=0.8)
-        ax.set_ylabel(f"pulse {wf.pulse_id[i]}\n(counts)", fontsize=8)
-        ax.set_title(f"waveform {i}: {len(c)} echo{'es' if len(c) != 1 else ''}", fontsize=8, loc="left")
-    axes[-1, 0].set_xlabel("time from first sample (ns)")
-    axes[0, 0].legend(loc="upper right", fontsize=7)
-    fig.suptitle(f"Gaussian decomposition of {source or wf.kind}: samples, fit and its echoes", fontsize=10)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)

@@ -41,10 +41,11 @@ CLSIM_INLINE float hsum8(const float8 v)
 
 /* Residual sum of squares at q and, when want, J^T J (h, NF x NF, full) and J^T r (g).
  * A censored sample counts only where the model falls below it (Tobin 1958).
- * Eight samples at a time (float8: one SIMD register on a CPU); rows are padded
- * to a multiple of 8 with samples that do not count. */
-CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const int n,
-                            const float *q, const int want, float *h, float *g)
+ * Eight samples at a time (float8: one SIMD register on a CPU), over the blocks
+ * [b0, b1) that hold the samples that count (the others add exact zeros); rows are
+ * padded to a multiple of 8 with samples that do not count. */
+CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const int b0,
+                            const int b1, const float *q, const int want, float *h, float *g)
 {
     float inv_s[K], a_s[K];
     for (int k = 0; k < K; ++k) {
@@ -65,7 +66,7 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         for (int i = 0; i < NF * (NF + 1) / 2; ++i) hv[i] = (float8)(0.0f);
         for (int i = 0; i < NF; ++i) gv[i] = (float8)(0.0f);
     }
-    for (int i0 = 0; i0 < n; i0 += 8) {
+    for (int i0 = b0; i0 < b1; i0 += 8) {
         const int8 f = convert_int8(vload8(0, fl + i0));
         const float x0 = (float)i0;
         const float8 t = (float8)(x0) + lane;
@@ -158,8 +159,8 @@ CLSIM_INLINE void chol_solve(const float *c, const float *b, float *x, const int
 /* Start amplitudes and baseline by linear least squares at the start locations and
  * widths (clipped samples left out), kept only when every amplitude comes out
  * positive: the twin of _batch_fit.linear_start. c: (K+1)^2 scratch. */
-CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, const int n,
-                               float *q, float *c)
+CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, const int b0,
+                               const int b1, float *q, float *c)
 {
 #define NL (K + 1)
     float inv_s[K];
@@ -168,7 +169,7 @@ CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, co
     float8 av[NL * (NL + 1) / 2], bv[NL];
     for (int i = 0; i < NL * (NL + 1) / 2; ++i) av[i] = (float8)(0.0f);
     for (int i = 0; i < NL; ++i) bv[i] = (float8)(0.0f);
-    for (int i0 = 0; i0 < n; i0 += 8) {
+    for (int i0 = b0; i0 < b1; i0 += 8) {
         const int8 f = convert_int8(vload8(0, fl + i0));
         const float8 wf = select((float8)(0.0f), (float8)(1.0f), (f & (USE | CENS)) == USE);
         const float8 t = (float8)((float)i0) + lane;
@@ -238,36 +239,61 @@ CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float 
 
 /* What a work-item returns, one row of OUT (floats): the fit (NP), the residual
  * sum of squares, the samples that count, the iterations, J^T J at the fit
- * (NF x NF, for the standard errors, inverted in float64 on the host), and the
+ * (NF x NF, for the standard errors, inverted in float64 on the host), the
  * samples minus the model at the fit (n; zero where a sample does not count or
- * is censored).  One row, so one copy back per launch. */
+ * is censored) with M zeros on either side (the filters' reach), and that residual
+ * through the host's two filters for its search of further echoes (n each): the
+ * matched filter and the Gaussian of sigma 1 sample.  One row (OUT_RES + 2 M + 3 n
+ * floats), so one copy back per launch. */
 #define OUT_RSS NP
 #define OUT_NEFF (NP + 1)
 #define OUT_ITER (NP + 2)
 #define OUT_H (NP + 3)
 #define OUT_RES (NP + 3 + NF * NF)
 
+/* x (zero outside [b0, b1), and zero-padded far enough beyond [0, n)) correlated
+ * with the weights w[0..size), lag 0 at centre, at samples [b0, b1) into out, eight
+ * at a time; zero elsewhere in [0, n). */
+CLSIM_INLINE void correlate(global const float *x, const int b0, const int b1, const int n,
+                            global const float *w, const int size, const int centre,
+                            global float *out)
+{
+    for (int j0 = 0; j0 < b0; j0 += 8) vstore8((float8)(0.0f), 0, out + j0);
+    for (int j0 = b1; j0 < n; j0 += 8) vstore8((float8)(0.0f), 0, out + j0);
+    for (int j0 = b0; j0 < b1; j0 += 8) {
+        float8 acc = (float8)(0.0f);
+        global const float *p = x + j0 - centre;
+        for (int t = 0; t < size; ++t) acc += w[t] * vload8(0, p + t);
+        vstore8(acc, 0, out + j0);
+    }
+}
+
 /* One launch: waveform `row[w]` of the uploaded samples for each work-item w,
- * from the start values Q (G x NP). */
+ * from the start values Q (G x NP).  FW: the matched filter's weights (np_, lag 0
+ * at pc), then the 9 of the Gaussian of sigma 1 (lag 0 at 4); M at least
+ * max(pc, np_ - 1 - pc, 4) + 8. */
 kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const int *row, global const int2 *span,
                    global const float *noise, global const float *Q, global float *OUT,
-                   const int G, const int max_iter, const float tol, const int linear)
+                   const int G, const int max_iter, const float tol, const int linear,
+                   global const float *FW, const int np_, const int pc, const int M)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
     global const float *y = Y + (size_t)row[w] * n;
     global const uchar *fl = FL + (size_t)row[w] * n;
-    global float *out = OUT + (size_t)w * (OUT_RES + n);
+    global float *out = OUT + (size_t)w * (OUT_RES + 2 * M + 3 * n);
     float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
     float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
     for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
     const float first = (float)span[row[w]].x, last = (float)span[row[w]].y;
+    /* the blocks of 8 samples from the first counted sample to the last */
+    const int b0 = span[row[w]].x & ~7, b1 = min(n, (span[row[w]].y & ~7) + 8);
     const float enough_noise = 0.01f * noise[row[w]] * noise[row[w]];
 #if FIT_BASELINE
-    if (linear) linear_start(y, fl, n, q, c);
+    if (linear) linear_start(y, fl, b0, b1, q, c);
 #endif
-    float cost = evaluate(y, fl, n, q, 1, h, g);
+    float cost = evaluate(y, fl, b0, b1, q, 1, h, g);
     float lam = 1.0e-3f, nu = 2.0f;
     int it = 0;
     while (it < max_iter) {
@@ -294,7 +320,7 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         for (int p = 0; p < NP; ++p) qt[p] = q[p] + (p < NF ? step[p] : 0.0f);
         for (int k = 0; k < K; ++k)
             qt[2 * K + k] = clamp(fast_abs(qt[2 * K + k]), 0.2f, (float)n);
-        const float ct = evaluate(y, fl, n, qt, 1, ht, gt);
+        const float ct = evaluate(y, fl, b0, b1, qt, 1, ht, gt);
         /* predicted decrease of the RSS: -2 g.d - d.H.d */
         float pred = 0.0f;
         for (int p = 0; p < NF; ++p) {
@@ -334,14 +360,18 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
     }
     /* J^T J at the solution: the host turns it into standard errors */
     int n_eff = 0;
-    for (int i = 0; i < n; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);  /* n: padded */
+    for (int i = b0; i < b1; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);
     for (int p = 0; p < NF * NF; ++p) out[OUT_H + p] = h[p];
     /* the residual at the fit, for the host's search for further echoes */
-    global float *res = out + OUT_RES;
+    global float *res = out + OUT_RES + M;
+    for (int i = -M; i < 0; ++i) res[i] = 0.0f;
+    for (int i = n; i < n + M; ++i) res[i] = 0.0f;
     float inv_s[K];
     for (int k = 0; k < K; ++k) inv_s[k] = 1.0f / q[2 * K + k];
     const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
-    for (int i0 = 0; i0 < n; i0 += 8) {
+    for (int i0 = 0; i0 < b0; i0 += 8) vstore8((float8)(0.0f), 0, res + i0);
+    for (int i0 = b1; i0 < n; i0 += 8) vstore8((float8)(0.0f), 0, res + i0);
+    for (int i0 = b0; i0 < b1; i0 += 8) {
         const float x0 = (float)i0;
         const float8 t = (float8)(x0) + lane;
         float8 model = (float8)(q[3 * K]);
@@ -356,6 +386,8 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         vstore8(select((float8)(0.0f), vload8(0, y + i0) - model, (f & (USE | CENS)) == USE),
                 0, res + i0);
     }
+    correlate(res, b0, b1, n, FW, np_, pc, res + n + M);
+    correlate(res, b0, b1, n, FW + np_, 9, 4, res + 2 * n + M);
     for (int p = 0; p < NP; ++p) out[p] = q[p];
     out[OUT_RSS] = cost;
     out[OUT_NEFF] = (float)n_eff;

@@ -43,9 +43,10 @@ typedef struct {
 #define ST_GROUND_DIRECT 6
 #define ST_OUTSIDE 7      /* detected energy outside the time window (tally units) */
 #define ST_DETECTIONS 8   /* count */
-#define ST_VOXEL_STEPS 9  /* count */
+#define ST_VOXEL_STEPS 9  /* count of voxels crossed (a uniform brick's segment: its voxels) */
 #define ST_EVENTS 10      /* count */
 #define ST_SHADOW 11      /* count of shadow rays */
-#define NSTAT 12
+#define ST_WALK_STEPS 12  /* count of walk steps (a voxel, an empty brick, a uniform brick's segment) */
+#define NSTAT 13
 
 #endif

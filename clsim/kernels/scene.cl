@@ -109,13 +109,59 @@ CLSIM_INLINE int jump_index(int p, int v, int s, int c, int exit_axis)
     return s > 0 ? (p > v ? p : v) : (s < 0 ? (p < v ? p : v) : v);
 }
 
+#ifndef CLSIM_UNIFORM
+#define CLSIM_UNIFORM 1
+#endif
+
+/* Leave brick cell c (the walk's voxel v lies in it): the walk moves to the
+ * brick's exit (capped at t_end) and to the first voxel of the neighbour
+ * along the exit axis. */
+CLSIM_INLINE void walker_leave_brick(walker_t *w, int3 v, int3 c, __global const params_t *P)
+{
+    const float h = P->h;
+    const float cell = (float)BRICK * h;
+    const float fx = far_plane_t(c.x, w->sx, w->o.x, w->ix, cell);
+    const float fy = far_plane_t(c.y, w->sy, w->o.y, w->iy, cell);
+    const float fz = far_plane_t(c.z, w->sz, w->o.z, w->iz, cell);
+    const int ax = (fx <= fy && fx <= fz) ? 0 : (fy <= fz ? 1 : 2);
+    const float t_b = fast_min(fast_min(fx, fast_min(fy, fz)), w->t_end);
+    w->t = fast_max(w->t, t_b);
+    const int3 p = clamp_index(convert_int3_rtn((w->o + w->d * t_b) / h), P->shape[0], P->shape[1],
+                               P->shape[2]);
+    w->vx = jump_index(p.x, v.x, w->sx, c.x, ax == 0);
+    w->vy = jump_index(p.y, v.y, w->sy, c.y, ax == 1);
+    w->vz = jump_index(p.z, v.z, w->sz, c.z, ax == 2);
+    w->fresh = 1;
+}
+
+/* Clip [*t0, *t1] to the slab of local voxels lo..hi (inclusive) of one axis
+ * of brick origin `base` (voxels); an axis the ray does not move along keeps
+ * the range when its voxel li is inside the slab and empties it otherwise. */
+CLSIM_INLINE void clip_box_axis(int s, int li, int lo, int hi, int base, float o, float inv, float h,
+                                float *t0, float *t1)
+{
+    if (s == 0) {
+        if (li < lo || li > hi)
+            *t1 = *t0;
+        return;
+    }
+    const float pa = ((float)(base + lo) * h - o) * inv, pb = ((float)(base + hi + 1) * h - o) * inv;
+    *t0 = fast_max(*t0, fast_min(pa, pb));
+    *t1 = fast_min(*t1, fast_max(pa, pb));
+}
+
 /* Next voxel segment [*ta, *tb] with non-zero extinction; 0 at the end.
  * Inside an occupied brick a step is one DDA advance and one pool load; the
  * brick index is read (and the grid bounds checked) only when the walk
- * enters another brick.  Empty bricks are crossed in one step. */
+ * enters another brick.  Empty bricks are crossed in one step.  A uniform
+ * brick (boxes[slot] >= 0: its non-empty voxels fill one box with one value;
+ * clsim/transport/bricks.py) is crossed as one segment, the ray clipped to
+ * the box, with the values of the box's first voxel (CLSIM_UNIFORM).
+ * steps->x counts voxels (a uniform segment: the voxel planes it crosses,
+ * as the voxel-by-voxel walk would count them), steps->y the walk's steps. */
 CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global const int *index,
-                             __global const float2 *pool, float *ta, float *tb, float2 *val,
-                             uint *steps)
+                             __global const int *boxes, __global const float2 *pool, float *ta,
+                             float *tb, float2 *val, uint2 *steps)
 {
     const float h = P->h;
     /* safety net: a ray enters at most (nx + ny + nz) / BRICK + 3 bricks */
@@ -132,22 +178,42 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
             const int slot = brick_slot(v, P, index);
             if (slot < 0) {
                 /* jump over the empty brick: enter the neighbour along the exit axis */
-                *steps += 1u;
-                const float cell = (float)BRICK * h;
-                const float fx = far_plane_t(c.x, sx, w->o.x, w->ix, cell);
-                const float fy = far_plane_t(c.y, sy, w->o.y, w->iy, cell);
-                const float fz = far_plane_t(c.z, sz, w->o.z, w->iz, cell);
-                const int ax = (fx <= fy && fx <= fz) ? 0 : (fy <= fz ? 1 : 2);
-                const float t_b = fast_min(fast_min(fx, fast_min(fy, fz)), w->t_end);
-                w->t = fast_max(w->t, t_b);
-                const int3 p = clamp_index(convert_int3_rtn((w->o + w->d * t_b) / h), P->shape[0],
-                                           P->shape[1], P->shape[2]);
-                w->vx = jump_index(p.x, v.x, sx, c.x, ax == 0);
-                w->vy = jump_index(p.y, v.y, sy, c.y, ax == 1);
-                w->vz = jump_index(p.z, v.z, sz, c.z, ax == 2);
-                w->fresh = 1;
+                *steps += (uint2)(1u, 1u);
+                walker_leave_brick(w, v, c, P);
                 continue;
             }
+#if CLSIM_UNIFORM
+            const int box = boxes[slot];
+            if (box >= 0) {
+                /* one segment through the brick's box, then on to the next brick */
+                const int m = BRICK - 1;
+                const int3 lo = (int3)(box, box >> BRICK_SHIFT, box >> (2 * BRICK_SHIFT)) & m;
+                const int3 hi = (int3)(box >> (3 * BRICK_SHIFT), box >> (4 * BRICK_SHIFT),
+                                       box >> (5 * BRICK_SHIFT)) & m;
+                const int3 base = c << BRICK_SHIFT;
+                float t0 = w->t;
+                walker_leave_brick(w, v, c, P);
+                float t1 = w->t;
+                clip_box_axis(sx, v.x & m, lo.x, hi.x, base.x, w->o.x, w->ix, h, &t0, &t1);
+                clip_box_axis(sy, v.y & m, lo.y, hi.y, base.y, w->o.y, w->iy, h, &t0, &t1);
+                clip_box_axis(sz, v.z & m, lo.z, hi.z, base.z, w->o.z, w->iz, h, &t0, &t1);
+                if (t1 > t0) {
+                    const float ih = 1.0f / h;
+                    const int3 da = convert_int3_rtn((w->o + w->d * t0) * ih);
+                    const int3 db = convert_int3_rtn((w->o + w->d * t1) * ih);
+                    const uint3 n = abs(db - da);
+                    *steps += (uint2)(max(1u, n.x + n.y + n.z), 1u);
+                    const size_t row = voxel_row(base + lo, slot);
+                    *ta = t0;
+                    *tb = t1;
+                    *val = pool[row];
+                    w->row = row;
+                    return 1;
+                }
+                *steps += (uint2)(1u, 1u);
+                continue;
+            }
+#endif
             w->cbx = c.x;
             w->cby = c.y;
             w->cbz = c.z;
@@ -159,7 +225,7 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                 w->fresh = 0;
             }
         }
-        *steps += 1u;
+        *steps += (uint2)(1u, 1u);
         const size_t row = voxel_row((int3)(w->vx, w->vy, w->vz), w->slot);
         const float2 e = pool[row];
         const float t_a = w->t;

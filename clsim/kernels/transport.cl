@@ -9,7 +9,8 @@
  * with uniform leaf azimuths, the leaf normal drawn after the collision), CLSIM_LEAF_AVG
  * (next-event weight of a leaf event averaged over the leaf normals where the scene's
  * params say it is exact), CLSIM_QMC (first free path from a randomly shifted golden-ratio
- * Kronecker lattice over the photon ids). */
+ * Kronecker lattice over the photon ids).  Traversal: CLSIM_UNIFORM (scene.cl; 1 by default)
+ * crosses a uniform brick in one segment, the same distribution as voxel by voxel. */
 #include "common.cl"
 #include "params.cl"
 #include "philox.cl"
@@ -43,6 +44,7 @@
 typedef struct {
     __global const params_t *P;
     __global const int *index;
+    __global const int *boxes;   /* uniform box per pool slot or -1 (scene.cl walker_next) */
     __global const float2 *pool;
     __global const float *ppf;
     __global const float *gtab;
@@ -215,7 +217,7 @@ CLSIM_INLINE int stepper_init(stepper_t *p, float3 o, float3 d, float t_limit, _
 }
 
 /* Next step point with non-zero extinction (p->tk, p->x, p->e); 0 at the end. */
-CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d, uint *steps)
+CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d, uint2 *steps)
 {
     while ((float)p->k * p->ds < p->t_end) {
         const float t = (float)p->k * p->ds;
@@ -223,7 +225,7 @@ CLSIM_INLINE int stepper_next(stepper_t *p, const scene_t *S, float3 o, float3 d
         float skip;
         size_t row;
         const float2 v = point_value(xk, S->P, S->index, S->pool, o, d, &skip, &row);
-        *steps += 1u;
+        *steps += (uint2)(1u, 1u);
         if (skip >= 0.0f) {
             p->k = max(p->k + 1, (int)floor(skip / p->ds) + 1);
             continue;
@@ -263,11 +265,11 @@ CLSIM_INLINE int tracker_init(tracker_t *k, float3 o, float3 d, float t_limit, f
 }
 
 /* Next tentative collision: its distance *tc (k->e holds the voxel's values); 0 at the end. */
-CLSIM_INLINE int tracker_next(tracker_t *k, const scene_t *S, float *tc, uint *steps)
+CLSIM_INLINE int tracker_next(tracker_t *k, const scene_t *S, float *tc, uint2 *steps)
 {
     for (;;) {
         if (!k->live) {
-            if (!walker_next(&k->w, S->P, S->index, S->pool, &k->ta, &k->tb, &k->e, steps))
+            if (!walker_next(&k->w, S->P, S->index, S->boxes, S->pool, &k->ta, &k->tb, &k->e, steps))
                 return 0;
             k->wmaj = wood_majorant(S, k->w.row, k->e.y);
             k->live = 1;
@@ -290,7 +292,7 @@ CLSIM_INLINE int tracker_next(tracker_t *k, const scene_t *S, float *tc, uint *s
  * u_tau > 0 replaces the first uniform of the free path (the lattice point of
  * a first flight, CLSIM_QMC). */
 CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float u_tau, float *t,
-                  float3 *n, uint *steps)
+                  float3 *n, uint2 *steps)
 {
     __global const params_t *P = S->P;
     const float tg = ground_t(o, d, P);
@@ -378,7 +380,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
  * voxel and T = exp(-sum sigma l) exactly (no random numbers); with outward
  * azimuths G varies inside a voxel and ratio tracking (unbiased) is used.
  * Paper mode: the product over the paper's steps. */
-CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t *rng, uint *steps)
+CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, rng_t *rng, uint2 *steps)
 {
     __global const params_t *P = S->P;
     float T = 1.0f;
@@ -391,7 +393,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
             return T;
         const float gd = g_of(S->gtab, d.z);
         float od = 0.0f;
-        while (walker_next(&w, P, S->index, S->pool, &ta, &tb, &e, steps)) {
+        while (walker_next(&w, P, S->index, S->boxes, S->pool, &ta, &tb, &e, steps)) {
             od += (e.x * gd + wood_sigma(S, w.row, e.y, d)) * (tb - ta);
             if (od > 40.0f)
                 return 0.0f;
@@ -456,7 +458,7 @@ CLSIM_INLINE void record(__global float4 *trace, ulong pid, int k, float3 x, int
 }
 
 __kernel void simulate(__global const params_t *P, __global const int *index,
-                       __global const float2 *pool, __global const float *ppf,
+                       __global const int *boxes, __global const float2 *pool, __global const float *ppf,
                        __global const float *gtab, __global const float4 *wdir, __global ulong *hist, __global ulong *stats, __global float4 *trace,
                        uint2 key, ulong pid0, uint n)
 {
@@ -466,7 +468,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     const ulong pid = pid0 + gid;
     const uint batch = (uint)(pid % (ulong)P->n_batches);
     __global ulong *st = stats + batch * NSTAT;
-    const scene_t S = {P, index, pool, ppf, gtab, wdir};
+    const scene_t S = {P, index, boxes, pool, ppf, gtab, wdir};
     rng_t rng;
     rng_init(&rng, key, pid);
 
@@ -486,7 +488,8 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     float3 x = sensor;
     float L = 0.0f, w = 1.0f;
     int last = EV_LEAF;
-    uint steps = 0u, events = 0u, shadow = 0u;
+    uint2 steps = (uint2)(0u, 0u);
+    uint events = 0u, shadow = 0u;
     ulong acc[NSTAT] = {0};
     record(trace, pid, 0, x, -2, P);
 
@@ -590,7 +593,8 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
 #endif
         d = cosine_dir(reflect ? m : -m, s.y, s.z);
     }
-    acc[ST_VOXEL_STEPS] = steps;
+    acc[ST_VOXEL_STEPS] = steps.x;
+    acc[ST_WALK_STEPS] = steps.y;
     acc[ST_EVENTS] = events;
     acc[ST_SHADOW] = shadow;
     /* one atomic per non-zero statistic and photon; integer sums keep runs

@@ -3,8 +3,9 @@ placed on a flat ground, run by the simulator as one sparse scene whose tree
 instances share their voxel bricks.  See docs/survey.md ("Scenes of many trees").
 """
 
+from clsim.scenes._bricks import merge_voxels
 from clsim.scenes._make import TREE_KINDS, make_plot, random_tree_params, synthetic_tree_scene
-from clsim.scenes._plot import TABLE_DTYPE, PlotScene, Snap, merge_voxels
+from clsim.scenes._plot import TABLE_DTYPE, PlotScene, Snap
 from clsim.scenes.pictures import plot_canopy
 
 __all__ = ["PlotScene", "Snap", "TABLE_DTYPE", "TREE_KINDS", "load_scene", "make_plot", "merge_voxels",

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import check_figure_path, save_figure
+from voxlidar.safeio import check_figure_path, finish_figure
 
 from clsim.errors import InputError
 
@@ -77,7 +77,4 @@ def plot_canopy(plot, path, *, title: str | None = None, footprints=None) -> Pat
     ax.set_title(title or (f"{plot.n_trees} trees of {plot.n_models} models, leaf area "
                            f"{plot.total_leaf_area():,.0f} m$^2$ (LAI {plot.total_leaf_area() / area:.2f}), "
                            f"voxel {h:g} m"), fontsize=9)
-    fig.tight_layout()
-    out = save_figure(fig, Path(path))
-    plt.close(fig)
-    return out
+    return finish_figure(fig, path)

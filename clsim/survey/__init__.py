@@ -11,13 +11,14 @@ pulses' waveforms and their returns as LAS 1.4 with waveform packets;
 See docs/survey.md.
 """
 
+from clsim.survey._line import CentreLine, centre_line
 from clsim.survey._pattern import Flight, ScanKind, ScanPattern, typical_flight
-from clsim.survey._pulses import Pulses, survey_pulses
+from clsim.survey._pulses import Pulses, pulse_count, survey_pulses
 from clsim.survey._trajectory import Leg, Trajectory
 from clsim.survey.distributed import SurveyJob, SurveyRun, load_survey, run_survey
 from clsim.survey.las import SurveyLas, read_survey_las, write_survey_las
 from clsim.survey.plots import plot_footprints, plot_point_cloud, plot_radargram
 
-__all__ = ["Flight", "Leg", "Pulses", "ScanKind", "ScanPattern", "SurveyJob", "SurveyLas", "SurveyRun", "Trajectory",
-           "load_survey", "plot_footprints", "plot_point_cloud", "plot_radargram", "read_survey_las", "run_survey",
-           "survey_pulses", "typical_flight", "write_survey_las"]
+__all__ = ["CentreLine", "Flight", "Leg", "Pulses", "ScanKind", "ScanPattern", "SurveyJob", "SurveyLas", "SurveyRun",
+           "Trajectory", "centre_line", "load_survey", "plot_footprints", "plot_point_cloud", "plot_radargram",
+           "pulse_count", "read_survey_las", "run_survey", "survey_pulses", "typical_flight", "write_survey_las"]

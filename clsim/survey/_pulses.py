@@ -13,7 +13,7 @@ from clsim.sensor import Sensor
 from clsim.survey._pattern import ScanPattern
 from clsim.survey._trajectory import Trajectory
 
-__all__ = ["Pulses", "survey_pulses"]
+__all__ = ["Pulses", "pulse_count", "pulse_range", "survey_pulses"]
 
 #: Bisection steps of the DEM intersection (bracket / 2**48: far below a micrometre).
 _BISECT = 48
@@ -92,10 +92,19 @@ def _ceil(x: float) -> int:
     return int(math.ceil(x - 1e-9 * max(1.0, abs(x))))
 
 
-def _pulse_indices(pattern: ScanPattern, trajectory: Trajectory, first, count, start_s, duration_s):
+def pulse_count(duration_s: float, pulse_rate_hz: float) -> int:
+    """The pulses fired in the first ``duration_s`` seconds: those with ``t_k = k / rate < duration_s``.
+
+    >>> pulse_count(0.02, 100.0), pulse_count(0.0201, 100.0)
+    (2, 3)
+    """
+    return _ceil(float(duration_s) * float(pulse_rate_hz))
+
+
+def pulse_range(pattern: ScanPattern, trajectory: Trajectory, first, count, start_s, duration_s):
     """(first, count) of the pulses asked for; every pulse has ``t_k`` in ``[0, duration)``."""
     rate = pattern.pulse_rate_hz
-    total = _ceil(trajectory.duration_s * rate)            # pulses 0 .. total - 1 fit
+    total = pulse_count(trajectory.duration_s, rate)           # pulses 0 .. total - 1 fit
     if start_s is not None or duration_s is not None:
         if first is not None or count is not None:
             raise InputError("give either first/count (pulse numbers) or start_s/duration_s (seconds), not both")
@@ -228,7 +237,7 @@ def survey_pulses(trajectory: Trajectory, pattern: ScanPattern, sensor: Sensor |
         raise InputError(f"seed must lie in [0, 2**64), got {seed!r}")
     if not float(dem_step_m) > 0:
         raise InputError(f"dem_step_m must be > 0 m, got {dem_step_m!r}")
-    first, count = _pulse_indices(pattern, trajectory, first, count, start_s, duration_s)
+    first, count = pulse_range(pattern, trajectory, first, count, start_s, duration_s)
 
     index = np.arange(first, first + count, dtype=np.int64)
     t = index / pattern.pulse_rate_hz

@@ -49,7 +49,7 @@ from pathlib import Path
 from clsim.errors import InputError
 from clsim.sensor import Sensor
 from clsim.survey._pattern import ScanPattern
-from clsim.survey._pulses import Pulses, _pulse_indices, survey_pulses
+from clsim.survey._pulses import Pulses, pulse_range, survey_pulses
 from clsim.survey._trajectory import Trajectory
 from clsim.transport.result import PulseWaveforms
 from voxlidar.safeio import atomic_write, json_text
@@ -140,7 +140,7 @@ class SurveyJob:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < lo:
                 raise InputError(f"{name} must be an integer >= {lo}, got {v!r}")
-        first, count = _pulse_indices(self.pattern, self.trajectory, self.first, self.count, None, None)
+        first, count = pulse_range(self.pattern, self.trajectory, self.first, self.count, None, None)
         if count < 1:
             raise InputError(f"the survey has no pulses (first={self.first!r}, count={self.count!r}); "
                              "fix: a longer trajectory or a larger count")

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import check_figure_path, save_figure
+from voxlidar.safeio import check_figure_path, finish_figure
 
 from clsim.errors import InputError
 
@@ -63,10 +63,7 @@ def plot_footprints(pulses, path, *, title: str | None = None, max_points: int =
     cb.set_label("scan angle across track (deg, + right of flight)")
     dur = float(pulses.time_s[-1] - pulses.time_s[0])
     ax.set_title(title or f"{len(pulses):,} footprints over {dur:.2f} s", fontsize=10)
-    fig.tight_layout()
-    out = save_figure(fig, Path(path))
-    plt.close(fig)
-    return out
+    return finish_figure(fig, path)
 
 
 def _survey(survey):
@@ -136,8 +133,6 @@ def plot_radargram(survey, path, *, max_scan_angle_deg: float | None = 0.5, n_co
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm, Normalize
-
-    from clsim.figures import _save
 
     check_figure_path("picture", path)
     s = _survey(survey)
@@ -209,7 +204,7 @@ def plot_radargram(survey, path, *, max_scan_angle_deg: float | None = 0.5, n_co
     what = (f"within {max_scan_angle_deg:g} deg of nadir" if max_scan_angle_deg is not None
             else "all pulses")
     ax.set_title(title or f"radargram: {sel.size:,} pulses {what}, {cols} columns", fontsize=10)
-    return _save(fig, path, caption)
+    return finish_figure(fig, path, caption=caption)
 
 
 def plot_point_cloud(survey, path, *, color: str = "height", include_withheld: bool = False,
@@ -239,8 +234,6 @@ def plot_point_cloud(survey, path, *, color: str = "height", include_withheld: b
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.axes_grid1 import make_axes_locatable
-
-    from clsim.figures import _save
 
     check_figure_path("picture", path)
     if color not in ("height", "return"):
@@ -286,4 +279,4 @@ def plot_point_cloud(survey, path, *, color: str = "height", include_withheld: b
     n_ret = int((~s.synthetic[idx]).sum())
     fig.suptitle(title or f"simulated point cloud: {idx.size:,} points ({n_ret:,} returns) of "
                  f"{s.n_pulses:,} pulses", fontsize=10)
-    return _save(fig, path, caption)
+    return finish_figure(fig, path, caption=caption)

@@ -625,6 +625,7 @@ class ReferenceSimulator:
             tr.simulate(ids[start : start + chunk])
         elapsed = time.perf_counter() - t0
         tr.stats[0, _S["voxel_steps"]] += tr.steps
+        tr.stats[0, _S["walk_steps"]] += tr.steps  # the oracle walks voxel by voxel
         tr.stats[0, _S["events"]] += tr.events
         tr.stats[0, _S["shadow_rays"]] += tr.shadow
         traces = None

@@ -8,6 +8,7 @@ the same :class:`RunSetup` feeds the OpenCL launcher
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 import numpy as np
@@ -34,11 +35,11 @@ FIXED_SCALE = 2.0**32
 
 STAT_NAMES = ("escaped_up", "escaped_down", "absorbed", "truncated", "rr_killed", "rr_added",
               "ground_direct", "outside_window", "detections", "voxel_steps", "events",
-              "shadow_rays")
+              "shadow_rays", "walk_steps")
 
 
 #: stats that are counts, not weights
-COUNT_STATS = ("detections", "voxel_steps", "events", "shadow_rays")
+COUNT_STATS = ("detections", "voxel_steps", "events", "shadow_rays", "walk_steps")
 
 
 PARAMS_DTYPE = np.dtype([
@@ -134,6 +135,18 @@ class SceneSetup:
         return scene is self.scene and float(wavelength_nm) == self.wavelength_nm and bool(leaf_off) == self.leaf_off
 
 
+@functools.lru_cache(maxsize=16)
+def leaf_tables(leaf_angle) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's leaf angle tables of a (frozen, hashable) LeafAngle: the inverse CDF of the
+    leaf zenith on NTAB points of [0, 1] and G on NG points of cos(theta) in [0, 1], float64,
+    read-only (computed once per distribution: tens of milliseconds)."""
+    ppf = leaf_angle.ppf(np.linspace(0.0, 1.0, NTAB)).astype(np.float64)
+    gtab = np.asarray(leaf_angle.G(np.arccos(np.linspace(0.0, 1.0, NG))), dtype=np.float64)
+    ppf.flags.writeable = False
+    gtab.flags.writeable = False
+    return ppf, gtab
+
+
 def _check_scene(scene) -> None:
     """One line unless ``scene`` is a Scene or brings its own bricks (a :class:`clsim.scenes.PlotScene`)."""
     if not isinstance(scene, Scene) and not callable(getattr(scene, "brick_grid", None)):
@@ -141,9 +154,14 @@ def _check_scene(scene) -> None:
                          f"got {type(scene).__name__}")
 
 
-def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False) -> SceneSetup:
+def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False,
+                  bricks: BrickGrid | None = None) -> SceneSetup:
     """The scene's part of :func:`prepare_run`: optics at the wavelength (checked),
-    the bricks, the leaf angle tables (inverse CDF and G)."""
+    the bricks, the leaf angle tables (inverse CDF and G).
+
+    ``bricks``: ones already built for this scene and ``leaf_off`` (a cache;
+    :class:`~clsim.transport.simulator.Simulator` keeps the last scene's,
+    keyed on :func:`~clsim.transport.bricks.bricks_key`)."""
     _check_scene(scene)
     wl = float(wavelength_nm)
     optics = {}
@@ -156,12 +174,13 @@ def prepare_scene(scene: Scene, *, wavelength_nm: float, leaf_off: bool = False)
             )
         optics[mat] = (r, t)
     # a plot of many trees brings its own bricks (shared between the instances of a tree)
-    bricks = scene.brick_grid(leaf_off=leaf_off) if hasattr(scene, "brick_grid") else build_bricks(scene, leaf_off=leaf_off)
+    if bricks is None:
+        bricks = (scene.brick_grid(leaf_off=leaf_off) if hasattr(scene, "brick_grid")
+                  else build_bricks(scene, leaf_off=leaf_off))
     flags = []
     if bricks.flags.get("wood_probability_capped"):
         flags.append(f"wood probability 1 capped at 1-1e-6 in {bricks.flags['wood_probability_capped']} voxels")
-    ppf = scene.leaf_angle.ppf(np.linspace(0.0, 1.0, NTAB)).astype(np.float64)
-    gtab = np.asarray(scene.leaf_angle.G(np.arccos(np.linspace(0.0, 1.0, NG))), dtype=np.float64)
+    ppf, gtab = leaf_tables(scene.leaf_angle)
     return SceneSetup(scene=scene, wavelength_nm=wl, leaf_off=bool(leaf_off), optics=optics, bricks=bricks,
                       ppf=ppf, gtab=gtab, flags=flags)
 
@@ -179,12 +198,15 @@ def _int_arg(name, value, lo, hi):
 def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
                 detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
                 bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
-                hotspot: bool = False, scene_setup: "SceneSetup | None" = None) -> RunSetup:
+                hotspot: bool = False, scene_setup: "SceneSetup | None" = None,
+                bricks: BrickGrid | None = None) -> RunSetup:
     """Check the inputs and build the run's parameters (see :meth:`clsim.transport.simulator.Simulator.run`).
 
     ``scene_setup`` (from :func:`prepare_scene`) skips rebuilding what depends
     only on the scene, the wavelength and ``leaf_off`` (bricks, leaf angle
-    tables, optics): a survey runs many pulses over one scene."""
+    tables, optics): a survey runs many pulses over one scene.  ``bricks``
+    (without ``scene_setup``) reuses bricks built for this scene and
+    ``leaf_off`` (:func:`prepare_scene`)."""
     _check_scene(scene)
     if not isinstance(sensor, Sensor):
         raise InputError(f"sensor must be a clsim.Sensor (Sensor.preset(name)), got {type(sensor).__name__}")
@@ -200,7 +222,7 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     if not (np.isfinite(step_m) and 1e-4 <= step_m <= scene.voxel_size * 10):
         raise InputError(f"step_m (paper-mode step) must lie in [1e-4, 10 voxels] m, got {step_m!r}")
     if scene_setup is None:
-        scene_setup = prepare_scene(scene, wavelength_nm=sensor.wavelength_nm, leaf_off=leaf_off)
+        scene_setup = prepare_scene(scene, wavelength_nm=sensor.wavelength_nm, leaf_off=leaf_off, bricks=bricks)
     elif not isinstance(scene_setup, SceneSetup) or not scene_setup.matches(scene, sensor.wavelength_nm, leaf_off):
         raise InputError("scene_setup was prepared for another scene, wavelength or leaf_off; "
                          "fix: prepare_scene(scene, wavelength_nm=sensor.wavelength_nm, leaf_off=leaf_off)")

@@ -21,7 +21,7 @@ from voxlidar.scene import Scene
 from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe, device_report,
                               open_queue, short_reason)
 from voxlidar.errors import DeviceError as AnyDeviceError
-from clsim.transport.bricks import BRICK
+from clsim.transport.bricks import BRICK, BrickGrid, bricks_key, build_bricks
 from clsim.errors import DeviceError, InputError
 from clsim.transport.rng import split_seed
 from clsim.sensor import Sensor
@@ -46,8 +46,10 @@ def working_devices() -> list[DeviceInfo]:
     return [info for info, reason in list_devices() if reason is None]
 
 
-#: Estimator features of the exact mode (docs/method.md, "Variance reduction"); all on by default.
-FEATURES = ("tight", "leaf_avg", "qmc")
+#: Estimator features of the exact mode (docs/method.md, "Variance reduction") and ``uniform``,
+#: the exact mode's crossing of uniform bricks in one segment (docs/method.md, "Uniform bricks");
+#: all on by default.
+FEATURES = ("tight", "leaf_avg", "qmc", "uniform")
 
 
 def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = None,
@@ -149,11 +151,16 @@ class Simulator:
             raise DeviceError(str(err)) from None
         self._programs = {}
         self.build_seconds = 0.0
+        # the last scene's bricks, keyed on bricks_key: repeated runs over one scene skip the build
+        self._bricks_cache: tuple | None = None
         # Work-group size of the launches.  On CPU runtimes one photon per work-group
         # (measured against the runtime's own choice: Intel's runtime x2.6, PoCL 3.1
         # +9 %, PoCL 3.0 -2 %; docs/benchmarks.md): photons diverge, so a group gains
         # nothing from running in lock step.  GPUs: the runtime's choice.
         self.local_size = None if self.info.is_gpu else (1,)
+        # the device copies of the last SceneSetup given to run() (runs over one prepared
+        # scene upload it once)
+        self._kept = (None, None)
 
     @property
     def device_name(self) -> str:
@@ -179,7 +186,8 @@ class Simulator:
     def run(self, scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
             detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
             bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
-            chunk: int = 1 << 20, progress: bool = False, hotspot: bool = False) -> SimulationResult:
+            chunk: int = 1 << 20, progress: bool = False, hotspot: bool = False,
+            scene_setup: SceneSetup | None = None) -> SimulationResult:
         """Simulate one pulse of ``sensor`` over ``scene``.
 
         Parameters
@@ -220,11 +228,35 @@ class Simulator:
             which was free, so its transmittance is 1 (exact for explicit
             leaves; a turbid medium would apply exp(-tau) twice).  Higher
             orders return independently.  See docs/method.md.
+        scene_setup : SceneSetup, optional
+            The scene prepared once by :func:`~clsim.transport.setup.prepare_scene`
+            for many runs over it: its bricks and tables are not rebuilt, and they
+            are uploaded to the device once (this Simulator keeps the copies of the
+            last one given).  The result is bit for bit the same.
         """
         setup = prepare_run(scene, sensor, photons=photons, seed=seed, mode=mode, detect=detect,
                             max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
-                            step_m=step_m, target=target, trace=trace, hotspot=hotspot)
-        return self.run_setup(setup, chunk=chunk, progress=progress)
+                            step_m=step_m, target=target, trace=trace, hotspot=hotspot,
+                            scene_setup=scene_setup,
+                            bricks=None if scene_setup is not None else self._cached_bricks(scene, leaf_off))
+        bufs = None
+        if scene_setup is not None:
+            kept, bufs = self._kept
+            if kept is not scene_setup:
+                bufs = self._scene_buffers(setup)
+                self._kept = (scene_setup, bufs)
+        return self.run_setup(setup, chunk=chunk, progress=progress, buffers=bufs)
+
+    def _cached_bricks(self, scene, leaf_off) -> BrickGrid | None:
+        """The bricks of a :class:`~voxlidar.scene.Scene`, reused while its
+        :func:`~clsim.transport.bricks.bricks_key` stays the same (None for
+        anything else: a plot keeps its own, and prepare_run checks the rest)."""
+        if not isinstance(scene, Scene) or not isinstance(leaf_off, (bool, np.bool_)):
+            return None
+        key = bricks_key(scene, leaf_off=bool(leaf_off))
+        if self._bricks_cache is None or self._bricks_cache[0] != key:
+            self._bricks_cache = (key, build_bricks(scene, leaf_off=bool(leaf_off)))
+        return self._bricks_cache[1]
 
     def run_pulses(self, scene: Scene, pulses, base: Sensor, *, photons: int, mode="exact", detect="nee",
                    max_order: int = 3, leaf_off: bool = False, batches: int = 1, bin_ns: float = 0.05,
@@ -301,14 +333,17 @@ class Simulator:
                                         energy=energy, kernel_s=kernel_s)
 
     def _scene_buffers(self, setup: RunSetup) -> dict:
-        """Device copies of what the kernel reads from the scene (sparse bricks, leaf angle tables)."""
+        """Device copies of what the kernel reads from the scene (sparse bricks, their uniform
+        boxes, leaf angle tables)."""
         cl = self._cl
         mf = cl.mem_flags
         g = setup.bricks
         pool = g.pool if len(g.pool) else np.zeros((1, 2), np.float32)
         try:
-            return dict(
+            bufs = dict(
                 index=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g.index),
+                boxes=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                hostbuf=g.boxes if len(g.boxes) else np.full(1, -1, np.int32)),
                 pool=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(pool)),
                 ppf=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.ppf.astype(np.float32)),
                 gtab=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.gtab.astype(np.float32)),
@@ -318,11 +353,14 @@ class Simulator:
         except cl.Error as err:
             raise DeviceError(f"cannot upload the scene ({g.nbytes / 2**20:.0f} MiB of bricks) to "
                               f"{self.device_name}: {short_reason(err)}") from err
+        return bufs
 
-    def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False) -> SimulationResult:
+    def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False,
+                  buffers: dict | None = None) -> SimulationResult:
+        """Run a :func:`prepare_run` set-up (``buffers``: its scene already on the device)."""
         B = setup.batches
-        hist, stats, traces, elapsed = self._launch(setup, self._scene_buffers(setup), chunk=chunk,
-                                                    progress=progress)
+        bufs = self._scene_buffers(setup) if buffers is None else buffers
+        hist, stats, traces, elapsed = self._launch(setup, bufs, chunk=chunk, progress=progress)
         stats = stats.reshape(B, len(STAT_NAMES)).astype(np.float64)
         weight_cols = [i for i, n in enumerate(STAT_NAMES) if n not in COUNT_STATS]
         stats[:, weight_cols] /= FIXED_SCALE
@@ -368,8 +406,9 @@ class Simulator:
         try:
             for start in range(0, setup.photons, chunk):
                 n = min(chunk, setup.photons - start)
-                kern(q, (n,), self.local_size, bufs["params"], bufs["index"], bufs["pool"], bufs["ppf"],
-                     bufs["gtab"], bufs["wdir"], hist_buf, stats_buf, trace_buf, key, np.uint64(start), np.uint32(n))
+                kern(q, (n,), self.local_size, bufs["params"], bufs["index"], bufs["boxes"], bufs["pool"],
+                     bufs["ppf"], bufs["gtab"], bufs["wdir"], hist_buf, stats_buf, trace_buf, key,
+                     np.uint64(start), np.uint32(n))
                 if bar is not None:
                     q.finish()
                     bar.update(n)

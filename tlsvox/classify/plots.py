@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import save_figure
+from voxlidar.safeio import finish_figure
 
 from tlsvox.classify import Classification, PointClass
 
@@ -85,11 +85,7 @@ def plot_reflectance_histograms(results: list[Classification], path: "str | os.P
         ax.legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel("apparent reflectance (1 = white Lambertian target)" if n == 1 and (
         results[0].feature is None or np.isfinite(results[0].noise_threshold)) else "feature (see titles)")
-    fig.tight_layout()
-    path = Path(path)
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return finish_figure(fig, path)
 
 
 def render_classified(xyz, labels, path: "str | os.PathLike", *, eye=None, center=None,

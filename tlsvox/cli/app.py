@@ -207,6 +207,8 @@ def _cmd_view(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from voxlidar.leafangle import LeafAzimuth
+
     parser = with_debug(Parser(prog="tlsvox", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter))
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -220,7 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--crown-radius", type=float, default=6.0, help="crown radius, m (default 6)")
     p.add_argument("--leaf-area", type=float, default=500.0, help="total one-sided leaf area, m2 (default 500)")
     p.add_argument("--leaf-angle", default="uniform", help="leaf inclination distribution (default uniform)")
-    p.add_argument("--leaf-azimuth", default="outward", choices=["outward", "uniform"])
+    p.add_argument("--leaf-azimuth", default="outward", choices=[a.value for a in LeafAzimuth])
     p.set_defaults(func=_cmd_tree)
 
     p = sub.add_parser("scan", help="simulate a terrestrial scan of a synthetic tree",

@@ -52,13 +52,16 @@ the confusion matrix and precision/recall against the truth.
 
 def register(subparsers) -> None:
     """Add the ``register`` and ``classify`` sub-commands to ``subparsers``."""
+    from tlsvox.classify import ClassifyMethod, ThresholdRule
+    from tlsvox.register import RegistrationMethod
+
     p = subparsers.add_parser("register", help="co-register scans and merge them",
                               description=_REGISTER_HELP,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scans", nargs="+", metavar="SCAN", help="scan files (LAS/LAZ/PLY/PCD/XYZ); the first is the reference")
     p.add_argument("-o", "--output", required=True, help="merged cloud, .las or .laz")
     p.add_argument("--transforms", default=None, help="JSON of poses and fit figures (default: OUTPUT with .transforms.json)")
-    p.add_argument("--method", default="auto", choices=["auto", "targets", "fpfh"],
+    p.add_argument("--method", default="auto", choices=[m.value for m in RegistrationMethod if m is not RegistrationMethod.ICP],
                    help="coarse alignment (default: auto = targets, else FPFH)")
     p.add_argument("--min-fitness", type=number(lo=0, hi=1), default=0.25, help="least accepted fitness (default 0.25)")
     p.add_argument("--icp-after-targets", action="store_true", help="also refine a target fit by ICP")
@@ -70,9 +73,9 @@ def register(subparsers) -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     c.add_argument("scans", nargs="+", metavar="SCAN", help="scan files with reflectance (dB) or intensity")
     c.add_argument("-o", "--output", required=True, help="output folder")
-    c.add_argument("--rule", default="midway", choices=["midway", "equal_posterior"],
+    c.add_argument("--rule", default="midway", choices=[r.value for r in ThresholdRule],
                    help="leaf/wood threshold rule (default: midway, the paper's)")
-    c.add_argument("--method", default="neighbourhood", choices=["neighbourhood", "echo", "paper"],
+    c.add_argument("--method", default="neighbourhood", choices=[m.value for m in ClassifyMethod],
                    help="classification method (default: neighbourhood)")
     c.add_argument("--incidence-correction", action="store_true",
                    help="divide reflectance by the estimated incidence cosine before the fit")

@@ -67,7 +67,8 @@ def _floats(text: str, n: int, name: str) -> list[float]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of the voxelize subcommand."""
     from tlsvox.voxel.estimators import Estimator, FillMode
-    from voxlidar.leafangle import LeafAngleKind
+    from tlsvox.voxel.voxlad import Layout
+    from voxlidar.leafangle import LeafAngleKind, LeafAzimuth
     from tlsvox.voxel.weights import EchoWeights
     from tlsvox.voxel.detection import Undetected
     from tlsvox.voxel.wood import WoodMethod
@@ -85,7 +86,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "histograms kept in the scene's meta")
     p.add_argument("--leaf-angle-layers", type=int, default=4,
                    help="crown layers of --leaf-angle measured (default 4)")
-    p.add_argument("--leaf-azimuth", default="uniform", choices=["uniform", "outward"],
+    p.add_argument("--leaf-azimuth", default="uniform", choices=[a.value for a in LeafAzimuth],
                    help="leaf normal azimuths: any (default), or facing away from the crown axis, which then "
                         "gives each voxel the G of outward leaves for each beam (and the simulator uses it)")
     p.add_argument("--estimator", default="bcmle", choices=[e.value for e in Estimator],
@@ -122,7 +123,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "grid starts exactly at the minimum corner")
     p.add_argument("--snap", action="store_true",
                    help="snap --bounds outwards to multiples of the voxel size (grids of runs line up)")
-    p.add_argument("--layout", default="auto", choices=["auto", "dense", "sparse"],
+    p.add_argument("--layout", default="auto", choices=[m.value for m in Layout],
                    help="tracer memory: sums for every voxel (dense), or only for voxels holding echoes "
                         "plus coarse sums per 8^3 brick (sparse; small voxels); default auto: dense up to 1 GiB")
     p.add_argument("--plan", action="store_true",

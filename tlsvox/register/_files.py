@@ -6,8 +6,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+
 import numpy as np
-from voxlidar.safeio import json_text
+from voxlidar.safeio import json_text, staged
+
 from tlsvox.errors import InputError
 from tlsvox.scan import Scan, las_data
 
@@ -60,19 +62,9 @@ def write_registered(path: "str | os.PathLike", scans: list[Scan], *,
         if r is not None:
             entry["registration"] = r.to_dict()
         doc["scans"].append(entry)
-    tmp_las = path.with_name(f".{path.name}.tmp-{os.getpid()}{path.suffix}")
-    tmp_json = transforms_path.with_name(f".{transforms_path.name}.tmp-{os.getpid()}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    transforms_path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        las.write(str(tmp_las))
-        tmp_json.write_text(json_text(doc, indent=1))
-        os.replace(tmp_las, path)
-        os.replace(tmp_json, transforms_path)
-    finally:
-        for t in (tmp_las, tmp_json):
-            if t.exists():
-                t.unlink()
+    with staged([path, transforms_path]) as tmp:     # both or neither (Ctrl-C included)
+        las.write(str(tmp[path]))
+        tmp[transforms_path].write_text(json_text(doc, indent=1))
     return path, transforms_path
 
 

@@ -28,14 +28,12 @@ import numpy as np
 from voxlidar.safeio import json_text, staged
 
 from tlsvox.errors import InputError
-from voxlidar.leafangle import LeafAngle, sample_leaf_normals
+from voxlidar.leafangle import LeafAngle, LeafAzimuth, sample_leaf_normals
 from voxlidar.materials import Material
+from tlsvox.truth._mesh import cylinders_mesh, leaf_mesh, orthonormal, polygon_area_factor, segment_distance
 from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
 
 __all__ = ["TreeParams", "SyntheticTree", "make_tree", "make_leaf_slab", "make_wall", "load_tree"]
-
-LEAF_POLYGON_SIDES = 8
-
 
 @dataclass(frozen=True)
 class TreeParams:
@@ -85,8 +83,8 @@ class TreeParams:
             raise InputError(
                 f"TreeParams.total_leaf_area={self.total_leaf_area!r} must be >= 0 m2 (0 = leaf-off)"
             )
-        if self.leaf_azimuth not in ("outward", "uniform"):
-            raise InputError(f"TreeParams.leaf_azimuth={self.leaf_azimuth!r} must be 'outward' or 'uniform'")
+        azimuth = LeafAzimuth.parse(self.leaf_azimuth, "TreeParams.leaf_azimuth").value
+        object.__setattr__(self, "leaf_azimuth", azimuth)
         if self.n_scaffolds < 1 or self.branch_levels < 0 or self.children_per_branch < 1:
             raise InputError("TreeParams: n_scaffolds and children_per_branch must be >= 1, branch_levels >= 0")
         if self.n_targets < 0:
@@ -223,7 +221,7 @@ class SyntheticTree:
                 continue
             g = np.stack(np.meshgrid(*[np.arange(lo[k], hi[k] + 1) for k in range(3)], indexing="ij"),
                          -1).reshape(-1, 3)
-            inside = _segment_distance(origin + (g + 0.5) * voxel_size, a[i], b[i]) < r[i]
+            inside = segment_distance(origin + (g + 0.5) * voxel_size, a[i], b[i]) < r[i]
             flats.append(np.ravel_multi_index(g[inside].T, shape))
             owner.append(np.full(int(inside.sum()), i))
         if not flats:
@@ -335,7 +333,7 @@ class SyntheticTree:
         """True when ``point`` lies inside a bark cylinder (e.g. a scanner in the trunk)."""
         if not len(self.cylinders):
             return False
-        d = _segment_distance(np.asarray(point, dtype=float), self.cylinders[:, :3], self.cylinders[:, 3:6])
+        d = segment_distance(np.asarray(point, dtype=float), self.cylinders[:, :3], self.cylinders[:, 3:6])
         return bool(np.any(d < self.cylinders[:, 6]))
 
     def material_colors(self) -> np.ndarray:
@@ -393,73 +391,6 @@ class SyntheticTree:
         return path, meta
 
 
-# --------------------------------------------------------------------------------------
-# geometry helpers
-
-
-def _orthonormal(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors perpendicular to each row of unit vectors ``d`` (N, 3)."""
-    helper = np.where(np.abs(d[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    u = np.cross(d, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return u, np.cross(d, u)
-
-
-def _segment_distance(x, a, b) -> np.ndarray:
-    """Distance from points ``x`` (..., 3) to the segments ``a``-``b`` (broadcast against ``x``)."""
-    ab = b - a
-    t = np.clip(np.sum((x - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), 1e-300), 0.0, 1.0)
-    return np.linalg.norm(a + t[..., None] * ab - x, axis=-1)
-
-
-def _cylinders_mesh(cyl: np.ndarray, sides: int = 8, *, caps: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Cylinders (C, 7) -> vertices (C*2*sides, 3), triangles (C*2*sides [+ C*2*(sides-2)], 3).
-
-    Open tubes, or with ``caps`` closed by a fan of ``sides - 2`` triangles at
-    each end (solid wood: a beam down a tube's axis cannot reach the ground).
-    """
-    a, b, r = cyl[:, :3], cyl[:, 3:6], cyl[:, 6]
-    d = b - a
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    u, v = _orthonormal(d)
-    ang = 2 * np.pi * np.arange(sides) / sides
-    ring = np.cos(ang)[None, :, None] * u[:, None, :] + np.sin(ang)[None, :, None] * v[:, None, :]
-    ring *= r[:, None, None]
-    verts = np.concatenate([a[:, None, :] + ring, b[:, None, :] + ring], axis=1)  # (C, 2s, 3)
-    i = np.arange(sides)
-    j = (i + 1) % sides
-    quad = np.concatenate([np.stack([i, j, sides + i], 1), np.stack([j, sides + j, sides + i], 1)])
-    if caps:
-        k = np.arange(1, sides - 1)
-        fan = np.stack([np.zeros_like(k), k + 1, k], 1)  # facing -d at the start ring
-        quad = np.concatenate([quad, fan, sides + fan[:, [0, 2, 1]]])
-    base = (np.arange(len(cyl)) * 2 * sides)[:, None, None]
-    tris = (quad[None] + base).reshape(-1, 3)
-    return verts.reshape(-1, 3), tris
-
-
-def _leaf_mesh(centers, normals, length, width, rng) -> tuple[np.ndarray, np.ndarray]:
-    """Flat elliptical leaves: 8-gon fans, long axis at a random angle in the leaf plane."""
-    n = len(centers)
-    k = LEAF_POLYGON_SIDES
-    u, v = _orthonormal(normals)
-    spin = rng.uniform(0, 2 * np.pi, n)
-    major = np.cos(spin)[:, None] * u + np.sin(spin)[:, None] * v
-    minor = np.cross(normals, major)
-    ang = 2 * np.pi * np.arange(k) / k
-    verts = (centers[:, None, :]
-             + 0.5 * length * np.cos(ang)[None, :, None] * major[:, None, :]
-             + 0.5 * width * np.sin(ang)[None, :, None] * minor[:, None, :])
-    fan = np.stack([np.zeros(k - 2, int), np.arange(1, k - 1), np.arange(2, k)], 1)
-    tris = (fan[None] + (np.arange(n) * k)[:, None, None]).reshape(-1, 3)
-    return verts.reshape(-1, 3), tris
-
-
-def _polygon_area_factor(k: int = LEAF_POLYGON_SIDES) -> float:
-    """Area of a k-gon inscribed in an ellipse of semi-axes (1/2, 1/2)... per unit a*b."""
-    return 0.5 * k * np.sin(2 * np.pi / k)
-
-
 def _branches(p: TreeParams, rng: np.random.Generator):
     """Recursive branch skeleton: list of (start, end, radius, level) rows."""
     center, semi = p.crown_center, p.crown_semi_axes
@@ -497,7 +428,7 @@ def _branches(p: TreeParams, rng: np.random.Generator):
             for _ in range(p.children_per_branch):
                 f = rng.uniform(0.35, 0.95)
                 s = start + f * axis
-                u, v = _orthonormal(d[None])
+                u, v = orthonormal(d[None])
                 phi = rng.uniform(0, 2 * np.pi)
                 perp = np.cos(phi) * u[0] + np.sin(phi) * v[0]
                 perp[2] = abs(perp[2]) * 0.5 + 0.1  # prefer upward/outward shoots
@@ -534,12 +465,12 @@ def make_tree(params: TreeParams | None = None, *, seed: int = 0) -> SyntheticTr
     rows = _branches(p, rng)
     cyl = np.array([np.r_[s, e, r] for s, e, r, _ in rows])
     levels = np.array([lv for *_, lv in rows])
-    bark_v, bark_t = _cylinders_mesh(cyl, caps=p.capped_wood)
+    bark_v, bark_t = cylinders_mesh(cyl, caps=p.capped_wood)
 
     # leaves clustered around the terminal shoots, kept inside the crown envelope
     terminal = cyl[levels == levels.max()]
     seg_len = np.linalg.norm(terminal[:, 3:6] - terminal[:, :3], axis=1)
-    leaf_poly_area = _polygon_area_factor() * 0.25 * p.leaf_length * p.leaf_width
+    leaf_poly_area = polygon_area_factor() * 0.25 * p.leaf_length * p.leaf_width
     n_leaves = int(round(p.total_leaf_area / leaf_poly_area)) if p.total_leaf_area > 0 else 0
     centers = np.zeros((0, 3))
     center, semi = p.crown_center, p.crown_semi_axes
@@ -556,7 +487,7 @@ def make_tree(params: TreeParams | None = None, *, seed: int = 0) -> SyntheticTr
                                   positions=centers, crown_center=center[:2])
     # scale both axes so that the polygons hold exactly the requested area
     scale = np.sqrt(p.total_leaf_area / (n_leaves * leaf_poly_area)) if n_leaves else 1.0
-    leaf_v, leaf_t = _leaf_mesh(centers, normals, p.leaf_length * scale, p.leaf_width * scale, rng)
+    leaf_v, leaf_t = leaf_mesh(centers, normals, p.leaf_length * scale, p.leaf_width * scale, rng)
 
     # ground: a square, two triangles
     g = p.ground_half_size
@@ -575,7 +506,7 @@ def make_tree(params: TreeParams | None = None, *, seed: int = 0) -> SyntheticTr
     if p.n_targets:
         tc = np.column_stack([targets - [0, 0, p.target_height / 2], targets + [0, 0, p.target_height / 2],
                               np.full(p.n_targets, p.target_radius)])
-        target_v, target_t = _cylinders_mesh(tc, sides=24)
+        target_v, target_t = cylinders_mesh(tc, sides=24)
     else:
         target_v, target_t = np.zeros((0, 3)), np.zeros((0, 3), int)
 
@@ -631,12 +562,12 @@ def make_leaf_slab(*, lad: float, size=(4.0, 4.0, 1.0), leaf_angle="spherical", 
     """
     rng = np.random.default_rng(seed)
     size = np.asarray(size, dtype=float)
-    leaf_poly_area = _polygon_area_factor() * 0.25 * leaf_length * leaf_width
+    leaf_poly_area = polygon_area_factor() * 0.25 * leaf_length * leaf_width
     n = rng.poisson(lad * np.prod(size) / leaf_poly_area)
     centers = np.asarray(origin) + rng.uniform(0, 1, (n, 3)) * size
     la = LeafAngle(leaf_angle)
     normals = sample_leaf_normals(n, la, rng)
-    v, t = _leaf_mesh(centers, normals, leaf_length, leaf_width, rng)
+    v, t = leaf_mesh(centers, normals, leaf_length, leaf_width, rng)
     mat = np.full(len(t), Material.LEAF, np.uint8)
     if ground:
         g = ground_half_size
@@ -657,7 +588,7 @@ def make_wall(*, center=(10.0, 0.0, 0.0), normal=(-1.0, 0.0, 0.0), half_size=5.0
     c = np.asarray(center, dtype=float)
     n = np.asarray(normal, dtype=float)
     n /= np.linalg.norm(n)
-    u, v = _orthonormal(n[None])
+    u, v = orthonormal(n[None])
     u, v = u[0] * half_size, v[0] * half_size
     verts = np.array([c - u - v, c + u - v, c + u + v, c - u + v])
     tris = np.array([[0, 1, 2], [0, 2, 3]])

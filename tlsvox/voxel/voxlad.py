@@ -33,7 +33,7 @@ from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, FillMode, LadEstimate, estimate_lad
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leafangle import LeafAngle, LeafAzimuth
 from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass, outward_g_table
 from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
@@ -50,13 +50,6 @@ __all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "voxelize", 
 _ESTIMATE_BYTES = 24 * 8
 #: ``layout="auto"`` traces densely up to this many bytes (small grids: every voxel's own sums)
 DENSE_AUTO_MAX = 1024**3
-
-
-class LeafAzimuth(str, Choice):
-    """Azimuths of the leaf normals."""
-
-    UNIFORM = "uniform"  #: any azimuth, equally likely: G depends on the beam's zenith only
-    OUTWARD = "outward"  #: facing away from the crown axis (the paper's oak)
 
 
 class Layout(str, Choice):

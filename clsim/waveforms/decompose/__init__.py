@@ -96,7 +96,7 @@ from clsim.waveforms.decompose._batch import decompose_batch
 from clsim.waveforms.decompose._deconvolve import deconvolve
 from clsim.waveforms.decompose._detection import detect_peaks
 from clsim.waveforms.decompose._matched import Detection, Pulse, detect_echoes, threshold
-from clsim.waveforms.decompose._model import FWHM_PER_SIGMA, Components, echo_positions, gaussian_sum
+from clsim.waveforms.decompose._model import Components, echo_positions, gaussian_sum
 from clsim.waveforms.decompose._noise import noise_level
 from clsim.waveforms.decompose._results import EchoTable
 from clsim.waveforms.decompose._single import decompose

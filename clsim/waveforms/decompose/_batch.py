@@ -6,15 +6,17 @@ clipped samples, the matched filter and its threshold, candidates, start
 widths (a log-parabola through the three samples around each maximum, exact
 for a Gaussian: Caruana et al. 1986), then the Levenberg-Marquardt fit of all
 waveforms with the same number of echoes together, its start amplitudes and
-baseline by linear least squares, pruning of weak echoes, and rounds of
-adding a resolved echo at the highest residual feature while the BIC falls.
+baseline by linear least squares, pruning of weak echoes (after a fit that stopped
+on a collapsed echo, that echo first), and rounds of adding a resolved echo at the
+highest residual feature while the BIC falls.
 On an OpenCL device the detection runs there too, one waveform per work-item
 (:mod:`._detect_cl`, ``clsim/kernels/decompose_detect.cl``; the NumPy steps
 :func:`noise_stats_numpy` and :func:`candidates_numpy` are its reference), the
 samples stay on the device, and the fits run there, one waveform per work-item
 (:mod:`._batch_cl`, ``clsim/kernels/decompose_lm.cl``), which also returns each
-fit's residual for the search; two chunks are in flight at once (threads), so one
-chunk's host steps overlap the other's kernels. Without a device, everything is
+fit's residual and its matched-filtered and smoothed twins for the search; two
+chunks are in flight at once (threads), so one chunk's host steps overlap the
+other's kernels. Without a device, everything is
 vectorised in NumPy (:mod:`._batch_fit`).
 
 Differences from :func:`decompose`, for speed: one pulse for the whole batch
@@ -64,7 +66,11 @@ def _pad(waveforms):
         lengths = np.full(y.shape[0], y.shape[1])
     else:
         try:
-            rows = [np.asarray(w, dtype=float).reshape(-1) for w in waveforms]
+            if isinstance(waveforms, (list, tuple)) and all(
+                    isinstance(w, np.ndarray) and w.ndim == 1 for w in waveforms):
+                rows = waveforms  # 1-D arrays already (concatenated as float below)
+            else:
+                rows = [np.asarray(w, dtype=float).reshape(-1) for w in waveforms]
         except (TypeError, ValueError) as err:
             raise InputError("waveforms must be a 2-D array (N, n) or a sequence of 1-D "
                              f"arrays of numbers; got {type(waveforms).__name__}") from err
@@ -72,7 +78,11 @@ def _pad(waveforms):
             raise InputError("waveforms is empty; pass at least one waveform")
         lengths = np.array([r.size for r in rows])
         y = np.zeros((len(rows), lengths.max()))
-        y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
+        try:
+            y[np.arange(lengths.max()) < lengths[:, None]] = np.concatenate(rows)
+        except (TypeError, ValueError) as err:
+            raise InputError("waveforms must be a 2-D array (N, n) or a sequence of 1-D "
+                             "arrays of numbers; got arrays that are not numbers") from err
     if y.shape[0] == 0:
         raise InputError("waveforms is empty; pass at least one waveform")
     short = np.flatnonzero(lengths < 4)
@@ -226,8 +236,9 @@ class _State:
         self.b_se = np.full(n_rows, np.nan)
         self.rss = np.full(n_rows, np.nan)
         self.n_eff = np.zeros(n_rows, int)
-        # samples minus model of the last fit kept (float32, from the device), where ok
-        self.resid = np.zeros((n_rows, n), dtype=np.float32)
+        # samples minus model of the last fit, its matched filter and smoothing (float32,
+        # from the device), kept where ok
+        self.resid = np.zeros((n_rows, 3, n), dtype=np.float32)
         self.resid_ok = np.zeros(n_rows, bool)
 
     def k(self):
@@ -266,10 +277,11 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
         out_b[sel], out_rss[sel], out_neff[sel] = res.b, res.rss, res.n_eff
         if fit_baseline:
             out_bse[sel] = res.se[:, 3 * k]
-        if res.resid is not None:
+        if res.resid is not None and res.filtered is not None:
             if out_resid is None:
-                out_resid = np.full((R, res.resid.shape[1]), np.nan, dtype=np.float32)
-            out_resid[sel] = res.resid
+                out_resid = np.full((R, 3, res.resid.shape[1]), np.nan, dtype=np.float32)
+            out_resid[sel, 0] = res.resid
+            out_resid[sel, 1:] = res.filtered
     return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff, out_resid
 
 
@@ -281,15 +293,28 @@ def _bad(a, m, s, se_a, u, sigma, n):
                 | (np.isfinite(se_a) & (a < 2.0 * se_a)))
 
 
+#: Separation, in sums of the pair's sigmas, beyond which two echoes count as resolved
+#: without a look at their curvature: each echo's inflection points then lie 6 or more
+#: of the other's sigmas from that one's peak, where its curvature is under 1e-6 of its
+#: peak value; it could remove them only if its peak curvature ``a / s^2`` exceeded
+#: the other's about a million times.
+_FAR = 6.0
+
+
 def _resolved_rows(a, m, s, on, a1, m1, s1):
     """Sparrow's criterion between the new echo (a1, m1, s1) (R,) and each active
-    echo (R, K): the pair's sum has four inflection points."""
-    k = int(on.sum(axis=1).max()) if on.size else 0
-    if k < on.shape[1]:  # only the columns some row uses, active ones first
-        order = np.argsort(~on, axis=1, kind="stable")[:, :k]
-        a, m, s, on = (np.take_along_axis(v, order, axis=1) for v in (a, m, s, on))
-    lo = np.minimum(m - 3 * s, (m1 - 3 * s1)[:, None])
-    hi = np.maximum(m + 3 * s, (m1 + 3 * s1)[:, None])
+    echo (R, K): the pair's sum has four inflection points (looked for on a grid of
+    160 points, for the pairs closer than :data:`_FAR` sigmas)."""
+    with np.errstate(invalid="ignore"):
+        near = on & ~(np.abs(m - m1[:, None]) >= _FAR * (s + s1[:, None]))
+    r, c = np.nonzero(near)
+    ok = np.ones(on.shape[0], bool)
+    if r.size == 0:
+        return ok
+    a, m, s = a[r, c], m[r, c], s[r, c]
+    a1, m1, s1 = a1[r], m1[r], s1[r]
+    lo = np.minimum(m - 3 * s, m1 - 3 * s1)
+    hi = np.maximum(m + 3 * s, m1 + 3 * s1)
     # in float32 (the exponentials are most of the search's time on many-echo
     # waveforms; a sign of the curvature is not changed by the rounding except within
     # 1e-6 of an inflection point)
@@ -297,20 +322,20 @@ def _resolved_rows(a, m, s, on, a1, m1, s1):
     f32 = np.float32
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         # z^2 of each echo of the pair on the grid x = lo + (hi - lo) * grid
-        z0 = ((lo - m) / s).astype(f32)[..., None] + ((hi - lo) / s).astype(f32)[..., None] * grid
-        z1 = (((lo - m1[:, None]) / s1[:, None]).astype(f32)[..., None]
-              + ((hi - lo) / s1[:, None]).astype(f32)[..., None] * grid)
+        z0 = ((lo - m) / s).astype(f32)[:, None] + ((hi - lo) / s).astype(f32)[:, None] * grid
+        z1 = ((lo - m1) / s1).astype(f32)[:, None] + ((hi - lo) / s1).astype(f32)[:, None] * grid
         z0 *= z0
         z1 *= z1
         e0 = np.exp(np.multiply(z0, f32(-0.5)))
         e1 = np.exp(np.multiply(z1, f32(-0.5)))
         z0 -= f32(1.0)
         z1 -= f32(1.0)
-        curv = z0 * e0 * (a / s ** 2).astype(f32)[..., None]
-        curv += z1 * e1 * (a1 / s1 ** 2).astype(f32)[:, None, None]
+        curv = z0 * e0 * (a / s ** 2).astype(f32)[:, None]
+        curv += z1 * e1 * (a1 / s1 ** 2).astype(f32)[:, None]
     sign = np.sign(curv)
-    changes = np.count_nonzero(sign[..., 1:] != sign[..., :-1], axis=-1)
-    return np.all((changes >= 4) | ~on, axis=1)
+    changes = np.count_nonzero(sign[:, 1:] != sign[:, :-1], axis=-1)
+    ok[r[changes < 4]] = False
+    return ok
 
 
 def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
@@ -442,13 +467,15 @@ def _table(parts, t0, dt):
                      **{k: np.concatenate(v) for k, v in per.items()})
 
 
-def _group_fitter(device, y, use, cens, noise):
+def _group_fitter(device, y, use, cens, noise, pulse):
     """``fit(rows, a, m, s, b, fit_baseline, linear) -> finish`` for rows of a chunk,
     ``finish() -> GroupFit``: one launch on the OpenCL device (its samples uploaded
     once; the groups of one round are all enqueued before the first wait), else
     :func:`fit_group`."""
     if device is not None:
-        return _bound_fit(device.bind(y, use, cens, noise))
+        bound = device.bind(y, use, cens, noise)
+        bound.set_pulse(pulse)
+        return _bound_fit(bound)
 
     def fit(rows, a, m, s, b, fb, linear):
         c = None if cens is None else cens[rows]
@@ -575,8 +602,12 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     st.a, st.m, st.s, st.on = a, m, s, cand
     st.b = b.copy()
     st.noise = sigma
-    st.fit = (_bound_fit(det.fitter()) if det is not None
-              else _group_fitter(device, y, use, cens, sigma))
+    if det is not None:
+        bound = det.fitter()
+        bound.set_pulse(pl)
+        st.fit = _bound_fit(bound)
+    else:
+        st.fit = _group_fitter(device, y, use, cens, sigma, pl)
     start = (st.a.copy(), st.m.copy(), st.s.copy(), st.on.copy(), st.b.copy())
     # fit (amplitudes and baseline first by linear least squares), prune, add
     _refit(st, rows[st.k() > 0], y, use, cens, linear=True)
@@ -610,22 +641,36 @@ def _store(st, rows, a, m, s, se, b, bse, rss, neff, resid):
 
 
 def _keep_resid(st, rows, resid):
-    """Keep the fits' residuals (R, n) of ``rows`` (None, or NaN rows: not kept)."""
+    """Keep the fits' residuals and their filtered twins (R, 3, n) of ``rows`` (None,
+    or NaN rows: not kept)."""
     if resid is None:
         st.resid_ok[rows] = False
         return
-    ok = ~np.isnan(resid[:, 0])
+    ok = ~np.isnan(resid[:, 0, 0]) & ~np.isnan(resid[:, 1, 0])
     st.resid[rows[ok]] = resid[ok]
     st.resid_ok[rows] = ok
 
 
-def _prune(st, y, use, cens, u, sigma, lengths, rounds=4):
+def _broken(a, m, s, n):
+    """Echoes that collapsed (height not positive, sigma under the resolvable limit) or
+    left the record (peak more than one sigma beyond its ends)."""
+    with np.errstate(invalid="ignore"):
+        return (~np.isfinite(a) | (a <= 0) | (s < _MIN_SIGMA_SAMPLES) | (s > n[:, None])
+                | (m < -s) | (m > n[:, None] - 1 + s))
+
+
+def _prune(st, y, use, cens, u, sigma, lengths, rounds=5):
     """Drop weak, unresolvable or misplaced echoes and refit, until none is left to drop.
-    A waveform whose echoes all fail keeps its strongest well-formed one (a detected
+    A fit that stopped because an echo collapsed or left the record (the fits stop
+    there) has only those echoes dropped first: its residual sum, and so the standard
+    errors and significance of the others, are not yet those of a converged fit. A
+    waveform whose echoes all fail keeps its strongest well-formed one (a detected
     echo exists), refitted alone and not pruned again."""
     locked = np.zeros(st.on.shape[0], bool)
     for _ in range(rounds):
         bad = _bad(st.a, st.m, st.s, st.se[:, 0], u, sigma, lengths) & st.on
+        broken = _broken(st.a, st.m, st.s, lengths) & st.on
+        bad = np.where(broken.any(axis=1)[:, None], broken, bad)
         bad[locked] = False
         rows = np.flatnonzero(bad.any(axis=1))
         if rows.size == 0:
@@ -705,42 +750,57 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         if rows.size == 0:
             return
         on = st.on[rows]
-        # the residual of the last fit, kept from the device (else computed here)
-        r = st.resid[rows].astype(float)
+        # the residual of the last fit and its matched filter and smoothing, kept from
+        # the device (else computed here)
+        kept = st.resid[rows]
+        r, fm, fs = (kept[:, c].astype(float) for c in range(3))
         redo = np.flatnonzero(~st.resid_ok[rows])
         if redo.size:
-            r[redo] = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
+            rr = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
             if cens is not None:
-                r[redo] = np.where(cens[rows[redo]], 0.0, r[redo])
-        fm = filter_output(r, pl) / level[rows][:, None]
-        fs = gaussian_filter1d(r, 1.0, axis=1, mode="constant") / (4.0 * sigma[rows])[:, None]
+                rr = np.where(cens[rows[redo]], 0.0, rr)
+            r[redo] = rr
+            fm[redo] = filter_output(rr, pl)
+            fs[redo] = gaussian_filter1d(rr, 1.0, axis=1, mode="constant")
         out = ~use[rows] | skipped[rows]
-        fm[out], fs[out] = -np.inf, -np.inf
-        use_m = fm.max(axis=1) >= fs.max(axis=1)
-        score = np.where(use_m[:, None], fm, fs)
-        j = np.argmax(score, axis=1)
-        go = score[np.arange(rows.size), j] >= 1.0
+        fm /= level[rows][:, None]
+        fm[out] = -np.inf
+        fs /= (4.0 * sigma[rows])[:, None]
+        fs[out] = -np.inf
+        # the search follows whichever filter stands higher above its threshold
+        ii = np.arange(rows.size)
+        jm, js = np.argmax(fm, axis=1), np.argmax(fs, axis=1)
+        use_m = fm[ii, jm] >= fs[ii, js]
+        j = np.where(use_m, jm, js)
+        go = np.where(use_m, fm[ii, jm], fs[ii, js]) >= 1.0
         search[rows[~go]] = False
-        rows, j, r, use_m, on = rows[go], j[go], r[go], use_m[go], on[go]
+        rows, j, use_m, on, ii = rows[go], j[go], use_m[go], on[go], ii[go]
         if rows.size == 0:
             return
         # the new echo's start: a log-parabola through the filtered residual's maximum
-        # (the filter's own width removed); amplitude from the residual
-        filt = np.where(use_m[:, None], fm[go] * level[rows][:, None],
-                        fs[go] * (4.0 * sigma[rows])[:, None])
-        m1, var = _log_parabola(filt, np.arange(rows.size), j, n)
+        # and its two neighbours (the filter's own width removed); amplitude from the
+        # residual
+        near3 = np.clip(j[:, None] + np.arange(-1, 2), 0, n - 1)
+        filt = np.where(use_m[:, None], fm[ii[:, None], near3] * level[rows][:, None],
+                        fs[ii[:, None], near3] * (4.0 * sigma[rows])[:, None])
+        m1, var = _log_parabola(filt, np.arange(rows.size), np.ones_like(j), 3)
+        # (a maximum on the first or last sample has no neighbour on that side)
+        inner = (j > 0) & (j < n - 1)
+        m1 = np.where(inner, m1 + j - 1, j)
+        var = np.where(inner, var, np.nan)
         var = np.where(use_m, var - pl.sigma ** 2, var - 1.0)
         s0 = np.clip(np.where(np.isfinite(var) & (var > 0.25), np.sqrt(np.abs(var)),
                               pl.sigma), 0.5, n / 2.0)
         s1 = s0
-        a1 = np.maximum(r[np.arange(rows.size), j], filt[np.arange(rows.size), j])
+        a1 = np.maximum(r[ii, j], filt[:, 1])
         res = _resolved_rows(st.a[rows], st.m[rows], st.s[rows], on, a1, m1, s1)
         res &= np.isfinite(a1) & (a1 > 0)
         # unresolved: pass over this feature (mask it) and try the next, up to 3 times
         un = rows[~res]
-        half = np.ceil(2.0 * s0[~res]).astype(int)
-        for r_i, j_i, h_i in zip(un, j[~res], half):
-            skipped[r_i, max(0, j_i - h_i):j_i + h_i + 1] = True
+        if un.size:
+            half = np.ceil(2.0 * s0[~res]).astype(int)[:, None]
+            dist = np.abs(np.arange(n) - j[~res][:, None])
+            skipped[un] |= dist <= half
         passes[un] += 1
         search[un[passes[un] >= 3]] = False
         if not res.any():

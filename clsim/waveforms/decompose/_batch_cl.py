@@ -10,7 +10,10 @@ scaled to a unit diagonal before its float32 Cholesky factorisation (Marquardt
 (:func:`._batch_fit.standard_errors`, as on the NumPy path). A chunk's samples
 are uploaded once (:meth:`DeviceFitter.bind`); each group of waveforms with the
 same number of echoes is then one launch that sends the row indices and start
-values and returns the fits, ``J^T J`` and the residuals.
+values and returns the fits, ``J^T J``, the residuals and, for the search of
+further echoes, the residuals through the matched filter and the Gaussian of
+sigma 1 sample (:meth:`BoundFitter.set_pulse`; float32 sums of the same weights
+as :func:`._matched.filter_output` and ``gaussian_filter1d``).
 
 Measured on the shared 2-core test machine: PoCL 3.1 fits two echoes to 150
 samples from rough starts about 100,000 times a second (the NumPy path 5,000 to
@@ -92,6 +95,10 @@ class DeviceFitter:
         # runtime's choice
         self.local_size = None if info.is_gpu else (1,)
         self._detector = None
+        # kernels (k, fit_baseline) this device cannot launch: their private arrays, of
+        # (3k+1)^2 floats, exceed what the driver reserves per work-item (NVIDIA's OpenCL
+        # answers OUT_OF_HOST_MEMORY at k = 40); those groups are fitted by NumPy
+        self.too_large: set = set()
         # chunks run in threads (decompose_batch): a kernel object's arguments and its
         # launch must not interleave with another thread's, nor two builds
         self.lock = threading.RLock()
@@ -126,7 +133,8 @@ class DeviceFitter:
             kern = self._cl.Kernel(prg, "lm_fit")
             # the scalar arguments' types, declared once (set_args is then 30x faster)
             kern.set_scalar_arg_dtypes([None, None, np.int32, None, None, None, None, None,
-                                        np.int32, np.int32, np.float32, np.int32])
+                                        np.int32, np.int32, np.float32, np.int32, None,
+                                        np.int32, np.int32, np.int32])
             self._kernels[key] = kern
         return self._kernels[key]
 
@@ -146,6 +154,7 @@ class BoundFitter:
         self = cls.__new__(cls)
         self.fitter, self.n, self.n_samples = fitter, -(-n_samples // 8) * 8, n_samples
         self.y, self.flags, self.span, self.noise = y, flags, span, noise
+        self.set_pulse(None)
         return self
 
     def __init__(self, fitter: DeviceFitter, y, use, cens, noise):
@@ -172,6 +181,22 @@ class BoundFitter:
         self.flags = up(flags)
         self.span = up(span)
         self.noise = up(np.asarray(noise, dtype=np.float32))
+        self.set_pulse(None)
+
+    def set_pulse(self, pulse):
+        """The matched filter of the residuals the fits return: ``pulse``
+        (:class:`._matched.Pulse`) or None (a unit weight: the residual itself)."""
+        from clsim.waveforms.decompose._detect_cl import _SMOOTH
+
+        cl = self.fitter._cl
+        p, pc = (np.ones(1), 0) if pulse is None else (pulse.shape / float(np.sum(
+            pulse.shape ** 2)), pulse.centre)
+        w = np.concatenate([p, _SMOOTH[:9]]).astype(np.float32)
+        # the residual's zero padding on either side: the filters' reach and a block
+        self.pad = max(int(pc), p.size - 1 - int(pc), 4) + 8
+        self.filters = (cl.Buffer(self.fitter.context, cl.mem_flags.READ_ONLY
+                                  | cl.mem_flags.COPY_HOST_PTR, hostbuf=w), p.size, int(pc),
+                        self.pad)
 
     def fit(self, rows, a, m, s, b, *, fit_baseline=True, linear=False, max_iter=40,
             tol=_TOL) -> GroupFit:
@@ -193,19 +218,29 @@ class BoundFitter:
         nf = 3 * k + (1 if fit_baseline else 0)
         q = np.empty((g, npar), dtype=np.float32)
         q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1] = a, m, s, b
-        # one row per waveform: fit, rss, n_eff, iterations, J^T J, residual (the kernel's OUT)
-        out = np.empty((g, npar + 3 + nf * nf + self.n), dtype=np.float32)
+        # one row per waveform: fit, rss, n_eff, iterations, J^T J, residual, its matched
+        # filter and smoothing (the kernel's OUT)
+        base, pad = npar + 3 + nf * nf, self.pad
+        out = np.empty((g, base + 2 * pad + 3 * self.n), dtype=np.float32)
         mf = cl.mem_flags
         ctx = self.fitter.context
         d_row = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                           hostbuf=np.ascontiguousarray(rows, dtype=np.int32))
         d_q = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=q)
         d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+        key = (int(k), bool(fit_baseline))
+        if key in self.fitter.too_large:
+            return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
         kern = self.fitter.kernel(k, fit_baseline)
         with self.fitter.lock:
             kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out,
-                          g, max_iter, tol, int(bool(linear) and bool(fit_baseline)))
-            cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
+                          g, max_iter, tol, int(bool(linear) and bool(fit_baseline)),
+                          *self.filters)
+            try:
+                cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
+            except cl.Error:  # more private memory than the device gives a work-item
+                self.fitter.too_large.add(key)
+                return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
         done = cl.enqueue_copy(queue, out, d_out, is_blocking=False)
 
         def finish() -> GroupFit:
@@ -215,11 +250,36 @@ class BoundFitter:
             n_eff = out[:, npar + 1].astype(int)
             hess = out[:, npar + 3:npar + 3 + nf * nf].reshape(g, nf, nf).astype(float)
             se = standard_errors(hess, rss, n_eff, k)
+            ns = self.n_samples
+            r = out[:, base + pad:base + pad + ns]
+            flt = out[:, base + 2 * pad + self.n:].reshape(g, 2, self.n)[:, :, :ns]
             return GroupFit(fit[:, :k], fit[:, k:2 * k], fit[:, 2 * k:3 * k], fit[:, -1], rss,
-                            se, n_eff, out[:, npar + 2].astype(int),
-                            out[:, npar + 3 + nf * nf:npar + 3 + nf * nf + self.n_samples])
+                            se, n_eff, out[:, npar + 2].astype(int), r, flt)
 
         return finish
+
+    def _host_fit(self, rows, a, m, s, b, fit_baseline, linear, max_iter, tol):
+        """``finish`` of the NumPy fit (:func:`._batch_fit.fit_group`) of ``rows``, from
+        the chunk's samples read back from the device once."""
+        from clsim.waveforms.decompose._batch_fit import fit_group, linear_start
+
+        if getattr(self, "_host", None) is None:
+            cl, queue = self.fitter._cl, self.fitter.queue
+            n_rows = self.noise.size // 4
+            y = np.empty((n_rows, self.n), dtype=np.float32)
+            flags = np.empty((n_rows, self.n), dtype=np.uint8)
+            noise = np.empty(n_rows, dtype=np.float32)
+            for host, dev in ((y, self.y), (flags, self.flags), (noise, self.noise)):
+                cl.enqueue_copy(queue, host, dev)
+            k = self.n_samples
+            self._host = (y[:, :k].astype(float), (flags[:, :k] & _USE) > 0, (flags[:, :k] & _CENS) > 0,
+                          noise.astype(float))
+        y, use, cens, noise = (v[rows] for v in self._host)
+        if linear and fit_baseline:
+            a, b = linear_start(y, use & ~cens, a, m, s, b)
+        res = fit_group(y, use, a, m, s, b, fit_baseline=fit_baseline, noise=noise, cens=cens,
+                        max_iter=max_iter, tol=tol)
+        return lambda: res
 
 
 #: Fitters built in this process, by device key (a context and built programs each).

@@ -40,7 +40,9 @@ class GroupFit:
     (b's NaN when the baseline was held); ``n_eff`` (G,) samples that count;
     ``n_iter`` (G,) Levenberg-Marquardt iterations (one model and Jacobian each);
     ``resid`` (G, n) float32 samples minus model at the fit, zero where a sample
-    does not count or is censored, or None (the NumPy path does not keep it).
+    does not count or is censored, or None (the NumPy path does not keep it);
+    ``filtered`` (G, 2, n) float32 that residual through the matched filter and
+    the Gaussian of sigma 1 sample (the device fits), or None.
     """
 
     a: np.ndarray
@@ -52,6 +54,7 @@ class GroupFit:
     n_eff: np.ndarray
     n_iter: np.ndarray
     resid: np.ndarray | None = None
+    filtered: np.ndarray | None = None
 
 
 def _evaluate(y, w, cens, t, a, m, s, b, fit_baseline, want_jac):

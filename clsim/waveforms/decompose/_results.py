@@ -24,7 +24,8 @@ class EchoTable:
     baseline, baseline_se, noise_sigma, rss : (N,) float64
         Per waveform.
 
-    ``table[i]`` is waveform ``i``'s :class:`Components`; ``len(table)`` is N.
+    ``table[i]`` is waveform ``i``'s :class:`Components` (:meth:`components`: all of
+    them); ``len(table)`` is N.
     """
 
     waveform: np.ndarray
@@ -63,6 +64,17 @@ class EchoTable:
                           baseline=float(self.baseline[i]),
                           baseline_se=float(self.baseline_se[i]),
                           noise_sigma=float(self.noise_sigma[i]), rss=float(self.rss[i]))
+
+    def components(self) -> list:
+        """Every waveform's :class:`Components`, in order: ``[table[i] for i in
+        range(len(table))]`` with the columns split once (faster for many)."""
+        cuts = np.searchsorted(self.waveform, np.arange(1, len(self)))
+        cols = [np.split(getattr(self, c), cuts) for c in self.COLUMNS]
+        per = [self.baseline.tolist(), self.baseline_se.tolist(), self.noise_sigma.tolist(),
+               self.rss.tolist()]
+        return [Components(*(c[i].copy() for c in cols), baseline=per[0][i],
+                           baseline_se=per[1][i], noise_sigma=per[2][i], rss=per[3][i])
+                for i in range(len(self))]
 
     def to_records(self) -> np.ndarray:
         """One structured row per echo: ``waveform``, the columns, and ``baseline``."""

@@ -115,3 +115,22 @@ def test_convolve_fine_span_is_the_full_convolution_bit_for_bit():
         got = convolve_fine(np.stack([row, np.zeros(n)]), kern, lag0)
         assert np.array_equal(got[0].view(np.uint64), full.view(np.uint64)), trial
         assert np.array_equal(got[1].view(np.uint64), np.zeros(n).view(np.uint64))
+
+
+def test_run_over_a_prepared_scene_is_bit_identical(sim):
+    """Simulator.run(scene_setup=...): the scene uploaded once for many runs, every result
+    bit for bit the plain run's; a second prepared scene replaces the kept copies."""
+    sc = scene()
+    kw = dict(photons=500, max_order=2, batches=4)
+    first = prepare_scene(sc, wavelength_nm=BASE.wavelength_nm)
+    for seed in (3, 4):
+        plain = sim.run(sc, BASE, seed=seed, **kw)
+        kept = sim.run(sc, BASE, seed=seed, scene_setup=first, **kw)
+        assert np.array_equal(plain.waveform.view(np.uint64), kept.waveform.view(np.uint64))
+        assert np.array_equal(plain.fine, kept.fine)
+    other = prepare_scene(sc, wavelength_nm=BASE.wavelength_nm, leaf_off=True)
+    off = sim.run(sc, BASE, seed=5, leaf_off=True, scene_setup=other, **kw)
+    assert sim._kept[0] is other
+    assert np.array_equal(off.waveform, sim.run(sc, BASE, seed=5, leaf_off=True, **kw).waveform)
+    with pytest.raises(InputError, match="scene_setup was prepared for another"):
+        sim.run(sc, BASE, seed=6, scene_setup=other, **kw)  # leaves on, set-up made leaf-off

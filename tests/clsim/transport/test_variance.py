@@ -80,7 +80,7 @@ def test_leaf_avg_only_where_exact():
 def test_unknown_feature_is_one_line(sim):
     with pytest.raises(InputError, match="unknown estimator feature"):
         Simulator(device=sim.info, features={"fast": False})
-    assert set(FEATURES) == {"tight", "leaf_avg", "qmc"}
+    assert set(FEATURES) == {"tight", "leaf_avg", "qmc", "uniform"}
 
 
 def slab():

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.ndimage import gaussian_filter1d
 
 from clsim.waveforms.decompose import EchoTable, decompose, decompose_batch, gaussian_sum
 from clsim.waveforms.decompose._batch_cl import device_fitter
 from clsim.waveforms.decompose._batch_fit import fit_group
+from clsim.waveforms.decompose._matched import Pulse, filter_output
 from clsim.errors import DeviceError, InputError
 
 TRUE = dict(a=np.array([120.0, 45.0, 80.0]), m=np.array([30.0, 41.5, 70.0]),
@@ -132,6 +134,22 @@ def test_table_records_and_csv(tmp_path):
     np.testing.assert_array_equal(stacked.amplitude, table.amplitude)
 
 
+def test_table_components_equal_indexing():
+    """``components()`` gives ``table[i]`` for every waveform, those without an echo
+    (noise only) included."""
+    rng = np.random.default_rng(6)
+    ys = np.concatenate([_three(rng, 3), 12.0 + rng.normal(0.0, 2.0, (2, 110))])[[0, 3, 1, 4, 2]]
+    table = decompose_batch(ys)
+    assert table.counts.tolist() == [3, 0, 3, 0, 3]
+    every = table.components()
+    assert len(every) == len(table)
+    for i, c in enumerate(every):
+        ref = table[i]
+        for col in EchoTable.COLUMNS:
+            np.testing.assert_array_equal(getattr(c, col), getattr(ref, col))
+        assert (c.baseline, c.noise_sigma, c.rss) == (ref.baseline, ref.noise_sigma, ref.rss)
+
+
 @pytest.mark.parametrize("bad, match", [
     ([], "empty"),
     ([np.ones(3)], "at least 4"),
@@ -171,6 +189,36 @@ def test_device_fits_match_numpy(cl_device_for_fits):
     np.testing.assert_allclose(got.rss, ref.rss, rtol=1e-4)
     np.testing.assert_allclose(got.se, ref.se, rtol=0.05)
     assert abs(got.n_iter.mean() - ref.n_iter.mean()) < 0.5, (got.n_iter.mean(), ref.n_iter.mean())
+
+
+def test_device_residual_and_its_filters(cl_device_for_fits):
+    """The device fits return the residual at the fit (zero where a sample does not
+    count) and that residual through the matched filter and the Gaussian of sigma 1,
+    as the host's ``filter_output`` and ``gaussian_filter1d`` give them at the samples
+    that count (float32 sums: within 1e-5 of the largest value), also for records
+    whose counted samples start and end inside the row."""
+    rng = np.random.default_rng(10)
+    t = np.arange(150.0)
+    y = 20.0 + gaussian_sum(t, [80.0, 30.0], [40.0, 60.0], [2.5, 3.0]) + rng.normal(
+        0.0, 2.0, (50, 150))
+    use = np.ones(y.shape, bool)
+    use[::2, :13] = False
+    use[1::3, 131:] = False
+    pulse = Pulse.gaussian(2.5)
+    bound = device_fitter(cl_device_for_fits).bind(y, use, None, np.full(50, 2.0))
+    bound.set_pulse(pulse)
+    got = bound.fit(np.arange(50), np.tile([70.0, 25.0], (50, 1)),
+                    np.tile([40.5, 59.0], (50, 1)), np.tile([2.5, 3.2], (50, 1)),
+                    np.full(50, 19.0))
+    model = np.array([b + gaussian_sum(t, a, m, s) for a, m, s, b in
+                      zip(got.a, got.m, got.s, got.b)])
+    r = np.where(use, y - model, 0.0)
+    np.testing.assert_allclose(got.resid, r, atol=1e-5 * np.abs(y).max())
+    res = got.resid.astype(float)
+    for c, ref in enumerate((filter_output(res, pulse),
+                             gaussian_filter1d(res, 1.0, axis=1, mode="constant"))):
+        np.testing.assert_allclose(got.filtered[:, c][use], ref[use],
+                                   atol=1e-5 * np.abs(ref).max())
 
 
 def test_device_and_numpy_agree(cl_device_for_fits):

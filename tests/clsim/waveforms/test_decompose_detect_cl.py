@@ -100,6 +100,28 @@ def test_many_components_fall_back_to_numpy_detection(cl_device_for_fits):
     np.testing.assert_allclose(table[0].location_ns, m, atol=0.2)
 
 
+def test_kernels_the_device_cannot_launch_are_fitted_by_numpy(cl_device_for_fits):
+    """A fit kernel too large for the device (NVIDIA's OpenCL refuses k = 40 echoes:
+    OUT_OF_HOST_MEMORY) falls back to the NumPy fit of the same rows: every kernel marked
+    so here, the echo locations agree with the device's fits within 5 % of their standard errors."""
+    ys = _mixed(np.random.default_rng(25))
+    on_device = decompose_batch(ys, device=cl_device_for_fits)
+    fitter = device_fitter(cl_device_for_fits)
+    keys = {(k, fb) for k in range(1, 41) for fb in (False, True)}
+    fitter.too_large |= keys
+    try:
+        on_host = decompose_batch(ys, device=cl_device_for_fits)
+    finally:
+        fitter.too_large -= keys
+    same = on_device.counts == on_host.counts
+    assert same.mean() >= 0.98, np.flatnonzero(~same)
+    for i in np.flatnonzero(same):
+        a, b = on_device[i], on_host[i]
+        if len(a):
+            dz = np.abs(a.location_ns - b.location_ns) / a.location_se_ns
+            assert np.all(dz < 0.05), (i, dz)
+
+
 def test_chunks_in_flight_give_the_same_table(cl_device_for_fits, monkeypatch):
     """Chunks decomposed two at a time in threads: the same table, bit for bit, as
     one chunk after the other (each chunk's work is its own)."""

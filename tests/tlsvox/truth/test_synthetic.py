@@ -168,12 +168,12 @@ def test_bark_direction_of_a_cylinder_and_of_isotropic_facets(rng):
     """An 8-sided cylinder's normals are all across its axis: beta = 1, the axis found;
     a fine sphere's normals are isotropic: beta ~ 0 (a polyhedron's, up to its facets)."""
     from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
-    from tlsvox.truth.synthetic import _cylinders_mesh
+    from tlsvox.truth._mesh import cylinders_mesh
 
     a = np.array([0.3, 0.4, 0.2])
     d = np.array([0.2, -0.3, 0.93])
     d /= np.linalg.norm(d)
-    v, t = _cylinders_mesh(np.array([[*a, *(a + 0.6 * d), 0.05]]))
+    v, t = cylinders_mesh(np.array([[*a, *(a + 0.6 * d), 0.05]]))
     flat, area, mom = normal_moments_per_voxel(v[t], origin=(0, 0, 0), voxel_size=1.0, shape=(1, 1, 1))
     axis, beta = bark_direction(area, mom)
     assert flat.tolist() == [0] and beta[0] == pytest.approx(1.0, abs=1e-9)

@@ -1,5 +1,6 @@
 """The sparse layout (tlsvox.voxel.bricks): the listed voxels' sums equal the dense
-trace's bit for bit, the brick sums equal the dense sums gathered per brick, and
+trace's (bit for bit with private copies; within the fixed-point resolution with the
+atomic GPU tracer, whose sparse sums use the coarser brick scale), the brick sums equal the dense sums gathered per brick, and
 voxelize gives the same LAD either way while its memory follows the echoes."""
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import pytest
 from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.grid import VoxelGrid
-from tlsvox.voxel.trace import FIELDS, Beams, EchoKind, Tracer, echo_rows
+from tlsvox.voxel.trace import FIELDS, Beams, EchoKind, Tracer, echo_rows, fixed_point_scale
 from tlsvox.voxel.voxlad import Layout, memory_plan, voxelize
 
 from tests.tlsvox.voxel.test_voxlad import box_scans  # noqa: F401  (fixture)
@@ -31,6 +32,18 @@ def _beams(rng, n=6000):
     return Beams(o, d, start, ranges, weight, kind, tail, np.full(n, 6.0))
 
 
+def assert_same_sums(tracer, grid, beams, sparse_acc, dense_acc, dense_count):
+    """Equal bit for bit with private copies; with atomics each add rounds to 1/scale
+    in each trace, so a voxel's sums agree within adds x (1/dense + 1/sparse scale)."""
+    if not tracer.atomics:
+        np.testing.assert_array_equal(sparse_acc, dense_acc)
+        return
+    unit = 1 / fixed_point_scale(beams, grid.voxel_size) + 1 / fixed_point_scale(beams, grid.voxel_size,
+                                                                                   sparse=True)
+    adds = np.asarray(dense_count, float)[:, None] + 1.0
+    assert np.all(np.abs(sparse_acc - dense_acc) <= adds * unit), np.abs(sparse_acc - dense_acc).max()
+
+
 @pytest.fixture(scope="module")
 def traced(tracer):
     grid = VoxelGrid((-0.3, -0.4, -0.5), 0.1, (37, 21, 19))  # bricks stick out of the grid on every axis
@@ -39,17 +52,36 @@ def traced(tracer):
     return grid, beams, rows, tracer.trace(grid, beams), tracer.trace(grid, beams, rows=rows)
 
 
-def test_rows_equal_the_dense_trace(traced):
-    grid, _, rows, dense, sparse = traced
+def test_rows_equal_the_dense_trace(traced, tracer):
+    grid, beams, rows, dense, sparse = traced
     assert sparse.sparse and not dense.sparse
     flat = grid.flat(rows.ijk)
-    np.testing.assert_array_equal(sparse.acc, dense.acc[flat])
+    assert_same_sums(tracer, grid, beams, sparse.acc, dense.acc[flat],
+                     dense.field("count").reshape(-1)[flat])
     assert sparse.n_steps == dense.n_steps
     others = np.ones(grid.n_voxels, bool)
     others[flat] = False
     for name in ("leaf_w", "wood_w"):  # every leaf and wood echo landed in a listed voxel
         assert dense.acc[others, FIELDS.index(name)].sum() == 0.0
     assert sparse.field("leaf_w").shape == (rows.n_rows,)
+
+
+def test_atomic_sums_agree_within_their_resolution(tracer):
+    """The GPU's accumulation (64-bit fixed-point atomics), run on this device: sparse and
+    dense sums agree within the fixed-point bound, and with private copies' float64 sums."""
+    if not tracer.info.int64_atomics:
+        pytest.skip(f"{tracer.info.label} has no 64-bit atomics")
+    atomic = Tracer(device=tracer.info, atomics=True)
+    grid = VoxelGrid((-0.3, -0.4, -0.5), 0.1, (37, 21, 19))
+    beams = _beams(np.random.default_rng(7))
+    rows = echo_rows(grid, beams)
+    dense, sparse = atomic.trace(grid, beams), atomic.trace(grid, beams, rows=rows)
+    flat = grid.flat(rows.ijk)
+    count = dense.field("count").reshape(-1)[flat]
+    assert_same_sums(atomic, grid, beams, sparse.acc, dense.acc[flat], count)
+    exact = Tracer(device=tracer.info, atomics=False).trace(grid, beams)
+    bound = (dense.field("count").reshape(-1)[:, None] + 1.0) / fixed_point_scale(beams, grid.voxel_size)
+    assert np.all(np.abs(dense.acc.reshape(exact.acc.shape) - exact.acc) <= bound.reshape(-1, 1))
 
 
 def test_brick_sums_gather_the_dense_sums(traced):
@@ -96,7 +128,10 @@ def test_voxelize_sparse_gives_the_dense_lad(box_scans):  # noqa: F811
     sparse = voxelize(box_scans, layout="sparse", **kw)
     assert dense.scene.meta["layout"] == "dense" and sparse.scene.meta["layout"] == "sparse"
     flat = dense.grid.flat(sparse.lad.rows.ijk)
-    np.testing.assert_array_equal(sparse.lad.lad, dense.lad.lad.reshape(-1)[flat])
+    if Tracer().atomics:  # the GPU's fixed-point sums: equal within their resolution (2^-40 of a sum)
+        np.testing.assert_allclose(sparse.lad.lad, dense.lad.lad.reshape(-1)[flat], rtol=1e-9)
+    else:
+        np.testing.assert_array_equal(sparse.lad.lad, dense.lad.lad.reshape(-1)[flat])
     np.testing.assert_array_equal(sparse.lad.flags, dense.lad.flags.reshape(-1)[flat])
     # every voxel with leaves is a row, so the scenes hold the same leaf area
     assert sparse.scene.lad.sum() == pytest.approx(dense.scene.lad.sum(), rel=1e-12)
@@ -165,7 +200,8 @@ def test_outward_leaves_take_g_per_voxel(tracer):
     np.testing.assert_allclose(stats.field("path_wg")[seen] / path[seen], expect[seen] / path[seen], rtol=1e-9)
     rows = Bricks.from_ijk(grid, np.argwhere(seen))
     sparse = tracer.trace(grid, beams, rows=rows, outward=(table, centre))
-    np.testing.assert_array_equal(sparse.acc, stats.acc[grid.flat(rows.ijk)])
+    flat = grid.flat(rows.ijk)
+    assert_same_sums(tracer, grid, beams, sparse.acc, stats.acc[flat], stats.field("count").reshape(-1)[flat])
     np.testing.assert_allclose(sparse.bricks[:, 5].sum(), stats.field("path_wg").sum(), rtol=1e-12)
 
 

@@ -291,7 +291,7 @@ def test_radargram_and_point_cloud_write_pictures(written_1ghz, tmp_path):
 
 
 def test_example_round_trip_prints_its_errors(tmp_path, capsys):
-    example = runpy.run_path(str(Path(__file__).parents[2] / "examples" / "survey_las.py"))
+    example = runpy.run_path(str(Path(__file__).parents[3] / "examples" / "survey_las.py"))
     s = example["main"](tmp_path, length_m=12.0)
     out = capsys.readouterr().out
     assert "waveforms read back" in out and "first-sample positions" in out

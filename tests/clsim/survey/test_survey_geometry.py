@@ -243,7 +243,7 @@ def test_preset_file_without_survey_table(tmp_path):
 def test_example_prints_the_closed_forms(tmp_path, capsys):
     import runpy
 
-    example = runpy.run_path(str(Path(__file__).parents[2] / "examples" / "survey_footprints.py"))
+    example = runpy.run_path(str(Path(__file__).parents[3] / "examples" / "survey_footprints.py"))
     example["main"](tmp_path)
     out = capsys.readouterr().out
     assert "2 H tan(fov/2) = 692.82 m" in out and "ellipse semi-axes 99.73, 145.59 m" in out
