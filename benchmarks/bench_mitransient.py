@@ -213,8 +213,9 @@ def fit(points):
     """Time to 1 % error from (wall time, error) points in order of sample count.
 
     ``t1``: log-log interpolation between the two consecutive points that bracket 1 %
-    (the local err = a t^-b through them), else the power law fitted to all points
-    with 1e-4 < err < 0.5 (extrapolated, ``how`` says which); ``b`` that fit's
+    (the local err = a t^-b through them; where the later point took no longer, as when
+    fixed costs dominate, the later point's time, "read off"), else the power law fitted
+    to all points with 1e-4 < err < 0.5 (extrapolated, ``how`` says which); ``b`` that fit's
     exponent; ``t1_half`` the fixed-exponent err = c / sqrt(t) fit (plain Monte Carlo)."""
     pts = np.array([(t, e) for t, e in points if 1e-4 < e < 0.5 and t > 0])
     if len(pts) < 2:
@@ -227,9 +228,12 @@ def fit(points):
     out = dict(a=a, b=b, t1=(a / 0.01) ** (1 / b) if b > 0 else np.nan, t1_half=(c / 0.01) ** 2,
                how="extrapolated")
     for (t0, e0), (t1, e1) in zip(pts[:-1], pts[1:]):
-        if e0 >= 0.01 > e1 and t1 > t0:
-            k = np.log(e0 / e1) / np.log(t1 / t0)
-            out.update(t1=t0 * (e0 / 0.01) ** (1 / k), how="interpolated")
+        if e0 >= 0.01 > e1:
+            if t1 > t0:
+                k = np.log(e0 / e1) / np.log(t1 / t0)
+                out.update(t1=t0 * (e0 / 0.01) ** (1 / k), how="interpolated")
+            else:  # run time flat (fixed costs): the first time already under 1 %
+                out.update(t1=t1, how="read off")
             break
     return out
 
