@@ -63,6 +63,8 @@ def centre_line(lo, hi, preset, *, count: int, fill: bool = False, line_spacing_
     """
     lo = np.asarray(lo, dtype=np.float64).ravel()[:2]
     hi = np.asarray(hi, dtype=np.float64).ravel()[:2]
+    if lo.size < 2 or hi.size < 2:
+        raise InputError(f"the box corners need x and y (metres), got lo={lo.tolist()}, hi={hi.tolist()}")
     width, depth = hi - lo
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and width > 0 and depth > 0):
         raise InputError(f"the box must have hi > lo in x and y (metres), got lo={lo.tolist()}, hi={hi.tolist()}")

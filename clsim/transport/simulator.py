@@ -232,7 +232,9 @@ class Simulator:
             The scene prepared once by :func:`~clsim.transport.setup.prepare_scene`
             for many runs over it: its bricks and tables are not rebuilt, and they
             are uploaded to the device once (this Simulator keeps the copies of the
-            last one given).  The result is bit for bit the same.
+            last one given, until a run without it).  The result is bit for bit the
+            same.  A SceneSetup is a snapshot: prepare it again after changing the
+            scene's arrays in place.
         """
         setup = prepare_run(scene, sensor, photons=photons, seed=seed, mode=mode, detect=detect,
                             max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
@@ -240,9 +242,12 @@ class Simulator:
                             scene_setup=scene_setup,
                             bricks=None if scene_setup is not None else self._cached_bricks(scene, leaf_off))
         bufs = None
-        if scene_setup is not None:
+        if scene_setup is None:
+            self._kept = (None, None)  # release the device copies of an earlier prepared scene
+        else:
             kept, bufs = self._kept
             if kept is not scene_setup:
+                self._kept = (None, None)
                 bufs = self._scene_buffers(setup)
                 self._kept = (scene_setup, bufs)
         return self.run_setup(setup, chunk=chunk, progress=progress, buffers=bufs)

@@ -38,6 +38,10 @@ from clsim.waveforms.decompose._batch_fit import _TOL, GroupFit, standard_errors
 
 #: Flag bits of a sample in the kernel: it counts; it is censored (clipped).
 _USE, _CENS = 1, 2
+#: Launch errors that mean "this kernel needs more than the device gives a work-item"
+#: (CL_OUT_OF_RESOURCES, CL_OUT_OF_HOST_MEMORY, CL_INVALID_WORK_GROUP_SIZE): the fit
+#: falls back to NumPy; any other error is raised.
+_TOO_LARGE = (-5, -6, -54)
 
 
 def _source() -> tuple[str, str]:
@@ -222,15 +226,15 @@ class BoundFitter:
         # filter and smoothing (the kernel's OUT)
         base, pad = npar + 3 + nf * nf, self.pad
         out = np.empty((g, base + 2 * pad + 3 * self.n), dtype=np.float32)
+        key = (int(k), bool(fit_baseline))
+        if key in self.fitter.too_large:
+            return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
         mf = cl.mem_flags
         ctx = self.fitter.context
         d_row = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
                           hostbuf=np.ascontiguousarray(rows, dtype=np.int32))
         d_q = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=q)
         d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-        key = (int(k), bool(fit_baseline))
-        if key in self.fitter.too_large:
-            return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
         kern = self.fitter.kernel(k, fit_baseline)
         with self.fitter.lock:
             kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out,
@@ -238,7 +242,9 @@ class BoundFitter:
                           *self.filters)
             try:
                 cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
-            except cl.Error:  # more private memory than the device gives a work-item
+            except cl.Error as err:  # more private memory than the device gives a work-item
+                if getattr(err, "code", None) not in _TOO_LARGE:
+                    raise
                 self.fitter.too_large.add(key)
                 return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
         done = cl.enqueue_copy(queue, out, d_out, is_blocking=False)

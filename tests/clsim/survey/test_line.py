@@ -51,6 +51,7 @@ def test_a_long_count_lengthens_the_line():
 
 @pytest.mark.parametrize("kw, word", [(dict(lo=(0, 0), hi=(0, 5)), "hi > lo"),
                                       (dict(lo=(0, 0), hi=(5, float("nan"))), "hi > lo"),
+                                      (dict(lo=(0,), hi=(5, 5)), "x and y"),
                                       (dict(count=0), "count"),
                                       (dict(line_spacing_m=0.0), "line_spacing_m")])
 def test_bad_input_names_the_problem(kw, word):

@@ -175,3 +175,19 @@ def test_weighted_count_flags_voxels_reached_only_by_tail_leftovers():
     weighted = estimate_lad(stats, n_min=5, weighted_count=True)
     assert not plain.flags[0, 0, 0] & Flag.FEW_BEAMS
     assert weighted.flags[0, 0, 0] & Flag.FEW_BEAMS and weighted.options["weighted_count"]
+
+
+def test_a_beam_without_divergence_has_one_radius_node():
+    """A zero divergence (every radius the same) gives one radius node and finite H
+    at any radius, where six equal nodes made a 0/0 and an IndexError."""
+    import dataclasses
+
+    from tlsvox.voxel import detection
+    from voxlidar.leafangle import LeafAngle
+
+    m = dataclasses.replace(DetectionModel(**VZ400), half_divergence=0.0)
+    h, g_any, w = projection_tables(m, LeafAngle("uniform"), ranges=(5.0, 20.0), n_theta=19, nodes=64)
+    assert w.size == 1 and h.shape[-1] == 1
+    theta = np.linspace(0.1, 3.0, 7)
+    hv = detection._interp_h(h, w, theta, np.zeros_like(theta), np.full(theta.size, 0.0035))
+    assert np.all(np.isfinite(hv)) and np.all(hv >= 0)
