@@ -55,8 +55,7 @@ def main(argv=None):
     threshold_table(args)
     if args.threshold_only:
         return
-    from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
-    from tlsvox.truth.synthetic import TreeParams, make_tree
+    from tlsvox.truth.scanner import ScannerPreset
     from tlsvox.voxel.voxlad import score_lad, voxelize
 
     load0 = os.getloadavg()
@@ -69,13 +68,7 @@ def main(argv=None):
     cases = [(a, s, vz400.min_reflectance_db, sizes) for a in ("outward", "uniform") for s in (0.35, 3.0)]
     cases += [(a, s, args.threshold_db, sizes[:1]) for a, s in (("outward", 0.35), ("uniform", 3.0))]
     for azimuth, sigma, threshold, case_sizes in cases:
-        tree = make_tree(TreeParams(leaf_azimuth=azimuth, leaf_cluster_sigma=sigma), seed=1)
-        preset = ScannerPreset.riegl_vz400(min_reflectance_db=threshold)
-        scans = []
-        for i, pose in enumerate(paper_scan_poses(tree)):
-            s = simulate_scan(tree, pose=pose, preset=preset, seed=10 + i, scan_id=i, progress=False)
-            s.pose = s.pose_true
-            scans.append(s)
+        tree, scans = _oak_scans(azimuth, sigma, threshold)
         for h in case_sizes:
             # the estimators' G: from the beam's zenith alone, or (outward trees) per voxel for outward leaves
             for model in (("uniform", "outward") if azimuth == "outward" else ("uniform",)):

@@ -1,7 +1,5 @@
 """The detection-threshold model (tlsvox.voxel.detection) against analytic limits and synthetic truth."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -113,15 +111,7 @@ def test_missed_share_matches_the_scanner(slab_scan, lad, angle, size):
 
 # ---- the correction in the estimators: the leaf box of test_weights at the VZ-400's -20 dB
 
-@pytest.fixture(scope="module")
-def bench():
-    pytest.importorskip("open3d")
-    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
-    try:
-        import bench_echo_weights
-    finally:
-        sys.path.pop(0)
-    return bench_echo_weights
+# the fixture ``bench`` (benchmarks/bench_echo_weights.py) is in conftest.py
 
 
 def test_model_removes_the_detection_floor_bias_on_the_leaf_box(bench):

@@ -5,8 +5,6 @@ wide (7-sub-ray) beams, scored against the exact mesh leaf area."""
 from __future__ import annotations
 
 import dataclasses
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -137,15 +135,7 @@ def test_echo_weights_choice_members():
 
 # ---- the leaf box of known LAD (benchmarks/bench_echo_weights.py makes the table of docs/voxelize.md)
 
-@pytest.fixture(scope="module")
-def bench():
-    pytest.importorskip("open3d")
-    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
-    try:
-        import bench_echo_weights
-    finally:
-        sys.path.pop(0)
-    return bench_echo_weights
+# the fixture ``bench`` (benchmarks/bench_echo_weights.py) is in conftest.py
 
 
 @pytest.fixture(scope="module")
