@@ -158,9 +158,9 @@ class Simulator:
         # +9 %, PoCL 3.0 -2 %; docs/benchmarks.md): photons diverge, so a group gains
         # nothing from running in lock step.  GPUs: the runtime's choice.
         self.local_size = None if self.info.is_gpu else (1,)
-        # the device copies of the last SceneSetup given to run() (runs over one prepared
-        # scene upload it once)
-        self._kept = (None, None)
+        # the device copies of the last scene uploaded, with the host arrays they were
+        # made from (bricks, leaf tables): runs over one scene upload it once
+        self._uploaded: tuple | None = None
 
     @property
     def device_name(self) -> str:
@@ -231,26 +231,17 @@ class Simulator:
         scene_setup : SceneSetup, optional
             The scene prepared once by :func:`~clsim.transport.setup.prepare_scene`
             for many runs over it: its bricks and tables are not rebuilt, and they
-            are uploaded to the device once (this Simulator keeps the copies of the
-            last one given, until a run without it).  The result is bit for bit the
-            same.  A SceneSetup is a snapshot: prepare it again after changing the
-            scene's arrays in place.
+            are uploaded to the device once (this Simulator keeps the device copies
+            of the last scene it ran).  The result is bit for bit the same.  A
+            SceneSetup is a snapshot: prepare it again after changing the scene's
+            arrays in place.
         """
         setup = prepare_run(scene, sensor, photons=photons, seed=seed, mode=mode, detect=detect,
                             max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
                             step_m=step_m, target=target, trace=trace, hotspot=hotspot,
                             scene_setup=scene_setup,
                             bricks=None if scene_setup is not None else self._cached_bricks(scene, leaf_off))
-        bufs = None
-        if scene_setup is None:
-            self._kept = (None, None)  # release the device copies of an earlier prepared scene
-        else:
-            kept, bufs = self._kept
-            if kept is not scene_setup:
-                self._kept = (None, None)
-                bufs = self._scene_buffers(setup)
-                self._kept = (scene_setup, bufs)
-        return self.run_setup(setup, chunk=chunk, progress=progress, buffers=bufs)
+        return self.run_setup(setup, chunk=chunk, progress=progress)
 
     def _cached_bricks(self, scene, leaf_off) -> BrickGrid | None:
         """The bricks of a :class:`~voxlidar.scene.Scene`, reused while its
@@ -339,7 +330,17 @@ class Simulator:
 
     def _scene_buffers(self, setup: RunSetup) -> dict:
         """Device copies of what the kernel reads from the scene (sparse bricks, their uniform
-        boxes, leaf angle tables)."""
+        boxes, leaf angle tables); the last scene's are kept while its bricks and tables are
+        the same objects (kept bricks, a SceneSetup, cached leaf tables)."""
+        host = (setup.bricks, setup.ppf, setup.gtab)
+        if self._uploaded is not None and all(a is b for a, b in zip(self._uploaded[0], host)):
+            return self._uploaded[1]
+        self._uploaded = None  # release the previous scene's copies first
+        bufs = self._upload(setup)
+        self._uploaded = (host, bufs)
+        return bufs
+
+    def _upload(self, setup: RunSetup) -> dict:
         cl = self._cl
         mf = cl.mem_flags
         g = setup.bricks
@@ -360,12 +361,11 @@ class Simulator:
                               f"{self.device_name}: {short_reason(err)}") from err
         return bufs
 
-    def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False,
-                  buffers: dict | None = None) -> SimulationResult:
-        """Run a :func:`prepare_run` set-up (``buffers``: its scene already on the device)."""
+    def run_setup(self, setup: RunSetup, *, chunk: int = 1 << 20, progress: bool = False) -> SimulationResult:
+        """Run a :func:`prepare_run` set-up."""
         B = setup.batches
-        bufs = self._scene_buffers(setup) if buffers is None else buffers
-        hist, stats, traces, elapsed = self._launch(setup, bufs, chunk=chunk, progress=progress)
+        hist, stats, traces, elapsed = self._launch(setup, self._scene_buffers(setup), chunk=chunk,
+                                                    progress=progress)
         stats = stats.reshape(B, len(STAT_NAMES)).astype(np.float64)
         weight_cols = [i for i, n in enumerate(STAT_NAMES) if n not in COUNT_STATS]
         stats[:, weight_cols] /= FIXED_SCALE

@@ -130,7 +130,7 @@ def test_run_over_a_prepared_scene_is_bit_identical(sim):
         assert np.array_equal(plain.fine, kept.fine)
     other = prepare_scene(sc, wavelength_nm=BASE.wavelength_nm, leaf_off=True)
     off = sim.run(sc, BASE, seed=5, leaf_off=True, scene_setup=other, **kw)
-    assert sim._kept[0] is other
+    assert sim._uploaded[0][0] is other.bricks
     assert np.array_equal(off.waveform, sim.run(sc, BASE, seed=5, leaf_off=True, **kw).waveform)
     with pytest.raises(InputError, match="scene_setup was prepared for another"):
         sim.run(sc, BASE, seed=6, scene_setup=other, **kw)  # leaves on, set-up made leaf-off
