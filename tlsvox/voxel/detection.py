@@ -336,17 +336,9 @@ def projection_tables(model: DetectionModel, leaf_angle, *, ranges, outward: boo
 
 
 def _bilinear_g(table, theta, c):
-    """G of outward leaves from :func:`tlsvox.voxel.pulses.outward_g_table`, as the tracer reads it."""
-    nt, nc = table.shape
-    u = np.clip(theta / np.pi, 0.0, 1.0) * (nt - 1)
-    ti = np.minimum(np.floor(u).astype(np.int64), nt - 2)
-    tf = u - ti
-    v = (np.clip(c, -1.0, 1.0) + 1.0) * 0.5 * (nc - 1)
-    ci = np.minimum(np.floor(v).astype(np.int64), nc - 2)
-    cf = v - ci
-    r0 = (1 - cf) * table[ti, ci] + cf * table[ti, ci + 1]
-    r1 = (1 - cf) * table[ti + 1, ci] + cf * table[ti + 1, ci + 1]
-    return np.maximum((1 - tf) * r0 + tf * r1, 1e-6)
+    """G of outward leaves from :func:`tlsvox.voxel.pulses.outward_g_table`, as the tracer reads it
+    (:func:`_interp_h` on the table with one radius)."""
+    return np.maximum(_interp_h(table[:, :, None], np.zeros(1), theta, c, np.zeros(np.shape(theta))), 1e-6)
 
 
 def _interp_h(h, w_nodes, theta, c, w):
