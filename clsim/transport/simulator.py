@@ -331,8 +331,9 @@ class Simulator:
     def _scene_buffers(self, setup: RunSetup) -> dict:
         """Device copies of what the kernel reads from the scene (sparse bricks, their uniform
         boxes, leaf angle tables); the last scene's are kept while its bricks and tables are
-        the same objects (kept bricks, a SceneSetup, cached leaf tables)."""
-        host = (setup.bricks, setup.ppf, setup.gtab)
+        the same objects (kept bricks, a SceneSetup, cached leaf tables), array by array."""
+        g = setup.bricks
+        host = (g, g.index, g.boxes, g.pool, g.wdir, setup.ppf, setup.gtab)
         if self._uploaded is not None and all(a is b for a, b in zip(self._uploaded[0], host)):
             return self._uploaded[1]
         self._uploaded = None  # release the previous scene's copies first
