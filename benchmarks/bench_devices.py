@@ -116,7 +116,7 @@ def markdown(report, clsim_rows, trace_rows, args, load0, load1, wall, choice_ro
     lines += ["", "## clsim transport, per runtime", "",
               "Benchmark layer (10 x 10 x 2 m, 0.1 m voxels, LAD 1, ground), `max_order=3`; medians of "
               f"{args.repeats} runs, devices and variants taking turns. Voxel steps count the voxels the walk "
-              "crosses (a uniform brick crossed in one segment counts its voxels: equivalent steps), walk steps "
+              "reaches, shadow rays included (the same count with and without uniform bricks), walk steps "
               "what the walker does (a voxel, an empty brick, a segment); `uniform` no: the voxel-by-voxel walk "
               "(docs/method.md, \"Uniform bricks\").", ""]
     for runtime in dict.fromkeys(r["runtime"] for r in clsim_rows):

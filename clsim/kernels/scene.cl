@@ -21,6 +21,9 @@ typedef struct {
     int slot;             /* its pool slot; WALK_LOOKUP: look it up before the next step */
     int fresh;            /* tm must be recomputed (start, or after a brick jump) */
     size_t row;           /* pool row of the segment walker_next returned last */
+    int useg;             /* that segment crossed a uniform brick: its voxels were counted */
+    int ubx, uby, ubz;    /* to the brick's exit voxel ue (local: 0..BRICK-1) from brick */
+    int uex, uey, uez;    /* origin ub (voxels); walker_stop takes back what lies beyond */
 } walker_t;
 
 #define WALK_LOOKUP (-2)
@@ -71,6 +74,7 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
     w->sz = sign_of(d.z);
     w->slot = WALK_LOOKUP;
     w->fresh = 1;
+    w->useg = 0;
     return 1;
 }
 
@@ -150,6 +154,39 @@ CLSIM_INLINE void clip_box_axis(int s, int li, int lo, int hi, int base, float o
     *t1 = fast_min(*t1, fast_max(pa, pb));
 }
 
+/* Local voxel (0..BRICK-1 per axis) of brick origin `base` holding the point
+ * at distance t: the grid voxel of the point, clamped to the grid and to the
+ * brick (a point on the brick's far plane belongs to its last voxel). */
+CLSIM_INLINE int3 local_voxel(const walker_t *w, float t, int3 base, __global const params_t *P)
+{
+    const int3 g = clamp_index(convert_int3_rtn((w->o + w->d * t) * (1.0f / P->h)), P->shape[0],
+                               P->shape[1], P->shape[2]);
+    return clamp(g - base, 0, BRICK - 1);
+}
+
+/* Voxels crossed along the walk between local voxels a and b of one brick
+ * (a straight line in a grid: 1 + the voxel planes crossed per axis; signed
+ * by the step so that rounding never makes a negative count). */
+CLSIM_INLINE uint voxels_between(int3 a, int3 b, int sx, int sy, int sz)
+{
+    return (uint)(max(0, sx * (b.x - a.x)) + max(0, sy * (b.y - a.y)) + max(0, sz * (b.z - a.z)));
+}
+
+/* The walk stops at distance t_stop inside the segment walker_next returned
+ * last (a collision, a cut-off transmittance): a uniform-brick segment
+ * counted its voxels to the brick's exit, so the voxels beyond t_stop are
+ * taken back and voxel_steps counts the voxels reached, as the
+ * voxel-by-voxel walk does (it counts the voxel where it stops). */
+CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, __global const params_t *P, uint2 *steps)
+{
+    if (!w->useg)
+        return;
+    const int3 base = (int3)(w->ubx, w->uby, w->ubz);
+    const int3 ls = local_voxel(w, t_stop, base, P);
+    steps->x -= voxels_between(ls, (int3)(w->uex, w->uey, w->uez), w->sx, w->sy, w->sz);
+    w->useg = 0;
+}
+
 /* Next voxel segment [*ta, *tb] with non-zero extinction; 0 at the end.
  * Inside an occupied brick a step is one DDA advance and one pool load; the
  * brick index is read (and the grid bounds checked) only when the walk
@@ -157,8 +194,10 @@ CLSIM_INLINE void clip_box_axis(int s, int li, int lo, int hi, int base, float o
  * brick (boxes[slot] >= 0: its non-empty voxels fill one box with one value;
  * clsim/transport/bricks.py) is crossed as one segment, the ray clipped to
  * the box, with the values of the box's first voxel (CLSIM_UNIFORM).
- * steps->x counts voxels (a uniform segment: the voxel planes it crosses,
- * as the voxel-by-voxel walk would count them), steps->y the walk's steps. */
+ * steps->x counts voxels as the voxel-by-voxel walk does (an empty brick 1,
+ * an occupied brick each voxel visited; a uniform brick the voxels the ray
+ * crosses in it, less those walker_stop takes back), steps->y the walk's
+ * steps (a voxel, an empty brick, a uniform brick). */
 CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global const int *index,
                              __global const int *boxes, __global const float2 *pool, float *ta,
                              float *tb, float2 *val, uint2 *steps)
@@ -167,6 +206,7 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
     /* safety net: a ray enters at most (nx + ny + nz) / BRICK + 3 bricks */
     int budget = (P->shape[0] + P->shape[1] + P->shape[2]) / BRICK + 8;
     const int sx = w->sx, sy = w->sy, sz = w->sz;
+    w->useg = 0;
     while (w->t < w->t_end) {
         if (w->slot == WALK_LOOKUP) {
             const int3 v = (int3)(w->vx, w->vy, w->vz);
@@ -185,7 +225,8 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
 #if CLSIM_UNIFORM
             const int box = boxes[slot];
             if (box >= 0) {
-                /* one segment through the brick's box, then on to the next brick */
+                /* one segment through the brick's box, then on to the next brick; the
+                 * voxels of the brick the walk crosses (to its exit or t_end) are counted */
                 const int m = BRICK - 1;
                 const int3 lo = (int3)(box, box >> BRICK_SHIFT, box >> (2 * BRICK_SHIFT)) & m;
                 const int3 hi = (int3)(box >> (3 * BRICK_SHIFT), box >> (4 * BRICK_SHIFT),
@@ -194,23 +235,26 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                 float t0 = w->t;
                 walker_leave_brick(w, v, c, P);
                 float t1 = w->t;
+                const int3 le = local_voxel(w, t1, base, P);
+                *steps += (uint2)(1u + voxels_between(v & m, le, sx, sy, sz), 1u);
                 clip_box_axis(sx, v.x & m, lo.x, hi.x, base.x, w->o.x, w->ix, h, &t0, &t1);
                 clip_box_axis(sy, v.y & m, lo.y, hi.y, base.y, w->o.y, w->iy, h, &t0, &t1);
                 clip_box_axis(sz, v.z & m, lo.z, hi.z, base.z, w->o.z, w->iz, h, &t0, &t1);
                 if (t1 > t0) {
-                    const float ih = 1.0f / h;
-                    const int3 da = convert_int3_rtn((w->o + w->d * t0) * ih);
-                    const int3 db = convert_int3_rtn((w->o + w->d * t1) * ih);
-                    const uint3 n = abs(db - da);
-                    *steps += (uint2)(max(1u, n.x + n.y + n.z), 1u);
                     const size_t row = voxel_row(base + lo, slot);
                     *ta = t0;
                     *tb = t1;
                     *val = pool[row];
                     w->row = row;
+                    w->useg = 1;
+                    w->ubx = base.x;
+                    w->uby = base.y;
+                    w->ubz = base.z;
+                    w->uex = le.x;
+                    w->uey = le.y;
+                    w->uez = le.z;
                     return 1;
                 }
-                *steps += (uint2)(1u, 1u);
                 continue;
             }
 #endif

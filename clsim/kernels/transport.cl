@@ -316,6 +316,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                 if (wood_hit(S, k.w.row, k.e.y, d, b.y * sig - sl, &cyl)) {
                     *n = wood_normal(S, k.w.row, d, cyl, b.z, b.w);
                     *t = tc;
+                    walker_stop(&k.w, tc, P, steps);
                     return EV_WOOD;
                 }
             } else if (tight) {
@@ -330,12 +331,14 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                 }
                 *n = nl;
                 *t = tc;
+                walker_stop(&k.w, tc, P, steps);
                 return EV_LEAF;
             } else {
                 const float3 nl = scene_leaf_normal(S, b, x);
                 if (b.y * sig < k.e.x * fast_abs(fast_dot(nl, d))) {
                     *n = nl;
                     *t = tc;
+                    walker_stop(&k.w, tc, P, steps);
                     return EV_LEAF;
                 }
             }
@@ -394,9 +397,14 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
         const float gd = g_of(S->gtab, d.z);
         float od = 0.0f;
         while (walker_next(&w, P, S->index, S->boxes, S->pool, &ta, &tb, &e, steps)) {
-            od += (e.x * gd + wood_sigma(S, w.row, e.y, d)) * (tb - ta);
-            if (od > 40.0f)
+            const float sig = e.x * gd + wood_sigma(S, w.row, e.y, d);
+            const float od0 = od;
+            od += sig * (tb - ta);
+            if (od > 40.0f) {
+                /* cut off where the optical depth passes 40: the voxel walk stops in that voxel */
+                walker_stop(&w, ta + (40.0f - od0) / sig, P, steps);
                 return 0.0f;
+            }
         }
         return exp(-od);
     }
@@ -411,10 +419,12 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
         const float3 nl = scene_leaf_normal(S, b, x);
         T *= 1.0f - (k.e.x * fast_abs(fast_dot(nl, d)) + wood_sigma(S, k.w.row, k.e.y, d)) / sig;
         if (T < RR_THRESHOLD) {
-            if (b.y * RR_SURVIVE < T)
+            if (b.y * RR_SURVIVE < T) {
                 T = RR_SURVIVE;
-            else
+            } else {
+                walker_stop(&k.w, tc, P, steps);
                 return 0.0f;
+            }
         }
         b = rng_next(rng);
         k.tau = neg_log_unit(b.x);
