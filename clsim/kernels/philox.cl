@@ -51,9 +51,26 @@ CLSIM_INLINE void rng_init(rng_t *r, uint2 key, ulong pid)
 }
 
 /* Next block of four uniforms in (0, 1). */
+#ifndef CLSIM_PROF_PHILOX
+#define CLSIM_PROF_PHILOX 1
+#endif
+CLSIM_INLINE uint prof_hash(uint x)
+{
+    x ^= x >> 16;
+    x *= 0x7FEB352Du;
+    x ^= x >> 15;
+    x *= 0x846CA68Bu;
+    return x ^ (x >> 16);
+}
+
 CLSIM_INLINE float4 rng_next(rng_t *r)
 {
+#if CLSIM_PROF_PHILOX
     const uint4 x = philox4x32_10((uint4)(r->ctr, r->pid_lo, r->pid_hi, 0u), r->key);
+#else /* profiling only (transport.cl): a cheap hash instead of Philox */
+    const uint h = prof_hash(r->ctr * 0x9E3779B9u ^ r->pid_lo ^ r->key.x);
+    const uint4 x = (uint4)(h, prof_hash(h + 1u), prof_hash(h + 2u), prof_hash(h + 3u));
+#endif
     r->ctr += 1u;
     /* 23 bits + 1/2 fit float32's 24-bit significand: exact, and never 0 or 1 */
     const float q = 1.1920928955078125e-07f; /* 2^-23 */

@@ -8,25 +8,46 @@
 
 #define B3 (BRICK * BRICK * BRICK)
 
-/* Scalar fields, not float3/int3: the step updates one axis, and lane
- * inserts and extracts on vectors cost more than the arithmetic on PoCL. */
+#ifndef CLSIM_UNIFORM
+#define CLSIM_UNIFORM 1
+#endif
+/* Profiling only (benchmarks/bench_walk_profile.py): 0 replaces a voxel step's pool load
+ * by the value (1, 0). */
+#ifndef CLSIM_PROF_POOL
+#define CLSIM_PROF_POOL 1
+#endif
+
+/* Two DDAs share the ray: one over brick cells (far brick planes bt*), which
+ * crosses empty and uniform bricks in one step each, and one over the voxels
+ * of a brick that holds different values (far voxel planes tm*), entered with
+ * the brick's pool pointer and the voxel's offset in it, so that a voxel step
+ * is one compare, one add of a constant offset and one load.
+ * Scalar fields, not float3/int3: a step updates one axis, and lane inserts
+ * and extracts on vectors cost more than the arithmetic on PoCL. */
 typedef struct {
-    float3 o, d;          /* origin, unit direction */
+    float ox, oy, oz;     /* origin */
+    float dx, dy, dz;     /* unit direction */
     float ix, iy, iz;     /* 1/direction (CLSIM_FAR where 0) */
-    float tmx, tmy, tmz;  /* distance to the far plane of the current voxel per axis */
+    float h;              /* voxel size */
+    float tmx, tmy, tmz;  /* far plane of the current voxel per axis (in a voxel brick) */
+    float btx, bty, btz;  /* far plane of the current brick per axis */
     float t, t_end;
-    int vx, vy, vz;       /* current voxel */
+    int vx, vy, vz;       /* current voxel (in a voxel brick; at a brick entry when vok) */
     int sx, sy, sz;       /* step per axis: -1, 0, 1 */
     int cbx, cby, cbz;    /* current brick cell */
-    int slot;             /* its pool slot; WALK_LOOKUP: look it up before the next step */
-    int fresh;            /* tm must be recomputed (start, or after a brick jump) */
+    int nbx, nby, nbz;    /* bricks per axis */
+    int nx, ny, nz;       /* voxels per axis */
+    int inside;           /* 1: walking the voxels of brick `slot`; 0: at a brick's entry */
+    int vok;              /* at a brick's entry: (vx, vy, vz) is the entry voxel */
+    int eaxis;            /* at a brick's entry without vok: the axis crossed into it */
+    int slot;             /* pool slot of the voxel brick */
+    int lrow;             /* the voxel's row in it (0 .. B3 - 1) */
+    int dlx, dly, dlz;    /* row offset of one step per axis: sx, BRICK sy, BRICK^2 sz */
     size_t row;           /* pool row of the segment walker_next returned last */
     int useg;             /* that segment crossed a uniform brick: its voxels were counted */
     int ubx, uby, ubz;    /* to the brick's exit voxel ue (local: 0..BRICK-1) from brick */
     int uex, uey, uez;    /* origin ub (voxels); walker_stop takes back what lies beyond */
 } walker_t;
-
-#define WALK_LOOKUP (-2)
 
 CLSIM_INLINE float far_plane_t(int v, int step, float o, float inv, float cell)
 {
@@ -57,23 +78,45 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
     }
     if (!(t0 < t1))
         return 0;
-    w->o = o;
-    w->d = d;
+    w->ox = o.x;
+    w->oy = o.y;
+    w->oz = o.z;
+    w->dx = d.x;
+    w->dy = d.y;
+    w->dz = d.z;
     w->ix = ix;
     w->iy = iy;
     w->iz = iz;
+    w->h = h;
     w->t = t0;
     w->t_end = t1;
+    w->nx = P->shape[0];
+    w->ny = P->shape[1];
+    w->nz = P->shape[2];
+    w->nbx = P->bshape[0];
+    w->nby = P->bshape[1];
+    w->nbz = P->bshape[2];
     const float ih = 1.0f / h;
-    const int3 v = clamp_index(convert_int3_rtn((o + d * t0) * ih), P->shape[0], P->shape[1], P->shape[2]);
+    const int3 v = clamp_index(convert_int3_rtn((o + d * t0) * ih), w->nx, w->ny, w->nz);
     w->vx = v.x;
     w->vy = v.y;
     w->vz = v.z;
     w->sx = sign_of(d.x);
     w->sy = sign_of(d.y);
     w->sz = sign_of(d.z);
-    w->slot = WALK_LOOKUP;
-    w->fresh = 1;
+    w->dlx = w->sx;
+    w->dly = BRICK * w->sy;
+    w->dlz = BRICK * BRICK * w->sz;
+    w->cbx = v.x >> BRICK_SHIFT;
+    w->cby = v.y >> BRICK_SHIFT;
+    w->cbz = v.z >> BRICK_SHIFT;
+    const float cell = (float)BRICK * h;
+    w->btx = far_plane_t(w->cbx, w->sx, o.x, ix, cell);
+    w->bty = far_plane_t(w->cby, w->sy, o.y, iy, cell);
+    w->btz = far_plane_t(w->cbz, w->sz, o.z, iz, cell);
+    w->inside = 0;
+    w->vok = 1;
+    w->eaxis = -1;
     w->useg = 0;
     return 1;
 }
@@ -103,39 +146,70 @@ CLSIM_INLINE float2 voxel_value(int3 v, int slot, __global const float2 *pool)
     return pool[voxel_row(v, slot)];
 }
 
-/* Index along one axis after an empty-brick jump: the float32 position, but
- * never behind the current voxel (rounding could otherwise bounce the walk
- * between two bricks forever); on the exit axis, the neighbour's first voxel. */
-CLSIM_INLINE int jump_index(int p, int v, int s, int c, int exit_axis)
+/* The point at distance t. */
+CLSIM_INLINE float3 walker_point(const walker_t *w, float t)
 {
-    if (exit_axis)
-        return (c + s) * BRICK + (s > 0 ? 0 : BRICK - 1);
-    return s > 0 ? (p > v ? p : v) : (s < 0 ? (p < v ? p : v) : v);
+    return (float3)(w->ox + w->dx * t, w->oy + w->dy * t, w->oz + w->dz * t);
 }
 
-#ifndef CLSIM_UNIFORM
-#define CLSIM_UNIFORM 1
-#endif
-
-/* Leave brick cell c (the walk's voxel v lies in it): the walk moves to the
- * brick's exit (capped at t_end) and to the first voxel of the neighbour
- * along the exit axis. */
-CLSIM_INLINE void walker_leave_brick(walker_t *w, int3 v, int3 c, __global const params_t *P)
+/* Local voxel (0..BRICK-1 per axis) of brick origin `base` holding the point
+ * at distance t: the grid voxel of the point, clamped to the grid and to the
+ * brick (a point on the brick's far plane belongs to its last voxel). */
+CLSIM_INLINE int3 local_voxel(const walker_t *w, float t, int3 base)
 {
-    const float h = P->h;
-    const float cell = (float)BRICK * h;
-    const float fx = far_plane_t(c.x, w->sx, w->o.x, w->ix, cell);
-    const float fy = far_plane_t(c.y, w->sy, w->o.y, w->iy, cell);
-    const float fz = far_plane_t(c.z, w->sz, w->o.z, w->iz, cell);
-    const int ax = (fx <= fy && fx <= fz) ? 0 : (fy <= fz ? 1 : 2);
-    const float t_b = fast_min(fast_min(fx, fast_min(fy, fz)), w->t_end);
-    w->t = fast_max(w->t, t_b);
-    const int3 p = clamp_index(convert_int3_rtn((w->o + w->d * t_b) / h), P->shape[0], P->shape[1],
-                               P->shape[2]);
-    w->vx = jump_index(p.x, v.x, w->sx, c.x, ax == 0);
-    w->vy = jump_index(p.y, v.y, w->sy, c.y, ax == 1);
-    w->vz = jump_index(p.z, v.z, w->sz, c.z, ax == 2);
-    w->fresh = 1;
+    const int3 g = clamp_index(convert_int3_rtn(walker_point(w, t) * (1.0f / w->h)), w->nx, w->ny, w->nz);
+    return clamp(g - base, 0, BRICK - 1);
+}
+
+/* The walk's voxel at the entry of the current brick, local to it: the voxel
+ * the voxel DDA stepped into, else the voxel of the entry point clamped to the
+ * brick, with the first layer of voxels along the axis crossed into it. */
+CLSIM_INLINE int3 entry_voxel(const walker_t *w, int3 base)
+{
+    if (w->vok)
+        return clamp((int3)(w->vx, w->vy, w->vz) - base, 0, BRICK - 1);
+    int3 l = local_voxel(w, w->t, base);
+    const int m = BRICK - 1;
+    if (w->eaxis == 0)
+        l.x = w->sx > 0 ? 0 : m;
+    else if (w->eaxis == 1)
+        l.y = w->sy > 0 ? 0 : m;
+    else if (w->eaxis == 2)
+        l.z = w->sz > 0 ? 0 : m;
+    return l;
+}
+
+/* Voxels crossed along the walk between local voxels a and b of one brick
+ * (a straight line in a grid: the voxel planes crossed per axis; signed by
+ * the step so that rounding never makes a negative count). */
+CLSIM_INLINE uint voxels_between(int3 a, int3 b, int sx, int sy, int sz)
+{
+    return (uint)(max(0, sx * (b.x - a.x)) + max(0, sy * (b.y - a.y)) + max(0, sz * (b.z - a.z)));
+}
+
+/* Step the brick DDA across the nearest far brick plane (capped at t_end). */
+CLSIM_INLINE void walker_next_brick(walker_t *w)
+{
+    const float cell = (float)BRICK * w->h;
+    float tb;
+    if (w->btx <= w->bty && w->btx <= w->btz) {
+        tb = w->btx;
+        w->cbx += w->sx;
+        w->btx = far_plane_t(w->cbx, w->sx, w->ox, w->ix, cell);
+        w->eaxis = 0;
+    } else if (w->bty <= w->btz) {
+        tb = w->bty;
+        w->cby += w->sy;
+        w->bty = far_plane_t(w->cby, w->sy, w->oy, w->iy, cell);
+        w->eaxis = 1;
+    } else {
+        tb = w->btz;
+        w->cbz += w->sz;
+        w->btz = far_plane_t(w->cbz, w->sz, w->oz, w->iz, cell);
+        w->eaxis = 2;
+    }
+    w->t = fast_max(w->t, fast_min(tb, w->t_end));
+    w->vok = 0;
 }
 
 /* Clip [*t0, *t1] to the slab of local voxels lo..hi (inclusive) of one axis
@@ -154,24 +228,6 @@ CLSIM_INLINE void clip_box_axis(int s, int li, int lo, int hi, int base, float o
     *t1 = fast_min(*t1, fast_max(pa, pb));
 }
 
-/* Local voxel (0..BRICK-1 per axis) of brick origin `base` holding the point
- * at distance t: the grid voxel of the point, clamped to the grid and to the
- * brick (a point on the brick's far plane belongs to its last voxel). */
-CLSIM_INLINE int3 local_voxel(const walker_t *w, float t, int3 base, __global const params_t *P)
-{
-    const int3 g = clamp_index(convert_int3_rtn((w->o + w->d * t) * (1.0f / P->h)), P->shape[0],
-                               P->shape[1], P->shape[2]);
-    return clamp(g - base, 0, BRICK - 1);
-}
-
-/* Voxels crossed along the walk between local voxels a and b of one brick
- * (a straight line in a grid: 1 + the voxel planes crossed per axis; signed
- * by the step so that rounding never makes a negative count). */
-CLSIM_INLINE uint voxels_between(int3 a, int3 b, int sx, int sy, int sz)
-{
-    return (uint)(max(0, sx * (b.x - a.x)) + max(0, sy * (b.y - a.y)) + max(0, sz * (b.z - a.z)));
-}
-
 /* The walk stops at distance t_stop inside the segment walker_next returned
  * last (a collision, a cut-off transmittance): a uniform-brick segment
  * counted its voxels to the brick's exit, so the voxels beyond t_stop are
@@ -182,18 +238,18 @@ CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, __global const params_t
     if (!w->useg)
         return;
     const int3 base = (int3)(w->ubx, w->uby, w->ubz);
-    const int3 ls = local_voxel(w, t_stop, base, P);
+    const int3 ls = local_voxel(w, t_stop, base);
     steps->x -= voxels_between(ls, (int3)(w->uex, w->uey, w->uez), w->sx, w->sy, w->sz);
     w->useg = 0;
 }
 
 /* Next voxel segment [*ta, *tb] with non-zero extinction; 0 at the end.
- * Inside an occupied brick a step is one DDA advance and one pool load; the
- * brick index is read (and the grid bounds checked) only when the walk
- * enters another brick.  Empty bricks are crossed in one step.  A uniform
- * brick (boxes[slot] >= 0: its non-empty voxels fill one box with one value;
- * clsim/transport/bricks.py) is crossed as one segment, the ray clipped to
- * the box, with the values of the box's first voxel (CLSIM_UNIFORM).
+ * Inside a brick of different values a step is one DDA advance and one pool
+ * load; the brick index is read only when the walk enters another brick.
+ * Empty bricks are crossed in one step.  A uniform brick (boxes[slot] >= 0:
+ * its non-empty voxels fill one box with one value; clsim/transport/bricks.py)
+ * is crossed as one segment, the ray clipped to the box, with the values of
+ * the box's first voxel (CLSIM_UNIFORM).
  * steps->x counts voxels as the voxel-by-voxel walk does (an empty brick 1,
  * an occupied brick each voxel visited; a uniform brick the voxels the ray
  * crosses in it, less those walker_stop takes back), steps->y the walk's
@@ -202,46 +258,44 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                              __global const int *boxes, __global const float2 *pool, float *ta,
                              float *tb, float2 *val, uint2 *steps)
 {
-    const float h = P->h;
-    /* safety net: a ray enters at most (nx + ny + nz) / BRICK + 3 bricks */
-    int budget = (P->shape[0] + P->shape[1] + P->shape[2]) / BRICK + 8;
     const int sx = w->sx, sy = w->sy, sz = w->sz;
+    const int m = BRICK - 1;
     w->useg = 0;
-    while (w->t < w->t_end) {
-        if (w->slot == WALK_LOOKUP) {
-            const int3 v = (int3)(w->vx, w->vy, w->vz);
-            if (--budget < 0 || !inside_grid(v, P)) {
+    for (;;) {
+        if (!w->inside) {
+            /* at a brick's entry */
+            if (!(w->t < w->t_end) || (uint)w->cbx >= (uint)w->nbx || (uint)w->cby >= (uint)w->nby ||
+                (uint)w->cbz >= (uint)w->nbz) {
                 w->t = w->t_end;
                 return 0;
             }
-            const int3 c = v >> BRICK_SHIFT;
-            const int slot = brick_slot(v, P, index);
+            const int slot = index[w->cbx + w->nbx * (w->cby + w->nby * w->cbz)];
             if (slot < 0) {
-                /* jump over the empty brick: enter the neighbour along the exit axis */
                 *steps += (uint2)(1u, 1u);
-                walker_leave_brick(w, v, c, P);
+                walker_next_brick(w);
                 continue;
             }
+            const int3 base = (int3)(w->cbx, w->cby, w->cbz) << BRICK_SHIFT;
+            const int3 l = entry_voxel(w, base);
 #if CLSIM_UNIFORM
             const int box = boxes[slot];
             if (box >= 0) {
                 /* one segment through the brick's box, then on to the next brick; the
                  * voxels of the brick the walk crosses (to its exit or t_end) are counted */
-                const int m = BRICK - 1;
                 const int3 lo = (int3)(box, box >> BRICK_SHIFT, box >> (2 * BRICK_SHIFT)) & m;
                 const int3 hi = (int3)(box >> (3 * BRICK_SHIFT), box >> (4 * BRICK_SHIFT),
                                        box >> (5 * BRICK_SHIFT)) & m;
-                const int3 base = c << BRICK_SHIFT;
                 float t0 = w->t;
-                walker_leave_brick(w, v, c, P);
+                walker_next_brick(w);
                 float t1 = w->t;
-                const int3 le = local_voxel(w, t1, base, P);
-                *steps += (uint2)(1u + voxels_between(v & m, le, sx, sy, sz), 1u);
-                clip_box_axis(sx, v.x & m, lo.x, hi.x, base.x, w->o.x, w->ix, h, &t0, &t1);
-                clip_box_axis(sy, v.y & m, lo.y, hi.y, base.y, w->o.y, w->iy, h, &t0, &t1);
-                clip_box_axis(sz, v.z & m, lo.z, hi.z, base.z, w->o.z, w->iz, h, &t0, &t1);
+                const int3 le = local_voxel(w, t1, base);
+                *steps += (uint2)(1u + voxels_between(l, le, sx, sy, sz), 1u);
+                const float h = w->h;
+                clip_box_axis(sx, l.x, lo.x, hi.x, base.x, w->ox, w->ix, h, &t0, &t1);
+                clip_box_axis(sy, l.y, lo.y, hi.y, base.y, w->oy, w->iy, h, &t0, &t1);
+                clip_box_axis(sz, l.z, lo.z, hi.z, base.z, w->oz, w->iz, h, &t0, &t1);
                 if (t1 > t0) {
-                    const size_t row = voxel_row(base + lo, slot);
+                    const size_t row = (size_t)slot * B3 + lo.x + BRICK * (lo.y + BRICK * lo.z);
                     *ta = t0;
                     *tb = t1;
                     *val = pool[row];
@@ -258,52 +312,85 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                 continue;
             }
 #endif
-            w->cbx = c.x;
-            w->cby = c.y;
-            w->cbz = c.z;
+            /* enter the voxel DDA of the brick */
+            w->vx = base.x + l.x;
+            w->vy = base.y + l.y;
+            w->vz = base.z + l.z;
             w->slot = slot;
-            if (w->fresh) {
-                w->tmx = far_plane_t(v.x, sx, w->o.x, w->ix, h);
-                w->tmy = far_plane_t(v.y, sy, w->o.y, w->iy, h);
-                w->tmz = far_plane_t(v.z, sz, w->o.z, w->iz, h);
-                w->fresh = 0;
+            w->lrow = l.x + BRICK * (l.y + BRICK * l.z);
+            const float h = w->h;
+            w->tmx = far_plane_t(w->vx, sx, w->ox, w->ix, h);
+            w->tmy = far_plane_t(w->vy, sy, w->oy, w->iy, h);
+            w->tmz = far_plane_t(w->vz, sz, w->oz, w->iz, h);
+            w->inside = 1;
+        }
+        /* one voxel of the brick: load, step the voxel DDA, and on leaving the
+         * brick step the brick DDA along the same axis (the entry voxel is known) */
+        __global const float2 *bp = pool + (size_t)w->slot * B3;
+        const float h = w->h;
+        for (;;) {
+            if (!(w->t < w->t_end)) {
+                w->inside = 0;
+                return 0;
             }
-        }
-        *steps += (uint2)(1u, 1u);
-        const size_t row = voxel_row((int3)(w->vx, w->vy, w->vz), w->slot);
-        const float2 e = pool[row];
-        const float t_a = w->t;
-        int leave;
-        float t_b;
-        if (w->tmx <= w->tmy && w->tmx <= w->tmz) {
-            t_b = w->tmx;
-            w->vx += sx;
-            w->tmx = far_plane_t(w->vx, sx, w->o.x, w->ix, h);
-            leave = (w->vx >> BRICK_SHIFT) != w->cbx;
-        } else if (w->tmy <= w->tmz) {
-            t_b = w->tmy;
-            w->vy += sy;
-            w->tmy = far_plane_t(w->vy, sy, w->o.y, w->iy, h);
-            leave = (w->vy >> BRICK_SHIFT) != w->cby;
-        } else {
-            t_b = w->tmz;
-            w->vz += sz;
-            w->tmz = far_plane_t(w->vz, sz, w->o.z, w->iz, h);
-            leave = (w->vz >> BRICK_SHIFT) != w->cbz;
-        }
-        if (leave)
-            w->slot = WALK_LOOKUP;
-        t_b = fast_min(t_b, w->t_end);
-        w->t = fast_max(t_a, t_b);
-        if (e.x + e.y > 0.0f && t_b > t_a) {
-            *ta = t_a;
-            *tb = t_b;
-            *val = e;
-            w->row = row;
-            return 1;
+            *steps += (uint2)(1u, 1u);
+            const int lrow = w->lrow;
+#if CLSIM_PROF_POOL
+            const float2 e = bp[lrow];
+#else
+            const float2 e = (float2)(1.0f, 0.0f);
+#endif
+            const float t_a = w->t;
+            float t_b;
+            int leave;
+            if (w->tmx <= w->tmy && w->tmx <= w->tmz) {
+                t_b = w->tmx;
+                w->vx += sx;
+                w->lrow += w->dlx;
+                w->tmx = far_plane_t(w->vx, sx, w->ox, w->ix, h);
+                leave = (w->vx >> BRICK_SHIFT) != w->cbx;
+                if (leave) {
+                    w->cbx += sx;
+                    w->btx = far_plane_t(w->cbx, sx, w->ox, w->ix, (float)BRICK * h);
+                }
+            } else if (w->tmy <= w->tmz) {
+                t_b = w->tmy;
+                w->vy += sy;
+                w->lrow += w->dly;
+                w->tmy = far_plane_t(w->vy, sy, w->oy, w->iy, h);
+                leave = (w->vy >> BRICK_SHIFT) != w->cby;
+                if (leave) {
+                    w->cby += sy;
+                    w->bty = far_plane_t(w->cby, sy, w->oy, w->iy, (float)BRICK * h);
+                }
+            } else {
+                t_b = w->tmz;
+                w->vz += sz;
+                w->lrow += w->dlz;
+                w->tmz = far_plane_t(w->vz, sz, w->oz, w->iz, h);
+                leave = (w->vz >> BRICK_SHIFT) != w->cbz;
+                if (leave) {
+                    w->cbz += sz;
+                    w->btz = far_plane_t(w->cbz, sz, w->oz, w->iz, (float)BRICK * h);
+                }
+            }
+            t_b = fast_min(t_b, w->t_end);
+            w->t = fast_max(t_a, t_b);
+            if (leave) {
+                w->inside = 0;
+                w->vok = 1;
+            }
+            if (e.x + e.y > 0.0f && t_b > t_a) {
+                *ta = t_a;
+                *tb = t_b;
+                *val = e;
+                w->row = (size_t)w->slot * B3 + lrow;
+                return 1;
+            }
+            if (leave)
+                break;
         }
     }
-    return 0;
 }
 
 /* Extinction at a point (paper mode) and its pool row *row; sets *skip_t to the

@@ -37,6 +37,26 @@
 #ifndef CLSIM_QMC
 #define CLSIM_QMC 1
 #endif
+/* Profiling switches (benchmarks/bench_walk_profile.py; 1 by default, 0 only to time a part
+ * by its absence, which changes the results): CLSIM_PROF_NEE (0: the shadow rays are not
+ * walked, transmittance 1), CLSIM_PROF_G (0: G(d) is 1/2 without the table),
+ * CLSIM_PROF_TALLY (0: no histogram atomics), CLSIM_PROF_STATS (0: no statistics atomics), CLSIM_PROF_LEAF (0: a leaf's normal is the
+ * first proposal, no rejection), CLSIM_PROF_PHILOX (philox.cl; 0: a cheap hash). */
+#ifndef CLSIM_PROF_NEE
+#define CLSIM_PROF_NEE 1
+#endif
+#ifndef CLSIM_PROF_G
+#define CLSIM_PROF_G 1
+#endif
+#ifndef CLSIM_PROF_TALLY
+#define CLSIM_PROF_TALLY 1
+#endif
+#ifndef CLSIM_PROF_LEAF
+#define CLSIM_PROF_LEAF 1
+#endif
+#ifndef CLSIM_PROF_STATS
+#define CLSIM_PROF_STATS 1
+#endif
 
 /* Kronecker lattice step: round(2^32 / phi), phi the golden ratio. */
 #define QMC_STEP 2654435769u
@@ -149,6 +169,9 @@ CLSIM_INLINE float paper_leaf_prob(float u, float3 nl, float3 d, float ds)
 /* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]. */
 CLSIM_INLINE float g_of(__global const float *gtab, float mu)
 {
+#if !CLSIM_PROF_G
+    return 0.5f;
+#endif
     const float s = fast_min(fast_abs(mu), 1.0f) * (float)(NG - 1);
     const int i = min((int)s, NG - 2);
     const float f = s - (float)i;
@@ -324,7 +347,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                  * acceptance uniform is b.y rescaled (uniform given the leaf) */
                 float u = b.y * sig / sl;
                 float3 nl = scene_leaf_normal(S, b, x);
-                for (int i = 0; i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
+                for (int i = 0; CLSIM_PROF_LEAF && i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
                     b = rng_next(rng);
                     u = b.y;
                     nl = scene_leaf_normal(S, b, x);
@@ -387,6 +410,9 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
 {
     __global const params_t *P = S->P;
     float T = 1.0f;
+#if !CLSIM_PROF_NEE
+    return T;
+#endif
 #if MODE == 0
     walker_t w;
     float ta, tb;
@@ -452,6 +478,9 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
 CLSIM_INLINE void tally(__global ulong *hist, __global ulong *stats, __global const params_t *P,
                   uint batch, int order, int kind, float t_ns, float value)
 {
+#if !CLSIM_PROF_TALLY
+    return;
+#endif
     const float s = (t_ns - P->t0_ns) / P->dt_ns;
     if (s >= 0.0f && s < (float)P->nbins) {
         const size_t i = (((size_t)batch * P->max_order + (order - 1)) * 2 + kind) * P->nbins + (size_t)s;
@@ -467,18 +496,11 @@ CLSIM_INLINE void record(__global float4 *trace, ulong pid, int k, float3 x, int
         trace[pid * TRACE_EVENTS + k] = (float4)(x, (float)type);
 }
 
-__kernel void simulate(__global const params_t *P, __global const int *index,
-                       __global const int *boxes, __global const float2 *pool, __global const float *ppf,
-                       __global const float *gtab, __global const float4 *wdir, __global ulong *hist, __global ulong *stats, __global float4 *trace,
-                       uint2 key, ulong pid0, uint n)
+/* One photon: its path, tallies (atomics into hist) and statistics (added to acc). */
+CLSIM_INLINE void photon(const scene_t *S, __global ulong *hist, __global ulong *stats, __global float4 *trace,
+                         uint2 key, ulong pid, uint batch, ulong *acc)
 {
-    const uint gid = get_global_id(0);
-    if (gid >= n)
-        return;
-    const ulong pid = pid0 + gid;
-    const uint batch = (uint)(pid % (ulong)P->n_batches);
-    __global ulong *st = stats + batch * NSTAT;
-    const scene_t S = {P, index, boxes, pool, ppf, gtab, wdir};
+    __global const params_t *P = S->P;
     rng_t rng;
     rng_init(&rng, key, pid);
 
@@ -500,13 +522,12 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
     int last = EV_LEAF;
     uint2 steps = (uint2)(0u, 0u);
     uint events = 0u, shadow = 0u;
-    ulong acc[NSTAT] = {0};
     record(trace, pid, 0, x, -2, P);
 
     for (int k = 1;; ++k) {
         float t;
         float3 n;
-        const int ev = flight(&S, x, d, &rng, k == 1 ? u_first : 0.0f, &t, &n, &steps);
+        const int ev = flight(S, x, d, &rng, k == 1 ? u_first : 0.0f, &t, &n, &steps);
         if (ev == EV_ESCAPE) {
             acc[(d.z >= 0.0f ? ST_ESC_UP : ST_ESC_DOWN)] += to_fixed(w);
             record(trace, pid, k, x + d * 10.0f, EV_ESCAPE, P);
@@ -562,7 +583,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
             if (f > 0.0f && in_fov(-to, axis, P->tan2_fov)) {
                 shadow += 1u;
                 /* hot spot: a single-scattering return retraces its incoming path, which was free */
-                const float Tr = (P->hotspot && k == 1) ? 1.0f : transmittance(&S, x, drx, r, &rng, &steps);
+                const float Tr = (P->hotspot && k == 1) ? 1.0f : transmittance(S, x, drx, r, &rng, &steps);
                 if (Tr > 0.0f)
                     tally(hist, stats, P, batch, k, ev == EV_GROUND, (L + r) / 0.299792458f,
                           w * f * Tr * cosr * P->norm_nee / (r * r));
@@ -603,13 +624,43 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
 #endif
         d = cosine_dir(reflect ? m : -m, s.y, s.z);
     }
-    acc[ST_VOXEL_STEPS] = steps.x;
-    acc[ST_WALK_STEPS] = steps.y;
-    acc[ST_EVENTS] = events;
-    acc[ST_SHADOW] = shadow;
-    /* one atomic per non-zero statistic and photon; integer sums keep runs
-     * bit-identical whatever the order */
-    for (int i = 0; i < NSTAT; ++i)
-        if (acc[i])
-            add_u64(st + i, acc[i]);
+    acc[ST_VOXEL_STEPS] += steps.x;
+    acc[ST_WALK_STEPS] += steps.y;
+    acc[ST_EVENTS] += events;
+    acc[ST_SHADOW] += shadow;
+}
+
+/* Work item gid simulates photons pid0 + gid, pid0 + gid + stride, ... below pid0 + n.  Its
+ * statistics are summed privately and added with one atomic per non-zero statistic when the
+ * batch (pid % n_batches) changes or at the end: the host makes stride a multiple of n_batches
+ * on CPUs (several photons per work item), so the atomics, which contend between cores there,
+ * fall from one set per photon to one per work item.  Integer sums keep runs bit-identical
+ * whatever the grouping and order. */
+__kernel void simulate(__global const params_t *P, __global const int *index,
+                       __global const int *boxes, __global const float2 *pool, __global const float *ppf,
+                       __global const float *gtab, __global const float4 *wdir, __global ulong *hist, __global ulong *stats, __global float4 *trace,
+                       uint2 key, ulong pid0, uint n, uint stride)
+{
+    const uint gid = get_global_id(0);
+    if (gid >= n)
+        return;
+    const scene_t S = {P, index, boxes, pool, ppf, gtab, wdir};
+    ulong acc[NSTAT] = {0};
+    uint batch = (uint)((pid0 + gid) % (ulong)P->n_batches);
+    for (uint i = gid; i < n; i += stride) {
+        const ulong pid = pid0 + i;
+        const uint b = (uint)(pid % (ulong)P->n_batches);
+        if (b != batch) {
+            for (int j = 0; j < NSTAT; ++j) {
+                if (CLSIM_PROF_STATS && acc[j])
+                    add_u64(stats + batch * NSTAT + j, acc[j]);
+                acc[j] = 0ul;
+            }
+            batch = b;
+        }
+        photon(&S, hist, stats, trace, key, pid, batch, acc);
+    }
+    for (int j = 0; j < NSTAT; ++j)
+        if (CLSIM_PROF_STATS && acc[j])
+            add_u64(stats + batch * NSTAT + j, acc[j]);
 }

@@ -158,6 +158,10 @@ class Simulator:
         # +9 %, PoCL 3.0 -2 %; docs/benchmarks.md): photons diverge, so a group gains
         # nothing from running in lock step.  GPUs: the runtime's choice.
         self.local_size = None if self.info.is_gpu else (1,)
+        # Photons per work item: on CPU runtimes several, so that the statistics' atomics, which
+        # contend between the cores, are added once per work item instead of once per photon
+        # (docs/method.md, section 7); GPUs: one (their atomics are cheap, their items many).
+        self.photons_per_item = 1 if self.info.is_gpu else 16
         # the device copies of the last scene uploaded, with the host arrays they were
         # made from (bricks, leaf tables): runs over one scene upload it once
         self._uploaded: tuple | None = None
@@ -377,6 +381,16 @@ class Simulator:
         return assemble_result(setup, hist.astype(np.float64) / FIXED_SCALE, stats, tr, elapsed,
                                self.device_name)
 
+    def _work_items(self, n: int, batches: int) -> int:
+        """Work items of a launch of ``n`` photons: one per photon on a GPU; on a CPU about
+        :attr:`photons_per_item` photons each, the count a multiple of ``batches`` so that each
+        item's photons (``gid``, ``gid + items``, ...) share a batch and its statistics take one
+        set of atomics (kernels/transport.cl, ``simulate``)."""
+        if self.photons_per_item <= 1:
+            return n
+        items = -(-n // self.photons_per_item)
+        return -(-items // batches) * batches
+
     def _launch(self, setup: RunSetup, bufs: dict, *, chunk: int = 1 << 20, progress: bool = False,
                 hist_only: bool = False):
         """Run the kernel over the scene buffers ``bufs`` (:meth:`_scene_buffers`): the raw tallies
@@ -412,9 +426,10 @@ class Simulator:
         try:
             for start in range(0, setup.photons, chunk):
                 n = min(chunk, setup.photons - start)
-                kern(q, (n,), self.local_size, bufs["params"], bufs["index"], bufs["boxes"], bufs["pool"],
+                items = self._work_items(n, B)
+                kern(q, (items,), self.local_size, bufs["params"], bufs["index"], bufs["boxes"], bufs["pool"],
                      bufs["ppf"], bufs["gtab"], bufs["wdir"], hist_buf, stats_buf, trace_buf, key,
-                     np.uint64(start), np.uint32(n))
+                     np.uint64(start), np.uint32(n), np.uint32(items))
                 if bar is not None:
                     q.finish()
                     bar.update(n)
