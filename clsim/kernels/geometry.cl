@@ -34,6 +34,19 @@ CLSIM_INLINE float sincos_turns(float u, float *c)
     return sr;
 }
 
+/* acos(x) for x in [-1, 1]: sqrt(1 - |x|) times a degree-7 polynomial in |x|
+ * (Abramowitz & Stegun 4.4.46, absolute error below 2e-8, under float32
+ * rounding), reflected for x < 0.  PoCL's acos is a library call. */
+CLSIM_INLINE float fast_acos(float x)
+{
+    const float a = fast_abs(x);
+    const float p = 1.5707963050f + a * (-0.2145988016f + a * (0.0889789874f + a * (-0.0501743046f
+                    + a * (0.0308918810f + a * (-0.0170881256f + a * (0.0066700901f
+                    + a * -0.0012624911f))))));
+    const float r = fast_sqrt(fast_max(0.0f, 1.0f - a)) * p;
+    return x < 0.0f ? CLSIM_PI - r : r;
+}
+
 /* sin and cos of t in [0, pi/2]: t = pi/4 + a, |a| <= pi/4. */
 CLSIM_INLINE float sincos_quarter(float t, float *c)
 {

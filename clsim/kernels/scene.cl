@@ -97,7 +97,7 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
     w->nby = P->bshape[1];
     w->nbz = P->bshape[2];
     const float ih = 1.0f / h;
-    const int3 v = clamp_index(convert_int3_rtn((o + d * t0) * ih), w->nx, w->ny, w->nz);
+    const int3 v = clamp_index(convert_int3((o + d * t0) * ih), w->nx, w->ny, w->nz); /* as local_voxel */
     w->vx = v.x;
     w->vy = v.y;
     w->vz = v.z;
@@ -157,7 +157,8 @@ CLSIM_INLINE float3 walker_point(const walker_t *w, float t)
  * brick (a point on the brick's far plane belongs to its last voxel). */
 CLSIM_INLINE int3 local_voxel(const walker_t *w, float t, int3 base)
 {
-    const int3 g = clamp_index(convert_int3_rtn(walker_point(w, t) * (1.0f / w->h)), w->nx, w->ny, w->nz);
+    /* truncation, not floor: the two differ only below 0, which the clamp maps to 0 alike */
+    const int3 g = clamp_index(convert_int3(walker_point(w, t) * (1.0f / w->h)), w->nx, w->ny, w->nz);
     return clamp(g - base, 0, BRICK - 1);
 }
 
@@ -290,6 +291,11 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                 float t1 = w->t;
                 const int3 le = local_voxel(w, t1, base);
                 *steps += (uint2)(1u + voxels_between(l, le, sx, sy, sz), 1u);
+                /* the next brick's entry voxel: the exit voxel's neighbour across the exit axis */
+                w->vx = base.x + le.x + (w->eaxis == 0 ? sx : 0);
+                w->vy = base.y + le.y + (w->eaxis == 1 ? sy : 0);
+                w->vz = base.z + le.z + (w->eaxis == 2 ? sz : 0);
+                w->vok = 1;
                 const float h = w->h;
                 clip_box_axis(sx, l.x, lo.x, hi.x, base.x, w->ox, w->ix, h, &t0, &t1);
                 clip_box_axis(sy, l.y, lo.y, hi.y, base.y, w->oy, w->iy, h, &t0, &t1);

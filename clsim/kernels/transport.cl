@@ -185,7 +185,7 @@ CLSIM_INLINE float leaf_avg_f(float3 d, float3 w, float R, float T)
 {
     const float c = fast_min(1.0f, fast_max(-1.0f, fast_dot(d, w)));
     const float s = fast_sqrt(fast_max(0.0f, 1.0f - c * c));
-    const float beta = acos(c);
+    const float beta = fast_acos(c);
     return ((R + T) * (s - beta * c) * (1.0f / (3.0f * CLSIM_PI)) + T * c * (1.0f / 3.0f))
            * (2.0f / CLSIM_PI);
 }

@@ -42,7 +42,7 @@ __kernel void math(__global const float *u, __global float *out, __global uint *
     out[6 * i + 2] = sincos_quarter(u[i] * 1.5707963f, &c);
     out[6 * i + 3] = c;
     out[6 * i + 4] = neg_log_unit(u[i]);
-    out[6 * i + 5] = 0.0f;
+    out[6 * i + 5] = fast_acos(2.0f * u[i] - 1.0f);
     if (i == 0) {
         const uint4 a = philox4x32_10((uint4)(0xFFFFFFFFu), (uint2)(0xFFFFFFFFu));
         const uint4 b = philox4x32_10((uint4)(0x243F6A88u, 0x85A308D3u, 0x13198A2Eu, 0x03707344u),
@@ -55,7 +55,7 @@ __kernel void math(__global const float *u, __global float *out, __global uint *
 
 
 def test_kernel_math_helpers(sim):
-    """The kernels' own sin/cos of 2 pi u, sin/cos on [0, pi/2], -log u and Philox rounds
+    """The kernels' own sin/cos of 2 pi u, sin/cos on [0, pi/2], -log u, acos and Philox rounds
     against float64 NumPy and the Random123 known answers (kernels/common.cl, philox.cl),
     on each device of the matrix."""
     import pyopencl as cl
@@ -86,6 +86,9 @@ def test_kernel_math_helpers(sim):
     assert np.abs(out[:, 3] - np.cos(t)).max() < 3e-7
     nl = -np.log(u.astype(np.float64))
     assert np.max(np.abs(out[:, 4] - nl) / nl) < 1e-6
+    # acos: the polynomial's 2e-8 plus float32 evaluation, within 3 float32 ulps of the value
+    ac = np.arccos(2 * u.astype(np.float64) - 1)
+    assert np.all(np.abs(out[:, 5] - ac) < 2e-8 + 3 * np.spacing(ac.astype(np.float32)))
     assert [hex(v) for v in ph] == ["0x408f276d", "0x41c83b0e", "0xa20bc7c6", "0x6d5451fd",
                                     "0xd16cfe09", "0x94fdcceb", "0x5001e420", "0x24126ea1"]
 
