@@ -215,10 +215,13 @@ CLSIM_INLINE void walker_next_brick(walker_t *w)
 
 /* Clip [*t0, *t1] to the slab of local voxels lo..hi (inclusive) of one axis
  * of brick origin `base` (voxels); an axis the ray does not move along keeps
- * the range when its voxel li is inside the slab and empties it otherwise. */
+ * the range when its voxel li is inside the slab and empties it otherwise.
+ * [*t0, *t1] is already inside the brick. */
 CLSIM_INLINE void clip_box_axis(int s, int li, int lo, int hi, int base, float o, float inv, float h,
                                 float *t0, float *t1)
 {
+    if (lo == 0 && hi == BRICK - 1)
+        return; /* the box spans the brick along this axis: the brick's own planes clip */
     if (s == 0) {
         if (li < lo || li > hi)
             *t1 = *t0;
