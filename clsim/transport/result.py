@@ -39,9 +39,11 @@ class SimulationResult:
     stats : dict of (B,) float64
         Per-batch photon fates (weights per launched photon; counts for
         ``detections``, ``voxel_steps``, ``events``, ``shadow_rays``, ``walk_steps``;
-        ``voxel_steps`` counts the voxels the walk crossed, ``walk_steps`` its
-        steps, where a uniform brick crossed in one segment is one step; the
-        NumPy oracle walks voxel by voxel, so both are equal there).
+        ``voxel_steps`` counts the voxels the walk reached, shadow rays included
+        (the same count whether a uniform brick is crossed in one segment or
+        voxel by voxel), ``walk_steps`` its steps, where a uniform brick crossed
+        in one segment is one step; the NumPy oracle walks voxel by voxel, so
+        both are equal there).
     settings : dict
     flags : list of str
         Things a user should know about this result.
