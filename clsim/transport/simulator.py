@@ -120,6 +120,13 @@ class Simulator:
         Estimator features to turn off, e.g. ``{"qmc": False}`` (benchmarks
         measure each; names in :data:`FEATURES`).  Default: all on.
 
+    Attributes
+    ----------
+    photons_per_item : int
+        Photons one work item runs: 16 on a CPU (the statistics' atomics are
+        added once per item), 1 on a GPU.  The result does not depend on it,
+        bit for bit.
+
     Raises
     ------
     DeviceError

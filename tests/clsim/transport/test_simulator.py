@@ -296,3 +296,22 @@ def test_bad_inputs(sim, tmp_path, monkeypatch):
     monkeypatch.undo()
     with pytest.raises(DeviceError, match="not found"):
         Simulator(device="no-such-device-xyz")
+
+
+def test_photons_per_work_item_leave_the_result_bit_identical(sim):
+    """A work item may run several photons and add their statistics once (kernels/transport.cl,
+    simulate): the tallies are integer sums, so 1 or 16 photons per item, or 7 with a number
+    of items that is not a multiple of the batches (the batch changes inside an item and the
+    statistics are added at each change), give the same waveform and statistics bit for bit."""
+    scene = testscenes.homogeneous_layer(width=4.0, voxel_size=0.25)
+    runs = []
+    for per_item in (1, 16, 7):
+        s = Simulator(device=sim.info)
+        s.photons_per_item = per_item
+        if per_item == 7:
+            s._work_items = lambda n, batches: -(-n // 7) + 1  # 716 items for 5 batches
+        r = s.run(scene, SENSOR.replace(off_nadir_deg=15.0), photons=5_001, seed=21, max_order=3, batches=5)
+        runs.append((r.fine, {k: r.stat(k)[0] for k in ("voxel_steps", "walk_steps", "absorbed", "escaped_up")}))
+    assert runs[0][1]["voxel_steps"] > 0
+    for fine, stats in runs[1:]:
+        assert np.array_equal(fine, runs[0][0]) and stats == runs[0][1]
