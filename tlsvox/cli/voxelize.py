@@ -94,7 +94,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
                    help="wood model (default count_stretch, the paper)")
     p.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
-                   help="occluded voxels: leave at 0 or fill with their height layer's mean")
+                   help="occluded voxels: leave at 0, fill with their height layer's mean, or with the mean of "
+                        "the nearest seen crown voxels (neighbourhood; dense layout)")
     p.add_argument("--echo-weights", default="auto", choices=[w.value for w in EchoWeights],
                    help="how echoes share their pulse: auto (default: fraction with a beam_fraction column, "
                         "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper)")

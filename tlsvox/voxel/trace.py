@@ -29,7 +29,7 @@ Per voxel the tracer accumulates (:data:`FIELDS`, pooled over all beams given):
 
 With ``rows`` (a :class:`~tlsvox.voxel.bricks.Bricks`), the trace is
 *sparse*: full rows only for the listed voxels (those holding echoes) and
-six coarse sums per brick of 8^3 voxels (:mod:`tlsvox.voxel.bricks`), so
+seven coarse sums per brick of 8^3 voxels (:mod:`tlsvox.voxel.bricks`), so
 memory follows the echoes rather than the grid; the listed voxels' sums are
 the dense trace's, bit for bit.
 

@@ -44,7 +44,7 @@ from tlsvox.voxel.weights import EchoWeights, resolve_rule
 from tlsvox.voxel.detection import DetectionModel, Undetected, unrecorded_echoes
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
 
-__all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "voxelize", "score_lad"]
+__all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "score_lad", "undetected_bytes", "voxelize"]
 
 #: estimator work arrays, bytes per voxel (dense) or row (sparse), on top of the tracer's
 _ESTIMATE_BYTES = 24 * 8
@@ -71,17 +71,19 @@ class MemoryPlan:
     rows: int  #: voxels holding echoes (the sparse layout's rows)
     limit: int  #: bytes allowed
     layout: Layout  #: the layout chosen
+    undetected: int = 0  #: bytes of the ``undetected="model"`` correction on top (0 without it)
 
     @property
     def need(self) -> int:
-        return self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse)
+        return self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse) + self.undetected
 
     def sizes(self) -> str:
         """The grid and what each layout costs."""
         nx, ny, nz = self.grid.shape
+        extra = f", undetected='model' {format_bytes(self.undetected)}" if self.undetected else ""
         return (f"grid {nx} x {ny} x {nz} = {self.grid.n_voxels:,} voxels of {self.grid.voxel_size:g} m; "
                 f"{self.rows:,} hold echoes; dense layout {format_bytes(self.dense)}, sparse "
-                f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}")
+                f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}{extra}")
 
     def describe(self) -> str:
         return (f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
@@ -89,12 +91,13 @@ class MemoryPlan:
 
 
 def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
-                max_bytes: int | None = None, check: bool = True) -> MemoryPlan:
+                max_bytes: int | None = None, check: bool = True, undetected="ignore") -> MemoryPlan:
     """The bytes each layout would take for ``beams`` on ``grid``, and the layout to use.
 
     With ``check``, raises :class:`InputError` (with the sizes and the fix)
     when the chosen layout does not fit ``max_bytes`` (default: 80 % of the
-    available memory).
+    available memory).  ``undetected="model"`` adds what the detection
+    correction holds on top (:func:`undetected_bytes`).
     """
     layout = Layout.parse(layout, "layout")
     limit = memory_limit(max_bytes)
@@ -106,9 +109,12 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
     beam_bytes = sum(np.asarray(getattr(beams, k)).nbytes for k in
                      ("origin", "direction", "echo_start", "echo_range", "echo_weight", "echo_kind", "tail",
                       "max_range", "g"))
+    model = Undetected.parse(undetected, "undetected") is Undetected.MODEL
     if layout is Layout.AUTO:
-        layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes) else Layout.SPARSE
-    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout)
+        extra = undetected_bytes(grid, beams, beam_bytes, Layout.DENSE, n_rows) if model else 0
+        layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes - extra) else Layout.SPARSE
+    extra = undetected_bytes(grid, beams, beam_bytes, layout, n_rows) if model else 0
+    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra)
     if check and plan.need > limit:
         fix = ("layout='sparse' (CLI --layout sparse), " if layout is Layout.DENSE and sparse + beam_bytes <= limit
                else "")
@@ -117,6 +123,39 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
                          f"{format_bytes(limit)} is available; use {fix}a voxel_size of at least "
                          f"{grid.voxel_size * factor:.3g} m, or a smaller region (bounds=...)")
     return plan
+
+
+#: bytes per sample of the detection model's walk along the beams (:func:`unrecorded_echoes`: sample
+#: positions, voxel indices, LAD, masks and their subsets), times its chunk of samples
+_SAMPLE_BYTES = 112
+#: bytes per added echo: range, weight, kind, and the pulse index and sort order while merging
+_ECHO_BYTES = 8 + 8 + 1 + 8 + 8
+#: dense layout: the LAD lookup of each round (raw, seen and filled LAD, the fill's temporaries,
+#: the crown hull), bytes per voxel
+_LOOKUP_BYTES = 5 * 8 + 1
+
+
+def undetected_bytes(grid: VoxelGrid, beams: Beams, beam_bytes: int, layout, n_rows: int) -> int:
+    """What ``undetected="model"`` holds beyond the plan's beams and sums (bytes, an upper bound).
+
+    Each round keeps the scans' own beams, makes a corrected copy of every
+    scan's beams and joins them (so two more copies of the beams, each with up
+    to ``ECHOES_PER_TAIL`` added echoes per pulse with a tail), walks the beams
+    in chunks of ``CHUNK_SAMPLES`` samples (one per voxel crossed), and looks the LAD up per voxel
+    (dense: a few arrays of the grid; sparse: per row, and rows gain the
+    voxels where echoes are given back, at most one per added echo).
+    """
+    from tlsvox.voxel.detection import CHUNK_SAMPLES, ECHOES_PER_TAIL
+
+    with_tail = int(np.count_nonzero(np.asarray(beams.tail) > 1e-9))
+    added = with_tail * ECHOES_PER_TAIL * _ECHO_BYTES
+    crossing = int(np.ceil(np.linalg.norm(np.array(grid.shape, dtype=np.float64)))) + 1  # samples per beam, at most
+    walk = min(CHUNK_SAMPLES, with_tail * crossing) * _SAMPLE_BYTES
+    if Layout.parse(layout, "layout") is Layout.DENSE:
+        lookup = grid.n_voxels * _LOOKUP_BYTES
+    else:
+        lookup = (n_rows + with_tail * ECHOES_PER_TAIL) * 3 * 8
+    return int(2 * (beam_bytes + added) + walk + lookup)
 
 
 @dataclass
@@ -390,9 +429,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     timings["pulses"] = time.perf_counter() - t1
 
     if plan_only:
-        return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False)
+        return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False,
+                           undetected=undetected)
     voxels = echo_voxels(grid, beams)
-    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes)
+    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected)
     rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
     del voxels
 
@@ -419,12 +459,14 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         rounds = []
         leaf_weight = float(beams.echo_weight[beams.echo_kind == EchoKind.LEAF].sum())
         for _ in range(int(undetected_iterations)):
-            lookup, box = _lad_lookup(grid, lad)
+            lookup, box = _lad_lookup(grid, lad, stats)
+            stats = beams = None  # the last round's sums and beams: not needed again (memory_plan counts on it)
             fixed, given = [], 0.0
             for part, model in zip(parts, detection):
                 b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box)
                 fixed.append(b)
                 given += info["given_back"]
+            del lookup
             beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
             del fixed
             rows = Bricks.from_ijk(grid, echo_voxels(grid, beams)) if plan.layout is Layout.SPARSE else None
@@ -469,36 +511,71 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
 
 
-def _lad_lookup(grid, lad: LadEstimate):
+def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
     """LAD at flat voxel indices, where the detection model puts the unrecorded interception; and
     the box (2, 3) of the voxels above 0 (None when there is none).
 
-    The seen voxels' estimates; occluded voxels (dense layout) take their height layer's mean
-    inside the crown hull (:func:`~tlsvox.voxel.estimators.fill_layers`), since a beam's optical
-    depth runs through them too; the sparse layout keeps their raw estimates.  Capped at
-    LAD_PLAUSIBLE_MAX.
+    The seen voxels' estimates; occluded voxels take a fill, since a beam's optical depth runs
+    through them too: dense layout, their height layer's mean inside the crown hull
+    (:func:`~tlsvox.voxel.estimators.fill_layers`; with ``fill="neighbourhood"`` that fill,
+    :func:`~tlsvox.voxel.estimators.fill_neighbourhood`); sparse layout (with ``stats``), the pooled
+    estimate of their brick layer's seen crown bricks
+    (:func:`~tlsvox.voxel.estimators.brick_layer_means`, the brick fill of ``fill="layer"``),
+    for occluded rows and the echo-free voxels of occluded crown bricks alike (looked up per
+    brick: nothing of the grid's size is made).  Capped at LAD_PLAUSIBLE_MAX.
     """
-    from tlsvox.voxel.estimators import fill_layers, hull_mask
+    from tlsvox.voxel.bricks import BRICK
+    from tlsvox.voxel.estimators import brick_layer_means, fill_layers, fill_neighbourhood, hull_mask
 
-    raw = np.clip(lad.lad_raw, 0.0, LAD_PLAUSIBLE_MAX) * float(lad.options.get("small_voxel_factor", 1.0))
+    factor = float(lad.options.get("small_voxel_factor", 1.0))
+    raw = np.clip(lad.lad_raw, 0.0, LAD_PLAUSIBLE_MAX) * factor
+    occ = lad.occluded
+    seen = np.where(occ, 0.0, raw)
     if lad.rows is None:
-        occ = lad.occluded
-        seen = np.where(occ, 0.0, raw)
-        raw, _ = fill_layers(seen, occ, hull_mask(seen > 0, grid))
-    ijk = np.argwhere(raw > 0) if lad.rows is None else lad.rows.ijk[raw > 0]
-    box = (np.array([grid.lower + ijk.min(axis=0) * grid.voxel_size, grid.lower + (ijk.max(axis=0) + 1) * grid.voxel_size])
-           if len(ijk) else None)
-    if lad.rows is None:
+        crown = hull_mask(seen > 0, grid)
+        if lad.options.get("fill") == "neighbourhood":
+            raw, _ = fill_neighbourhood(seen, occ, crown)
+        else:
+            raw, _ = fill_layers(seen, occ, crown)
+        ijk = np.argwhere(raw > 0)
         flat_values = raw.reshape(-1)
-        return (lambda flat: flat_values[flat]), box
-    keys = grid.flat(lad.rows.ijk)
+        return (lambda flat: flat_values[flat]), _box_of(grid, ijk)
+    rows = lad.rows
+    fill_brick = np.zeros(rows.n_bricks)  # the value of an occluded crown brick's voxels, 0 elsewhere
+    if stats is not None and lad.brick_occluded is not None:
+        crown, bz, mean, has_mean = brick_layer_means(stats, lad.brick_occluded, stats.field("leaf_w"))
+        fill_brick = np.where(crown & has_mean[bz], np.clip(mean[bz] * factor, 0.0, LAD_PLAUSIBLE_MAX), 0.0)
+        raw = np.where(occ, fill_brick[rows.brick_of_rows()], seen)
+        occ_bricks = lad.brick_occluded.reshape(-1) & (fill_brick > 0)
+    else:
+        occ_bricks = np.zeros(rows.n_bricks, bool)
+    ijk = rows.ijk[raw > 0]
+    filled = np.flatnonzero(occ_bricks)
+    if len(filled):  # the corners of the filled bricks, for the box
+        b_ijk = np.column_stack(np.unravel_index(filled, rows.shape)) * BRICK
+        ijk = np.vstack([ijk, b_ijk, np.minimum(b_ijk + BRICK - 1, np.array(grid.shape) - 1)])
+    keys = grid.flat(rows.ijk)
     order = np.argsort(keys)
     keys, values = keys[order], raw[order]
+    shape = np.array(grid.shape)
+    bshape = np.array(rows.shape)
 
     def lookup(flat):
-        i = np.minimum(np.searchsorted(keys, flat), len(keys) - 1)
-        return np.where(keys[i] == flat, values[i], 0.0) if len(keys) else np.zeros(np.shape(flat))
-    return lookup, box
+        flat = np.asarray(flat)
+        i = np.minimum(np.searchsorted(keys, flat), len(keys) - 1) if len(keys) else np.zeros(flat.shape, np.int64)
+        hit = keys[i] == flat if len(keys) else np.zeros(flat.shape, bool)
+        v = np.unravel_index(flat, tuple(shape))
+        brick = np.ravel_multi_index(tuple(a // BRICK for a in v), tuple(bshape))
+        echo_free = np.where(occ_bricks[brick], fill_brick[brick], 0.0)
+        return np.where(hit, values[i] if len(keys) else 0.0, echo_free)
+    return lookup, _box_of(grid, ijk)
+
+
+def _box_of(grid, ijk):
+    """The box (2, 3), metres, of the voxels ``ijk``; None when there is none."""
+    if not len(ijk):
+        return None
+    return np.array([grid.lower + ijk.min(axis=0) * grid.voxel_size, grid.lower + (ijk.max(axis=0) + 1) * grid.voxel_size])
 
 
 def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):

@@ -87,9 +87,10 @@ def test_atomic_sums_agree_within_their_resolution(tracer):
 def test_brick_sums_gather_the_dense_sums(traced):
     grid, _, rows, dense, sparse = traced
     brick = tuple((grid.unflat(np.arange(grid.n_voxels)) // BRICK).T)
-    for name in ("path_w", "chord_w"):
+    for name, dense_name in (("path_w", "path_w"), ("chord_w", "chord_w"), ("path_wg", "path_wg"),
+                             ("visits_w", "n_w"), ("visits", "count")):
         gathered = np.zeros(rows.shape)
-        np.add.at(gathered, brick, dense.field(name).ravel())
+        np.add.at(gathered, brick, dense.field(dense_name).ravel())
         np.testing.assert_allclose(sparse.brick_field(name), gathered, rtol=1e-12, atol=1e-12)
     # beams crossing a brick: at least as many as enter its busiest voxel, at most the visits
     busiest = np.zeros(rows.shape)
@@ -165,6 +166,28 @@ def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
         memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
     with pytest.raises(InputError, match="voxel_size of at least"):
         memory_plan(grid, beams, tracer, max_bytes=1024)
+
+
+def test_memory_plan_counts_the_detection_model(box_scans, tracer):  # noqa: F811
+    """undetected='model' keeps the scans' beams, a corrected copy and the joined copy (with up to
+    ECHOES_PER_TAIL added echoes per pulse with a tail), its walk along the beams and a LAD lookup:
+    the plan adds them, and a budget that fits the plain run but not the model refuses the model."""
+    from tlsvox.voxel.detection import ECHOES_PER_TAIL
+    from tlsvox.voxel.pulses import beams_from_scan
+    from tlsvox.voxel.voxlad import undetected_bytes
+
+    grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)
+    beams = Beams.concat([beams_from_scan(s)[0] for s in box_scans])
+    plain = memory_plan(grid, beams, tracer, layout="dense")
+    model = memory_plan(grid, beams, tracer, layout="dense", undetected="model")
+    assert plain.undetected == 0 and model.undetected == undetected_bytes(grid, beams, plain.beams, "dense", plain.rows)
+    # at least the two extra copies of the beams and the added echoes' ranges and weights
+    with_tail = int(np.count_nonzero(beams.tail > 1e-9))
+    assert model.undetected >= 2 * plain.beams + with_tail * ECHOES_PER_TAIL * 16 + grid.n_voxels * 8
+    assert model.need == plain.need + model.undetected
+    assert "undetected='model'" in model.describe() and "undetected" not in plain.describe()
+    with pytest.raises(InputError, match="dense layout needs"):
+        memory_plan(grid, beams, tracer, layout="dense", undetected="model", max_bytes=plain.need + 1024)
 
 
 def test_outward_leaves_take_g_per_voxel(tracer):
