@@ -465,7 +465,7 @@ def fill_neighbourhood(lad, occluded, mask, *, radii=FILL_RADII, min_seen: int =
         total = ndimage.uniform_filter(values, size=k, mode="constant") * k**3
         count = np.rint(ndimage.uniform_filter(weight, size=k, mode="constant") * k**3)
         ok = todo & (count >= min_seen)
-        lad[ok] = total[ok] / count[ok]
+        lad[ok] = np.maximum(total[ok] / count[ok], 0.0)  # the filter's running sums may round below 0
         todo &= ~ok
     filled = target & ~todo
     if todo.any():  # the layer's mean over its seen voxels (not over those filled above)

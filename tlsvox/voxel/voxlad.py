@@ -241,7 +241,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         Snap given ``bounds`` outwards to multiples of ``voxel_size`` (so the
         grids of several runs line up).
     n_min, min_explored, leaf_size, small_voxel_factor, fill
-        See :func:`tlsvox.voxel.estimators.estimate_lad`.
+        See :func:`tlsvox.voxel.estimators.estimate_lad`.  ``fill="neighbourhood"``
+        (occluded crown voxels take the mean LAD of their nearest seen crown
+        voxels) needs the dense layout; ``fill="layer"`` works in both.
     max_range, angular_grid, socs_rotation
         See :func:`tlsvox.voxel.pulses.beams_from_scan` (real scans without pulse tables);
         ``max_range`` must be positive (metres).
@@ -433,6 +435,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                            undetected=undetected)
     voxels = echo_voxels(grid, beams)
     plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected)
+    if plan.layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:
+        raise InputError(f"fill='neighbourhood' needs the dense layout, but this run is sparse ({plan.describe()}); "
+                         "use fill='layer' (per brick layer in the sparse layout), a larger voxel_size, or "
+                         "layout='dense' where memory allows")
     rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
     del voxels
 

@@ -149,6 +149,12 @@ def test_sparse_layer_fill_recovers_the_box(box_scans):  # noqa: F811
         res = voxelize(box_scans, layout=layout, **kw)
         assert res.scene.occluded.mean() > 0.3
         assert res.scene.lad.sum() * 0.1**3 == pytest.approx(truth, rel=0.1), layout
+    # the neighbourhood fill (dense only) on the same homogeneous box: as close
+    res = voxelize(box_scans, layout="dense", **{**kw, "fill": "neighbourhood"})
+    assert res.scene.meta["options"]["fill"] == "neighbourhood" and res.scene.meta["options"]["fill_radii"]
+    assert res.scene.lad.sum() * 0.1**3 == pytest.approx(truth, rel=0.1)
+    with pytest.raises(InputError, match="fill='neighbourhood' needs the dense layout"):
+        voxelize(box_scans, layout="sparse", **{**kw, "fill": "neighbourhood"})
 
 
 def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
