@@ -31,7 +31,7 @@ switched off at a time (the crown axis given, leaves moved to random places insi
 20 cm voxel, uniform leaf azimuths, clusters of 3 m, 10 cm voxels, other estimators, and a
 sub-voxel heterogeneity ratio measured but not adopted), then the total with occluded voxels
 filled at the VZ-400's -20 dB with ``undetected="model"``; written to
-docs/bench/lad_terms-area.md.  ``--area-only`` runs just these (about 15 min):
+docs/bench/lad_terms-area.md.  ``--area-only`` runs just these (about 7 min):
 
     .venv/bin/python benchmarks/bench_lad_terms.py --area-only
 """
