@@ -6,10 +6,8 @@ them in-process.
 
 Examples
 --------
->>> import argparse
->>> p = argparse.ArgumentParser(prog="clsim")
->>> register(p.add_subparsers(dest="command"))
->>> a = p.parse_args(["simulate", "scene.npz", "--photons", "1000", "-o", "wf.npz"])
+>>> from clsim.cli.app import build_parser
+>>> a = build_parser().parse_args(["simulate", "scene.npz", "--photons", "1000", "-o", "wf.npz"])
 >>> a.mode, a.detect, a.max_order, a.sensor
 ('exact', 'nee', 3, 'ahab-chiroptera-i')
 """

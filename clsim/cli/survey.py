@@ -9,10 +9,8 @@ the end the waveforms are written as LAS 1.4 (``OUT/survey.las`` with its
 
 Examples
 --------
->>> import argparse
->>> p = argparse.ArgumentParser(prog="clsim")
->>> register(p.add_subparsers(dest="command"))
->>> a = p.parse_args(["survey", "scene.npz", "-o", "out", "--pulses", "1000"])
+>>> from clsim.cli.app import build_parser
+>>> a = build_parser().parse_args(["survey", "scene.npz", "-o", "out", "--pulses", "1000"])
 >>> a.sensor, a.photons, a.batch_size, a.pulses
 ('riegl-lms-q680i', 1000, 256, 1000)
 """
