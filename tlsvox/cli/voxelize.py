@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 from voxlidar.errors import VoxlidarError, exit_code
+from voxlidar.cli import numbers
 from voxlidar.safeio import check_distinct, check_outputs, json_text, staged
 
 from tlsvox.errors import InputError, TlsvoxError
@@ -52,16 +53,6 @@ examples:
   tlsvox voxelize tls_scan.laz --scanner-frame --angular-grid 30,0.048,2082,0,0.622,580 \\
       --scanner-rpy 1.026,0.746,-110.019 --voxel-size 0.2 -o plot.npz --vox plot.vox
 """
-
-
-def _floats(text: str, n: int, name: str) -> list[float]:
-    try:
-        vals = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{name} must be {n} comma-separated numbers, got {text!r}") from None
-    if len(vals) != n:
-        raise argparse.ArgumentTypeError(f"{name} must be {n} comma-separated numbers, got {len(vals)}")
-    return vals
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -108,7 +99,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--detection-threshold-db", type=float,
                    help="the scanner's detection threshold, dB of a white target (default: the scan's preset; "
                         "the RIEGL VZ-400: -20)")
-    p.add_argument("--leaf-shape", default="0.05,0.025",
+    p.add_argument("--leaf-shape", default="0.05,0.025", type=numbers(2, what="length,width in metres",
+                                                                   example="0.05,0.025"),
                    help="leaf length,width in metres for --undetected model (default 0.05,0.025)")
     p.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
     p.add_argument("--min-explored", type=float, default=0.05,
@@ -118,7 +110,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="multiply every LAD (the paper used 0.95; default 1)")
     p.add_argument("--ground", default="ransac",
                    help="'ransac' (fit the lowest echoes), 'none', or a ground height in metres")
-    p.add_argument("--bounds", type=lambda t: _floats(t, 6, "--bounds"),
+    p.add_argument("--bounds", type=numbers(6),
                    help="xmin,ymin,zmin,xmax,ymax,zmax of the region (default: the vegetation's box); the "
                         "grid starts exactly at the minimum corner")
     p.add_argument("--snap", action="store_true",
@@ -133,12 +125,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         ".pose.json sidecars, matched by scan name")
     p.add_argument("--scanner-frame", action="store_true",
                    help="a single scan without pose: use its own frame as the world")
-    p.add_argument("--angular-grid", type=lambda t: _floats(t, 6, "--angular-grid"),
+    p.add_argument("--angular-grid", type=numbers(6),
                    help="zenith0,zstep,nzenith,azimuth0,astep,nazimuth (degrees) to rebuild empty pulses")
-    p.add_argument("--scanner-rpy", type=lambda t: _floats(t, 3, "--scanner-rpy"),
+    p.add_argument("--scanner-rpy", type=numbers(3),
                    help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
     p.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
-    p.add_argument("--scan-origin", type=lambda t: _floats(t, 3, "--scan-origin"),
+    p.add_argument("--scan-origin", type=numbers(3),
                    help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
@@ -261,7 +253,7 @@ def run(args) -> int:
                        echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
                        wood_reflectance=args.wood_reflectance, undetected=args.undetected,
                        detection_threshold_db=args.detection_threshold_db,
-                       leaf_shape=_leaf_shape(args.leaf_shape),
+                       leaf_shape=args.leaf_shape,
                        tracer=Tracer(args.device) if args.device else None)
         for w in res.scene.meta["warnings"]:
             print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
@@ -295,14 +287,6 @@ def run(args) -> int:
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
     return 0
-
-
-def _leaf_shape(text: str) -> tuple[float, float]:
-    try:
-        length, width = (float(v) for v in str(text).split(","))
-    except ValueError:
-        raise InputError(f"--leaf-shape {text!r} must be length,width in metres, e.g. 0.05,0.025") from None
-    return length, width
 
 
 def main(argv=None) -> int:
