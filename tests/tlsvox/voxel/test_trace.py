@@ -167,8 +167,3 @@ def test_grid_too_large_fails_before_allocating():
     beams = Beams.from_rays([0, 0, 0], [[1, 0, 0]])
     with pytest.raises(InputError, match=r"needs .*TiB.*voxel_size of at least"):
         trace(grid, beams)
-
-
-def test_unknown_field_rejected():
-    with pytest.raises(InputError, match="field="):
-        trace(VoxelGrid((0, 0, 0), 1, (1, 1, 1)), Beams.from_rays([0, 0, 0], [[1, 0, 0]])).field("lad")
