@@ -160,21 +160,21 @@ def apply_transforms(scans, path) -> None:
 
     path = Path(path)
     if not path.is_file():
-        raise TlsvoxError(f"--transforms {path} does not exist; 'tlsvox register ... -o merged.laz' "
+        raise InputError(f"--transforms {path} does not exist; 'tlsvox register ... -o merged.laz' "
                           "writes merged.transforms.json")
     try:
         poses = read_transforms(path)
     except (ValueError, KeyError, TypeError) as err:
-        raise TlsvoxError(f"--transforms {path} is not a tlsvox registration JSON ({err}); "
+        raise InputError(f"--transforms {path} is not a tlsvox registration JSON ({err}); "
                           "write it with 'tlsvox register'") from None
     missing = [s.name for s in scans if s.name not in poses]
     if missing:
-        raise TlsvoxError(f"--transforms {path} has no pose for scan(s) {missing}; it holds "
+        raise InputError(f"--transforms {path} has no pose for scan(s) {missing}; it holds "
                           f"{sorted(poses)}. Register these scans together, or name the files alike")
     for s in scans:
         pose = poses[s.name]
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-            raise TlsvoxError(f"--transforms {path}: the pose of {s.name!r} is not a finite 4x4 matrix")
+            raise InputError(f"--transforms {path}: the pose of {s.name!r} is not a finite 4x4 matrix")
         s.pose = pose
 
 
@@ -222,7 +222,7 @@ def run(args) -> int:
         try:
             ground = float(ground)
         except ValueError:
-            raise TlsvoxError(f"--ground={ground!r} must be 'ransac', 'none' or a height in metres") from None
+            raise InputError(f"--ground={ground!r} must be 'ransac', 'none' or a height in metres") from None
     elif ground == "none":
         ground = None
     grid = None
