@@ -228,10 +228,9 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
             f"{' (filled: in the all-voxels row)' if args.fill != 'none' else ''}.\n\n"
             "| scored against the mesh truth | total leaf area (m²) | true (m²) | error | RMSE (m²/m³) | bias (m²/m³) |\n"
             "|---|---:|---:|---:|---:|---:|\n"
-            f"| all voxels | {sc_all['total_area']:.1f} | {sc_all['true_area']:.1f} | {100 * sc_all['area_error']:+.1f} % | "
-            f"{sc_all['rmse']:.3f} | {sc_all['bias']:+.4f} |\n"
-            f"| voxels not flagged occluded | {sc_vis['total_area']:.1f} | {sc_vis['true_area']:.1f} | "
-            f"{100 * sc_vis['area_error']:+.1f} % | {sc_vis['rmse']:.3f} | {sc_vis['bias']:+.4f} |\n")
+            + "".join(f"| {label} | {sc['total_area']:.1f} | {sc['true_area']:.1f} | {100 * sc['area_error']:+.1f} % | "
+                      f"{sc['rmse']:.3f} | {sc['bias']:+.4f} |\n"
+                      for label, sc in (("all voxels", sc_all), ("voxels not flagged occluded", sc_vis))))
     rep.figure(out / "fig6_lad_voxels.png", "LAD voxels (colour: log LAD)")
     rep.figure(out / "fig7_wood_voxels.png", "Wood probability voxels")
     rep.figure(out / "fig7_scene.png", "The whole scene: leaf and wood voxels over the ground plane")
