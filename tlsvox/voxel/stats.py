@@ -63,7 +63,7 @@ class VoxelStats:
         ``rows`` (sparse); one column per field.
     rows : Bricks or None
         The row voxels of a sparse trace (None: dense).
-    bricks : (n_bricks, 4) float64 or None
+    bricks : (n_bricks, len(BRICK_FIELDS)) float64 or None
         Sparse: the coarse sums per brick (:data:`tlsvox.voxel.bricks.BRICK_FIELDS`).
     n_beams : int
     n_steps : int
