@@ -247,7 +247,7 @@ class _State:
 
 def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     """Fit rows (R,) with start (R, K) arrays, grouped by the number of active echoes
-    (``a`` NaN = inactive), each group one call of ``fit`` (:func:`_group_fitter`;
+    (``a`` NaN = inactive), all groups one call of ``fit`` (:func:`_group_fitter`;
     ``linear``: start amplitudes and baseline by linear least squares first).
     Returns per-row results padded back to (R, K)."""
     rk = np.isfinite(a).sum(axis=1)
@@ -257,7 +257,7 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     out_b, out_bse, out_rss = b.astype(float).copy(), np.full(R, np.nan), np.full(R, np.nan)
     out_neff = np.zeros(R, int)
     out_resid = None
-    pending = []
+    groups, placed = [], []
     for k in np.unique(rk):
         if k == 0:
             continue
@@ -266,10 +266,9 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
         # compact the active echoes to the first k columns
         order = np.argsort(~on, axis=1, kind="stable")[:, :k]
         take = lambda v: np.take_along_axis(v[sel], order, axis=1)  # noqa: E731
-        pending.append((k, sel, order, fit(rows[sel], take(a), take(m), take(s), b[sel],
-                                           fit_baseline, linear)))
-    for k, sel, order, finish in pending:
-        res = finish()
+        groups.append((rows[sel], take(a), take(m), take(s), b[sel]))
+        placed.append((k, sel, order))
+    for (k, sel, order), res in zip(placed, fit(groups, fit_baseline, linear)):
         ii = sel[:, None]
         out_a[ii, order], out_m[ii, order], out_s[ii, order] = res.a, res.m, res.s
         for q in range(3):
@@ -468,22 +467,25 @@ def _table(parts, t0, dt):
 
 
 def _group_fitter(device, y, use, cens, noise, pulse):
-    """``fit(rows, a, m, s, b, fit_baseline, linear) -> finish`` for rows of a chunk,
-    ``finish() -> GroupFit``: one launch on the OpenCL device (its samples uploaded
-    once; the groups of one round are all enqueued before the first wait), else
-    :func:`fit_group`."""
+    """``fit(groups, fit_baseline, linear) -> [GroupFit]`` for groups ``(rows, a, m,
+    s, b)`` of a chunk's rows, each group its own number of echoes: one round on the
+    OpenCL device (its samples uploaded once; :meth:`._batch_cl.BoundFitter.fit_groups`),
+    else :func:`fit_group` per group."""
     if device is not None:
         bound = device.bind(y, use, cens, noise)
         bound.set_pulse(pulse)
         return _bound_fit(bound)
 
-    def fit(rows, a, m, s, b, fb, linear):
-        c = None if cens is None else cens[rows]
-        if linear and fb:
-            a, b = linear_start(y[rows], use[rows] if c is None else use[rows] & ~c, a, m, s, b)
-        res = fit_group(y[rows], use[rows], a, m, s, b, fit_baseline=fb, noise=noise[rows],
-                        cens=c)
-        return lambda: res
+    def fit(groups, fb, linear):
+        out = []
+        for rows, a, m, s, b in groups:
+            c = None if cens is None else cens[rows]
+            if linear and fb:
+                a, b = linear_start(y[rows], use[rows] if c is None else use[rows] & ~c, a, m,
+                                    s, b)
+            out.append(fit_group(y[rows], use[rows], a, m, s, b, fit_baseline=fb,
+                                 noise=noise[rows], cens=c))
+        return out
 
     return fit
 
@@ -574,8 +576,7 @@ def candidates_numpy(y, lengths, ns, pl, level, k_cap):
 
 def _bound_fit(bound):
     """:func:`_group_fitter`'s ``fit`` on a :class:`._batch_cl.BoundFitter`."""
-    return lambda rows, a, m, s, b, fb, linear: bound.start(rows, a, m, s, b, fit_baseline=fb,
-                                                            linear=linear)
+    return lambda groups, fb, linear: bound.fit_groups(groups, fit_baseline=fb, linear=linear)
 
 
 def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, device):

@@ -257,3 +257,4 @@ def standard_errors(hess, rss, n_eff, k):
             var = np.diagonal(cov, axis1=1, axis2=2) * (rss[okh] / dof[okh])[:, None]
             se[np.ix_(okh, np.arange(p))] = np.sqrt(np.clip(var, 0.0, None))
     return se
+
