@@ -39,6 +39,22 @@ CLSIM_INLINE float hsum8(const float8 v)
     return (a.x + a.y) + (a.z + a.w);
 }
 
+/* The sums of the packed accumulators: v (M) into x, the upper triangle m
+ * (M (M + 1) / 2, row by row) into the full symmetric M x M matrix mat. */
+CLSIM_INLINE void unpack_sums(const float8 *v, const float8 *m, const int M, float *x,
+                              float *mat)
+{
+    int idx = 0;
+    for (int p = 0; p < M; ++p) {
+        x[p] = hsum8(v[p]);
+        for (int c = p; c < M; ++c) {
+            const float s = hsum8(m[idx++]);
+            mat[p * M + c] = s;
+            mat[c * M + p] = s;
+        }
+    }
+}
+
 /* Residual sum of squares at q and, when want, J^T J (h, NF x NF, full) and J^T r (g).
  * A censored sample counts only where the model falls below it (Tobin 1958).
  * Eight samples at a time (float8: one SIMD register on a CPU), over the blocks
@@ -107,17 +123,7 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
             }
         }
     }
-    if (want) {
-        int idx = 0;
-        for (int p = 0; p < NF; ++p) {
-            g[p] = hsum8(gv[p]);
-            for (int c = p; c < NF; ++c) {
-                const float v = hsum8(hv[idx++]);
-                h[p * NF + c] = v;
-                h[c * NF + p] = v;
-            }
-        }
-    }
+    if (want) unpack_sums(gv, hv, NF, g, h);
     return hsum8(cost);
 }
 
@@ -187,15 +193,7 @@ CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, co
         }
     }
     float x[NL], sc[NL];
-    int idx = 0;
-    for (int p = 0; p < NL; ++p) {
-        x[p] = hsum8(bv[p]);
-        for (int c2 = p; c2 < NL; ++c2) {
-            const float v = hsum8(av[idx++]);
-            c[p * NL + c2] = v;
-            c[c2 * NL + p] = v;
-        }
-    }
+    unpack_sums(bv, av, NL, x, c);
     for (int p = 0; p < NL; ++p) {
         if (!(c[p * NL + p] > 0.0f)) return;
         sc[p] = rsqrt(c[p * NL + p]);
