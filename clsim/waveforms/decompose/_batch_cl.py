@@ -8,11 +8,12 @@ sigmas, where its exponential is under 1.3e-14); the step's linear system is
 scaled to a unit diagonal before its float32 Cholesky factorisation (Marquardt
 1963). The standard errors come from ``J^T J`` inverted in float64 on the host
 (:func:`._batch_fit.standard_errors`, as on the NumPy path). A chunk's samples
-are uploaded once (:meth:`DeviceFitter.bind`); each group of waveforms with the
-same number of echoes is then one launch that sends the row indices and start
-values and returns the fits, ``J^T J``, the residuals and, for the search of
-further echoes, the residuals through the matched filter and the Gaussian of
-sigma 1 sample (:meth:`BoundFitter.set_pulse`; float32 sums of the same weights
+are uploaded once (:meth:`DeviceFitter.bind`); a round of fits
+(:meth:`BoundFitter.fit_groups`: groups of waveforms, each with its own number of
+echoes) is then one upload of all their row indices and start values, one launch
+per group and one result buffer, which returns the fits, ``J^T J``, the residuals
+and, for the search of further echoes, the residuals through the matched filter
+and the Gaussian of sigma 1 sample (:meth:`BoundFitter.set_pulse`; float32 sums of the same weights
 as :func:`._matched.filter_output` and ``gaussian_filter1d``).
 
 Measured on the shared 2-core test machine: PoCL 3.1 fits two echoes to 150
