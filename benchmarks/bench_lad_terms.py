@@ -147,7 +147,7 @@ def _oak_scans(azimuth, sigma, threshold, unclump=None):
 def threshold_table(args):
     """The default oak and the most random one at -20 dB, with and without the detection model."""
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import score_lad, voxelize
+    from tlsvox.voxel.voxlad import voxelize
     load0 = os.getloadavg()
     t_all = time.perf_counter()
     tracer = Tracer()
@@ -161,22 +161,16 @@ def threshold_table(args):
                                layout="dense", progress=False, tracer=tracer, undetected=rule,
                                undetected_iterations=args.iterations)
                 seconds = time.perf_counter() - t0
-                g = res.grid
-                truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
-                occ = res.lad.occluded
-                total = score_lad(res.lad.lad, truth, voxel_volume=g.voxel_volume)
-                seen = score_lad(np.where(occ, 0, res.lad.lad), np.where(occ, 0, truth), voxel_volume=g.voxel_volume)
+                total, seen = _score(tree, res)
                 given = res.scene.meta["undetected"].get("given_back_share")
                 rows.append((azimuth, sigma, threshold, rule, total, seen, given, seconds))
                 print(f"{azimuth} {sigma} {threshold:g} dB undetected={rule}: total {100 * total['area_error']:+.1f} %, "
                       f"seen {100 * seen['area_error']:+.1f} %, given back {given} ({seconds:.0f} s)", flush=True)
-    minutes = (time.perf_counter() - t_all) / 60
-    lines = ["## The detection threshold corrected (synthetic oak, 20 cm)", "",
-             f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py --threshold-only --iterations {args.iterations}` "
-             f"({minutes:.1f} min). " + machine_line(load0) + " The default oak (outward leaves, clusters of 0.35 m; the "
+    lines = _section("The detection threshold corrected (synthetic oak, 20 cm)", "--threshold-only", args, t_all,
+                     load0, "The default oak (outward leaves, clusters of 0.35 m; the "
              "estimators' G per voxel for outward leaves) and the most random one (uniform azimuth, clusters of "
              "3 m), two VZ-400 scans each, true poses and classes, echoes weighted by their beam share, `bcmle`, "
-             "uniform leaf inclination (the truth), dense layout, 20 cm voxels.", "",
+             "uniform leaf inclination (the truth), dense layout, 20 cm voxels.") + ["",
              "| oak | scanner's detection threshold | `undetected` | total leaf area (error) | leaf area in seen "
              "voxels (error) | given back (share of the recorded leaf echo weight, per round) | voxelize time |",
              "|---|---|---|---|---|---|---|"]
@@ -224,14 +218,22 @@ def _unclumped(tree, h, seed=7):
                          seed=tree.seed)
 
 
-def _score(tree, res, lad=None):
-    """Total and seen-voxel leaf area against the mesh (score_lad dicts)."""
+def _section(title, option, args, t_all, load0, text) -> list[str]:
+    """A page section's title and its paragraph: the command, its time, the machine, then ``text``."""
+    minutes = (time.perf_counter() - t_all) / 60
+    return [f"## {title}", "", f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py {option} --iterations "
+            f"{args.iterations}` ({minutes:.1f} min). " + machine_line(load0) + " " + text]
+
+
+def _score(tree, res, lad=None, occluded=None):
+    """Total and seen-voxel leaf area against the mesh (score_lad dicts); ``lad`` and
+    ``occluded`` default to the result's."""
     from tlsvox.voxel.voxlad import score_lad
 
     g = res.grid
     truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
     est = res.lad.lad if lad is None else lad
-    occ = res.lad.occluded
+    occ = res.lad.occluded if occluded is None else occluded
     return (score_lad(est, truth, voxel_volume=g.voxel_volume),
             score_lad(np.where(occ, 0, est), np.where(occ, 0, truth), voxel_volume=g.voxel_volume))
 
@@ -266,7 +268,7 @@ def area_table(args):
     """What is left at the floor, term by term, and the filled totals at -20 dB with the detection model."""
     from tlsvox.voxel.estimators import estimate_lad
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import score_lad, voxelize
+    from tlsvox.voxel.voxlad import voxelize
 
     load0 = os.getloadavg()
     t_all = time.perf_counter()
@@ -306,11 +308,7 @@ def area_table(args):
             add(label, "the crown axis given (the tree's, x = y = 0)", 0.2, *_score(tree, res_c), sec)
             for est in ("voxlad", "beer_lambert"):
                 lad = estimate_lad(res.stats, estimator=est)
-                occ = lad.occluded
-                g = res.grid
-                truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
-                add(label, f"estimator `{est}`", 0.2, score_lad(lad.lad, truth, voxel_volume=g.voxel_volume),
-                    score_lad(np.where(occ, 0, lad.lad), np.where(occ, 0, truth), voxel_volume=g.voxel_volume), 0.0)
+                add(label, f"estimator `{est}`", 0.2, *_score(tree, res, lad.lad, lad.occluded), 0.0)
             res_10, sec = run(tree, scans, azimuth, h=0.1)
             add(label, "10 cm voxels", 0.1, *_score(tree, res_10), sec)
     # the total with occluded voxels filled, at the VZ-400's -20 dB with the detection model
@@ -328,13 +326,11 @@ def area_table(args):
         print(f"-20 dB {rule} fill={fill}: total {100 * tot['area_error']:+.1f} % (unfilled "
               f"{100 * unfilled['area_error']:+.1f} %), seen {100 * seen['area_error']:+.1f} %, occluded truth "
               f"{filled[-1][5]:.1f} m2 filled with {filled[-1][6]:.1f} m2 [{sec:.0f} s]", flush=True)
-    minutes = (time.perf_counter() - t_all) / 60
-    lines = ["## What is left of the leaf area, term by term (synthetic oak, 20 cm)", "",
-             f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py --area-only --iterations {args.iterations}` "
-             f"({minutes:.1f} min). " + machine_line(load0) + " Two VZ-400 scans each, true poses and classes, "
+    lines = _section("What is left of the leaf area, term by term (synthetic oak, 20 cm)", "--area-only", args, t_all,
+                     load0, "Two VZ-400 scans each, true poses and classes, "
              "echoes weighted by their beam share, `bcmle`, uniform leaf inclination (the truth), the estimators' G "
              "per voxel for outward leaves on outward oaks (crown axis from the leaf echoes' extent unless given), "
-             "dense layout.", "",
+             "dense layout.") + ["",
              f"### At the floor: every echo kept ({floor:g} dB, `undetected='ignore'`)", "",
              "| oak | changed | voxel | total leaf area (error) | leaf area in seen voxels (error) | voxelize time |",
              "|---|---|---|---|---|---|"]

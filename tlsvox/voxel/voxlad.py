@@ -5,8 +5,9 @@ pose), turns every pulse into a beam (:mod:`tlsvox.voxel.pulses`), traces them
 through a voxel grid (:mod:`tlsvox.voxel.trace`), estimates leaf area density
 (:mod:`tlsvox.voxel.estimators`) and wood (:mod:`tlsvox.voxel.wood`), finds the ground
 (:mod:`tlsvox.ground`), and returns a :class:`~voxlidar.scene.Scene` with the
-intermediate results for inspection.  :func:`score_lad` compares a LAD grid
-with a known truth.
+intermediate results for inspection.  :func:`score_lad` (:mod:`tlsvox.voxel.quality`) compares a LAD grid
+with a known truth; :func:`memory_plan` (:mod:`tlsvox.voxel.plan`) says what a
+grid will cost before it runs.
 
 Examples
 --------
@@ -31,7 +32,7 @@ import numpy as np
 
 from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, FillMode, LadEstimate, estimate_lad
-from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
+from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
 from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass, outward_g_table
@@ -39,124 +40,15 @@ from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
 from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
-from voxlidar.choices import Choice
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
 from tlsvox.voxel.detection import DetectionModel, Undetected, unrecorded_echoes
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
+from tlsvox.voxel.plan import (_ESTIMATE_BYTES, DENSE_AUTO_MAX, Layout, MemoryPlan,  # noqa: F401
+                               memory_plan, undetected_bytes)
+from tlsvox.voxel.quality import (LAD_PLAUSIBLE_MAX, LINE_FIT_MIN, OCCLUDED_SHARE_MAX,  # noqa: F401
+                                  quality_warnings, score_lad)
 
 __all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "score_lad", "undetected_bytes", "voxelize"]
-
-#: estimator work arrays, bytes per voxel (dense) or row (sparse), on top of the tracer's
-_ESTIMATE_BYTES = 24 * 8
-#: ``layout="auto"`` traces densely up to this many bytes (small grids: every voxel's own sums)
-DENSE_AUTO_MAX = 1024**3
-
-
-class Layout(str, Choice):
-    """How the tracer keeps its sums (see :mod:`tlsvox.voxel.bricks`)."""
-
-    AUTO = "auto"  #: dense when it takes at most DENSE_AUTO_MAX bytes, else sparse
-    DENSE = "dense"  #: every voxel of the grid
-    SPARSE = "sparse"  #: voxels holding echoes, plus coarse sums per brick of 8^3 voxels
-
-
-@dataclass
-class MemoryPlan:
-    """What tracing and estimating a grid will take, before it runs (bytes)."""
-
-    grid: VoxelGrid
-    dense: int  #: bytes of the dense layout
-    sparse: int  #: bytes of the sparse layout
-    beams: int  #: bytes of the beams themselves
-    rows: int  #: voxels holding echoes (the sparse layout's rows)
-    limit: int  #: bytes allowed
-    layout: Layout  #: the layout chosen
-    undetected: int = 0  #: bytes of the ``undetected="model"`` correction on top (0 without it)
-
-    @property
-    def need(self) -> int:
-        return self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse) + self.undetected
-
-    def sizes(self) -> str:
-        """The grid and what each layout costs."""
-        nx, ny, nz = self.grid.shape
-        extra = f", undetected='model' {format_bytes(self.undetected)}" if self.undetected else ""
-        return (f"grid {nx} x {ny} x {nz} = {self.grid.n_voxels:,} voxels of {self.grid.voxel_size:g} m; "
-                f"{self.rows:,} hold echoes; dense layout {format_bytes(self.dense)}, sparse "
-                f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}{extra}")
-
-    def describe(self) -> str:
-        return (f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
-                f"{format_bytes(self.limit)} available")
-
-
-def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
-                max_bytes: int | None = None, check: bool = True, undetected="ignore") -> MemoryPlan:
-    """The bytes each layout would take for ``beams`` on ``grid``, and the layout to use.
-
-    With ``check``, raises :class:`InputError` (with the sizes and the fix)
-    when the chosen layout does not fit ``max_bytes`` (default: 80 % of the
-    available memory).  ``undetected="model"`` adds what the detection
-    correction holds on top (:func:`undetected_bytes`).
-    """
-    layout = Layout.parse(layout, "layout")
-    limit = memory_limit(max_bytes)
-    n_rows = len(echo_voxels(grid, beams) if voxels is None else voxels)
-    n_bricks = int(np.prod(Bricks.shape_of(grid)))
-    per_row = tracer.bytes_per_voxel() + _ESTIMATE_BYTES
-    dense = grid.n_voxels * per_row
-    sparse = n_rows * per_row + n_bricks * (tracer.bytes_per_brick() + 8) + Bricks.bytes_for(n_rows, n_bricks)
-    beam_bytes = sum(np.asarray(getattr(beams, k)).nbytes for k in
-                     ("origin", "direction", "echo_start", "echo_range", "echo_weight", "echo_kind", "tail",
-                      "max_range", "g"))
-    model = Undetected.parse(undetected, "undetected") is Undetected.MODEL
-    if layout is Layout.AUTO:
-        extra = undetected_bytes(grid, beams, beam_bytes, Layout.DENSE, n_rows) if model else 0
-        layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes - extra) else Layout.SPARSE
-    extra = undetected_bytes(grid, beams, beam_bytes, layout, n_rows) if model else 0
-    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra)
-    if check and plan.need > limit:
-        fix = ("layout='sparse' (CLI --layout sparse), " if layout is Layout.DENSE and sparse + beam_bytes <= limit
-               else "")
-        factor = (plan.need / max(limit, 1)) ** (1 / 3)
-        raise InputError(f"{plan.sizes()}; the {layout.value} layout needs {format_bytes(plan.need)} but only "
-                         f"{format_bytes(limit)} is available; use {fix}a voxel_size of at least "
-                         f"{grid.voxel_size * factor:.3g} m, or a smaller region (bounds=...)")
-    return plan
-
-
-#: bytes per sample of the detection model's walk along the beams (:func:`unrecorded_echoes`: sample
-#: positions, voxel indices, LAD, masks and their subsets), times its chunk of samples
-_SAMPLE_BYTES = 112
-#: bytes per added echo: range, weight, kind, and the pulse index and sort order while merging
-_ECHO_BYTES = 8 + 8 + 1 + 8 + 8
-#: dense layout: the LAD lookup of each round (raw, seen and filled LAD, the fill's temporaries,
-#: the crown hull), bytes per voxel
-_LOOKUP_BYTES = 5 * 8 + 1
-
-
-def undetected_bytes(grid: VoxelGrid, beams: Beams, beam_bytes: int, layout, n_rows: int) -> int:
-    """What ``undetected="model"`` holds beyond the plan's beams and sums (bytes, an upper bound).
-
-    Each round keeps the scans' own beams, makes a corrected copy of every
-    scan's beams and joins them (so two more copies of the beams, each with up
-    to ``ECHOES_PER_TAIL`` added echoes per pulse with a tail), walks the beams
-    in chunks of ``CHUNK_SAMPLES`` samples (one per voxel crossed), and looks the LAD up per voxel
-    (dense: a few arrays of the grid; sparse: per row, and rows gain the
-    voxels where echoes are given back, at most one per added echo).
-    """
-    from tlsvox.voxel.detection import CHUNK_SAMPLES, ECHOES_PER_TAIL
-
-    with_tail = int(np.count_nonzero(np.asarray(beams.tail) > 1e-9))
-    added = with_tail * ECHOES_PER_TAIL * _ECHO_BYTES
-    crossing = int(np.ceil(np.linalg.norm(np.array(grid.shape, dtype=np.float64)))) + 1  # samples per beam, at most
-    walk = min(CHUNK_SAMPLES, with_tail * crossing) * _SAMPLE_BYTES
-    if Layout.parse(layout, "layout") is Layout.DENSE:
-        lookup = grid.n_voxels * _LOOKUP_BYTES
-    else:
-        lookup = (n_rows + with_tail * ECHOES_PER_TAIL) * 3 * 8
-    return int(2 * (beam_bytes + added) + walk + lookup)
-
 
 @dataclass
 class VoxelizeResult:
@@ -608,78 +500,3 @@ def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):
         occluded = occluded & ~below
     keep = (values > 0) | (wood_v > 0) | occluded
     return ijk[keep], values[keep], wood_v[keep], occluded[keep], std[keep]
-
-
-#: Quality gates (``tlsvox voxelize`` warns; with ``--strict`` it fails).
-LAD_PLAUSIBLE_MAX = 20.0  #: m2/m3: dense crowns reach a few, leaf clusters rarely 10
-OCCLUDED_SHARE_MAX = 0.5  #: of the stored voxels
-LINE_FIT_MIN = 0.9  #: of first echoes on their reconstructed scan line
-
-
-def quality_warnings(lad, occluded, infos) -> list[str]:
-    """Signs that a voxelisation went wrong, one sentence each, with the likely cause.
-
-    Parameters
-    ----------
-    lad : (M,) float, m2/m3, and occluded : (M,) bool
-        The stored voxels.
-    infos : list of dict
-        Per-scan pulse bookkeeping (``line_fit`` where empty pulses were rebuilt).
-
-    Examples
-    --------
-    >>> quality_warnings(np.array([1.0, 25.0]), np.array([False, False]), [])[0][:34]
-    '1 voxels have LAD above 20 m2/m3 ('
-    """
-    out = []
-    lad = np.asarray(lad, dtype=np.float64)
-    occluded = np.asarray(occluded, dtype=bool)
-    high = lad > LAD_PLAUSIBLE_MAX
-    if high.any():
-        out.append(f"{int(high.sum())} voxels have LAD above {LAD_PLAUSIBLE_MAX:g} m2/m3 (max {lad.max():.0f}), "
-                   "more than any canopy holds: check the angular grid, the voxel size and the scan's units")
-    if occluded.size and occluded.mean() > OCCLUDED_SHARE_MAX:
-        out.append(f"{100 * occluded.mean():.0f} % of the stored voxels are occluded (no estimate): add scan "
-                   "positions, or use a larger voxel size")
-    for info in infos:
-        fit = info.get("line_fit")
-        if fit is not None and fit < LINE_FIT_MIN:
-            out.append(f"scan {info.get('scan', '?')!r}: only {100 * fit:.0f} % of its first echoes lie on the "
-                       f"reconstructed scan lines (expected above {100 * LINE_FIT_MIN:.0f} %): the angular grid "
-                       "(--angular-grid) is probably wrong, so the rebuilt empty pulses are too")
-    return out
-
-
-def score_lad(lad, truth, *, mask=None, voxel_volume: float = 1.0) -> dict:
-    """Compare a LAD grid with the truth.
-
-    Parameters
-    ----------
-    lad, truth : (nx, ny, nz) float, m2/m3
-    mask : (nx, ny, nz) bool, optional
-        Voxels scored for RMSE and bias (e.g. not occluded); default all.
-    voxel_volume : float, m3
-        For total leaf areas.
-
-    Returns
-    -------
-    dict
-        ``total_area``, ``true_area`` (m2, all voxels), ``area_error`` (relative),
-        ``rmse``, ``bias`` (m2/m3, in ``mask``), ``n_scored``.
-
-    Examples
-    --------
-    >>> s = score_lad(np.array([1.0, 2.0]), np.array([1.0, 1.0]))
-    >>> s["area_error"], s["bias"]
-    (0.5, 0.5)
-    """
-    lad = np.asarray(lad, dtype=np.float64)
-    truth = np.asarray(truth, dtype=np.float64)
-    if lad.shape != truth.shape:
-        raise InputError(f"lad {lad.shape} and truth {truth.shape} must have the same shape")
-    m = np.ones(lad.shape, bool) if mask is None else np.asarray(mask, bool)
-    diff = (lad - truth)[m]
-    ta, tt = float(lad.sum() * voxel_volume), float(truth.sum() * voxel_volume)
-    return {"total_area": ta, "true_area": tt, "area_error": (ta - tt) / tt if tt > 0 else float("nan"),
-            "rmse": float(np.sqrt(np.mean(diff**2))) if diff.size else 0.0,
-            "bias": float(np.mean(diff)) if diff.size else 0.0, "n_scored": int(m.sum())}
