@@ -232,11 +232,17 @@ def run(args) -> int:
         grid = AngularGrid(z0, dz, int(nz), a0, da, int(na))
     rot = rotation_from_rpy(*args.scanner_rpy) if args.scanner_rpy else None
     bounds = None if args.bounds is None else np.reshape(args.bounds, (2, 3))
-    if args.plan:
-        print(voxelize(scans, voxel_size=args.voxel_size, ground=ground, bounds=bounds, snap=args.snap,
-                       scanner_frame=args.scanner_frame, angular_grid=grid, socs_rotation=rot,
-                       max_range=args.max_range, progress=not args.quiet, layout=args.layout,
-                       tracer=Tracer(args.device) if args.device else None, plan_only=True).describe())
+    options = dict(voxel_size=args.voxel_size, estimator=args.estimator, snap=args.snap, layout=args.layout,
+                   leaf_azimuth=args.leaf_azimuth, wood=args.wood, fill=args.fill, n_min=args.n_min,
+                   min_explored=args.min_explored, leaf_size=args.leaf_size,
+                   small_voxel_factor=args.small_voxel_factor, ground=ground, bounds=bounds,
+                   scanner_frame=args.scanner_frame, angular_grid=grid, socs_rotation=rot, max_range=args.max_range,
+                   progress=not args.quiet, echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
+                   wood_reflectance=args.wood_reflectance, undetected=args.undetected,
+                   detection_threshold_db=args.detection_threshold_db, leaf_shape=args.leaf_shape,
+                   tracer=Tracer(args.device) if args.device else None)
+    if args.plan:  # the same run's plan (the leaf angle model does not change what it holds)
+        print(voxelize(scans, plan_only=True, **options).describe())
         return 0
     measured = None
     leaf_angle = args.leaf_angle or "uniform"
@@ -247,18 +253,7 @@ def run(args) -> int:
             raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
         measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
         leaf_angle = measured.leaf_angle
-    res = voxelize(scans, voxel_size=args.voxel_size, leaf_angle=leaf_angle,
-                   estimator=args.estimator, snap=args.snap, layout=args.layout,
-                   leaf_azimuth=args.leaf_azimuth,
-                   wood=args.wood, fill=args.fill, n_min=args.n_min, min_explored=args.min_explored,
-                   leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
-                   bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
-                   socs_rotation=rot, max_range=args.max_range, progress=not args.quiet,
-                   echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
-                   wood_reflectance=args.wood_reflectance, undetected=args.undetected,
-                   detection_threshold_db=args.detection_threshold_db,
-                   leaf_shape=args.leaf_shape,
-                   tracer=Tracer(args.device) if args.device else None)
+    res = voxelize(scans, leaf_angle=leaf_angle, **options)
     for w in res.scene.meta["warnings"]:
         print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
     if args.strict and res.scene.meta["warnings"]:

@@ -449,6 +449,11 @@ def fill_neighbourhood(lad, occluded, mask, *, radii=FILL_RADII, min_seen: int =
     """
     from scipy import ndimage
 
+    if int(min_seen) != min_seen or min_seen < 1:
+        raise InputError(f"min_seen={min_seen!r} must be an integer >= 1 (seen voxels a cube needs to give its mean)")
+    radii = tuple(radii)
+    if not radii or any(int(r) != r or r < 1 for r in radii):
+        raise InputError(f"radii={radii!r} must be positive integers (cube half-widths in voxels, e.g. (1, 2, 4, 8))")
     lad = np.array(lad, dtype=np.float64)
     occluded = np.asarray(occluded, bool)
     mask = np.asarray(mask, bool)

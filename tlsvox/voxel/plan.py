@@ -17,11 +17,12 @@ import numpy as np
 from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import Bricks
 from tlsvox.voxel.detection import Undetected
+from tlsvox.voxel.estimators import FillMode
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 from tlsvox.voxel.trace import Beams, Tracer, echo_voxels
 from voxlidar.choices import Choice
 
-__all__ = ["DENSE_AUTO_MAX", "Layout", "MemoryPlan", "memory_plan", "undetected_bytes"]
+__all__ = ["DENSE_AUTO_MAX", "NEIGHBOURHOOD_BYTES", "Layout", "MemoryPlan", "memory_plan", "undetected_bytes"]
 
 #: estimator work arrays, bytes per voxel (dense) or row (sparse), on top of the tracer's
 _ESTIMATE_BYTES = 24 * 8
@@ -49,15 +50,18 @@ class MemoryPlan:
     limit: int  #: bytes allowed
     layout: Layout  #: the layout chosen
     undetected: int = 0  #: bytes of the ``undetected="model"`` correction on top (0 without it)
+    fill: int = 0  #: bytes of ``fill="neighbourhood"``'s temporaries on top (0 for the other fills)
 
     @property
     def need(self) -> int:
-        return self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse) + self.undetected
+        return (self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse) + self.undetected
+                + self.fill)
 
     def sizes(self) -> str:
         """The grid and what each layout costs."""
         nx, ny, nz = self.grid.shape
         extra = f", undetected='model' {format_bytes(self.undetected)}" if self.undetected else ""
+        extra += f", fill='neighbourhood' {format_bytes(self.fill)}" if self.fill else ""
         return (f"grid {nx} x {ny} x {nz} = {self.grid.n_voxels:,} voxels of {self.grid.voxel_size:g} m; "
                 f"{self.rows:,} hold echoes; dense layout {format_bytes(self.dense)}, sparse "
                 f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}{extra}")
@@ -68,13 +72,14 @@ class MemoryPlan:
 
 
 def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
-                max_bytes: int | None = None, check: bool = True, undetected="ignore") -> MemoryPlan:
+                max_bytes: int | None = None, check: bool = True, undetected="ignore", fill="none") -> MemoryPlan:
     """The bytes each layout would take for ``beams`` on ``grid``, and the layout to use.
 
     With ``check``, raises :class:`InputError` (with the sizes and the fix)
     when the chosen layout does not fit ``max_bytes`` (default: 80 % of the
     available memory).  ``undetected="model"`` adds what the detection
-    correction holds on top (:func:`undetected_bytes`).
+    correction holds on top (:func:`undetected_bytes`), ``fill="neighbourhood"``
+    its box filters' temporaries (``NEIGHBOURHOOD_BYTES`` per voxel; dense only).
     """
     layout = Layout.parse(layout, "layout")
     limit = memory_limit(max_bytes)
@@ -91,10 +96,16 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
         extra = undetected_bytes(grid, beams, beam_bytes, Layout.DENSE, n_rows) if model else 0
         layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes - extra) else Layout.SPARSE
     extra = undetected_bytes(grid, beams, beam_bytes, layout, n_rows) if model else 0
-    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra)
+    neighbourhood = FillMode.parse(fill, "fill") is FillMode.NEIGHBOURHOOD and layout is Layout.DENSE
+    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra,
+                      grid.n_voxels * NEIGHBOURHOOD_BYTES if neighbourhood else 0)
     if check and plan.need > limit:
-        fix = ("layout='sparse' (CLI --layout sparse), " if layout is Layout.DENSE and sparse + beam_bytes <= limit
-               else "")
+        sparse_need = sparse + beam_bytes + (undetected_bytes(grid, beams, beam_bytes, Layout.SPARSE, n_rows)
+                                             if model else 0)
+        fix = ("layout='sparse' (CLI --layout sparse; with fill='layer'), "
+               if layout is Layout.DENSE and sparse_need <= limit else "")
+        if model and plan.need - plan.undetected <= limit:
+            fix += "undetected='ignore', "
         factor = (plan.need / max(limit, 1)) ** (1 / 3)
         raise InputError(f"{plan.sizes()}; the {layout.value} layout needs {format_bytes(plan.need)} but only "
                          f"{format_bytes(limit)} is available; use {fix}a voxel_size of at least "
@@ -102,6 +113,9 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
     return plan
 
 
+#: ``fill="neighbourhood"`` (:func:`~tlsvox.voxel.estimators.fill_neighbourhood`): bytes per voxel of its
+#: copies and box-filter temporaries (60 measured with tracemalloc; a margin for scipy's buffers)
+NEIGHBOURHOOD_BYTES = 96
 #: bytes per sample of the detection model's walk along the beams (:func:`unrecorded_echoes`: sample
 #: positions, voxel indices, LAD, masks and their subsets), times its chunk of samples
 _SAMPLE_BYTES = 112

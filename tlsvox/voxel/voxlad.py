@@ -297,6 +297,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                              "numbers")
         grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin, snap=bool(snap))
     layout = Layout.parse(layout, "layout")
+    if layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:  # known before the beams are built
+        raise InputError("fill='neighbourhood' needs the dense layout, but layout='sparse' was given; use "
+                         "fill='layer' (per brick layer in the sparse layout), or layout='dense' where memory allows")
     tracer = tracer or Tracer()
     if layout is Layout.DENSE and not plan_only:  # before the beams, when the answer is already known
         grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,
@@ -324,9 +327,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
 
     if plan_only:
         return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False,
-                           undetected=undetected)
+                           undetected=undetected, fill=fill)
     voxels = echo_voxels(grid, beams)
-    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected)
+    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected,
+                       fill=fill)
     if plan.layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:
         raise InputError(f"fill='neighbourhood' needs the dense layout, but this run is sparse ({plan.describe()}); "
                          "use fill='layer' (per brick layer in the sparse layout), a larger voxel_size, or "

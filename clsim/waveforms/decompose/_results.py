@@ -11,7 +11,7 @@ from clsim.errors import InputError
 from clsim.waveforms.decompose._model import Components, EchoColumns
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EchoTable(EchoColumns):
     """Gaussian echoes of N waveforms: one row per echo, sorted by waveform then time.
 

@@ -196,6 +196,32 @@ def test_memory_plan_counts_the_detection_model(box_scans, tracer):  # noqa: F81
         memory_plan(grid, beams, tracer, layout="dense", undetected="model", max_bytes=plain.need + 1024)
 
 
+def test_memory_plan_counts_the_neighbourhood_fill(box_scans, tracer, rng):  # noqa: F811
+    """fill='neighbourhood' (dense) adds NEIGHBOURHOOD_BYTES per voxel to the plan, and that bound
+    holds for the fill's measured peak (tracemalloc, after a first call has loaded scipy)."""
+    import tracemalloc
+
+    from tlsvox.voxel.estimators import fill_neighbourhood
+    from tlsvox.voxel.plan import NEIGHBOURHOOD_BYTES
+    from tlsvox.voxel.pulses import beams_from_scan
+
+    grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)
+    beams = Beams.concat([beams_from_scan(s)[0] for s in box_scans])
+    plain = memory_plan(grid, beams, tracer, layout="dense")
+    filled = memory_plan(grid, beams, tracer, layout="dense", fill="neighbourhood")
+    assert filled.fill == grid.n_voxels * NEIGHBOURHOOD_BYTES and filled.need == plain.need + filled.fill
+    assert "fill='neighbourhood'" in filled.describe()
+    assert memory_plan(grid, beams, tracer, layout="sparse", fill="neighbourhood").fill == 0  # refused later
+    shape = (60, 60, 60)
+    lad, occ, crown = rng.random(shape), rng.random(shape) < 0.3, rng.random(shape) < 0.8
+    fill_neighbourhood(lad[:4, :4, :4], occ[:4, :4, :4], crown[:4, :4, :4])
+    tracemalloc.start()
+    fill_neighbourhood(np.where(occ, 0.0, lad), occ, crown)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak <= NEIGHBOURHOOD_BYTES * lad.size
+
+
 def test_outward_leaves_take_g_per_voxel(tracer):
     """With outward leaves each voxel's G comes from the table at the beam's zenith and the cosine c between
     the beam's horizontal direction and the voxel's outward direction: a table linear in both is

@@ -239,6 +239,10 @@ def test_neighbourhood_fill_takes_the_nearest_seen_voxels(rng):
     hidden = rng.random(field.shape) < 0.3
     out, done = fill_neighbourhood(np.where(hidden, 0.0, field), hidden, np.ones(field.shape, bool))
     assert done[hidden].all() and np.all(out >= 0) and np.all(np.isfinite(out))
+    # a cube that needs no seen voxel would give 0 / 0
+    for bad in (dict(min_seen=0), dict(radii=(0,)), dict(radii=()), dict(radii=(1.5,))):
+        with pytest.raises(InputError, match="min_seen|radii"):
+            fill_neighbourhood(lad, occ, np.ones((20, 1, 1), bool), **bad)
 
 
 def test_bad_options_rejected(rng):
