@@ -167,10 +167,7 @@ def threshold_table(args):
                 print(f"{azimuth} {sigma} {threshold:g} dB undetected={rule}: total {100 * total['area_error']:+.1f} %, "
                       f"seen {100 * seen['area_error']:+.1f} %, given back {given} ({seconds:.0f} s)", flush=True)
     lines = _section("The detection threshold corrected (synthetic oak, 20 cm)", "--threshold-only", args, t_all,
-                     load0, "The default oak (outward leaves, clusters of 0.35 m; the "
-             "estimators' G per voxel for outward leaves) and the most random one (uniform azimuth, clusters of "
-             "3 m), two VZ-400 scans each, true poses and classes, echoes weighted by their beam share, `bcmle`, "
-             "uniform leaf inclination (the truth), dense layout, 20 cm voxels.") + ["",
+                     load0, _THRESHOLD_SETUP) + ["",
              "| oak | scanner's detection threshold | `undetected` | total leaf area (error) | leaf area in seen "
              "voxels (error) | given back (share of the recorded leaf echo weight, per round) | voxelize time |",
              "|---|---|---|---|---|---|---|"]
@@ -216,6 +213,18 @@ def _unclumped(tree, h, seed=7):
                          leaf_normals=tree.leaf_normals, leaf_centers=new, cylinders=tree.cylinders,
                          targets=tree.targets, ground_z=tree.ground_z, crown_center=tree.crown_center, params=p,
                          seed=tree.seed)
+
+
+#: the set-up the threshold section's page states
+_THRESHOLD_SETUP = ("The default oak (outward leaves, clusters of 0.35 m; the "
+    "estimators' G per voxel for outward leaves) and the most random one (uniform azimuth, clusters of "
+    "3 m), two VZ-400 scans each, true poses and classes, echoes weighted by their beam share, `bcmle`, "
+    "uniform leaf inclination (the truth), dense layout, 20 cm voxels.")
+#: the set-up the area section's page states
+_AREA_SETUP = ("Two VZ-400 scans each, true poses and classes, "
+    "echoes weighted by their beam share, `bcmle`, uniform leaf inclination (the truth), the estimators' G "
+    "per voxel for outward leaves on outward oaks (crown axis from the leaf echoes' extent unless given), "
+    "dense layout.")
 
 
 def _section(title, option, args, t_all, load0, text) -> list[str]:
@@ -327,10 +336,7 @@ def area_table(args):
               f"{100 * unfilled['area_error']:+.1f} %), seen {100 * seen['area_error']:+.1f} %, occluded truth "
               f"{filled[-1][5]:.1f} m2 filled with {filled[-1][6]:.1f} m2 [{sec:.0f} s]", flush=True)
     lines = _section("What is left of the leaf area, term by term (synthetic oak, 20 cm)", "--area-only", args, t_all,
-                     load0, "Two VZ-400 scans each, true poses and classes, "
-             "echoes weighted by their beam share, `bcmle`, uniform leaf inclination (the truth), the estimators' G "
-             "per voxel for outward leaves on outward oaks (crown axis from the leaf echoes' extent unless given), "
-             "dense layout.") + ["",
+                     load0, _AREA_SETUP) + ["",
              f"### At the floor: every echo kept ({floor:g} dB, `undetected='ignore'`)", "",
              "| oak | changed | voxel | total leaf area (error) | leaf area in seen voxels (error) | voxelize time |",
              "|---|---|---|---|---|---|"]
