@@ -25,6 +25,15 @@ expected unrecorded interception given back), next to the -60 dB scan, at 20 cm;
 docs/bench/lad_terms-threshold.md.  ``--threshold-only`` runs just these (about 8 min):
 
     .venv/bin/python benchmarks/bench_lad_terms.py --threshold-only
+
+What is left of the default oak's leaf area at the floor (every echo kept, -60 dB), one term
+switched off at a time (the crown axis given, leaves moved to random places inside their own
+20 cm voxel, uniform leaf azimuths, clusters of 3 m, 10 cm voxels, other estimators, and a
+sub-voxel heterogeneity ratio measured but not adopted), then the total with occluded voxels
+filled at the VZ-400's -20 dB with ``undetected="model"``; written to
+docs/bench/lad_terms-area.md.  ``--area-only`` runs just these (about 7 min):
+
+    .venv/bin/python benchmarks/bench_lad_terms.py --area-only
 """
 
 from __future__ import annotations
@@ -51,7 +60,14 @@ def main(argv=None):
                     help="only the detection-threshold table (docs/bench/lad_terms-threshold.md)")
     ap.add_argument("--threshold-out", default=str(ROOT / "docs" / "bench" / "lad_terms-threshold.md"))
     ap.add_argument("--iterations", type=int, default=4, help="undetected_iterations of the model rows")
+    ap.add_argument("--area-only", action="store_true",
+                    help="only the table of what is left at the floor and of the filled totals "
+                         "(docs/bench/lad_terms-area.md)")
+    ap.add_argument("--area-out", default=str(ROOT / "docs" / "bench" / "lad_terms-area.md"))
     args = ap.parse_args(argv)
+    if args.area_only:
+        area_table(args)
+        return
     threshold_table(args)
     if args.threshold_only:
         return
@@ -112,11 +128,13 @@ def main(argv=None):
     write_page(args.out, lines)
 
 
-def _oak_scans(azimuth, sigma, threshold):
+def _oak_scans(azimuth, sigma, threshold, unclump=None):
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
 
     tree = make_tree(TreeParams(leaf_azimuth=azimuth, leaf_cluster_sigma=sigma), seed=1)
+    if unclump:
+        tree = _unclumped(tree, unclump)
     preset = ScannerPreset.riegl_vz400(min_reflectance_db=threshold)
     scans = []
     for i, pose in enumerate(paper_scan_poses(tree)):
@@ -129,7 +147,7 @@ def _oak_scans(azimuth, sigma, threshold):
 def threshold_table(args):
     """The default oak and the most random one at -20 dB, with and without the detection model."""
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import score_lad, voxelize
+    from tlsvox.voxel.voxlad import voxelize
     load0 = os.getloadavg()
     t_all = time.perf_counter()
     tracer = Tracer()
@@ -143,22 +161,13 @@ def threshold_table(args):
                                layout="dense", progress=False, tracer=tracer, undetected=rule,
                                undetected_iterations=args.iterations)
                 seconds = time.perf_counter() - t0
-                g = res.grid
-                truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
-                occ = res.lad.occluded
-                total = score_lad(res.lad.lad, truth, voxel_volume=g.voxel_volume)
-                seen = score_lad(np.where(occ, 0, res.lad.lad), np.where(occ, 0, truth), voxel_volume=g.voxel_volume)
+                total, seen = _score(tree, res)
                 given = res.scene.meta["undetected"].get("given_back_share")
                 rows.append((azimuth, sigma, threshold, rule, total, seen, given, seconds))
                 print(f"{azimuth} {sigma} {threshold:g} dB undetected={rule}: total {100 * total['area_error']:+.1f} %, "
                       f"seen {100 * seen['area_error']:+.1f} %, given back {given} ({seconds:.0f} s)", flush=True)
-    minutes = (time.perf_counter() - t_all) / 60
-    lines = ["## The detection threshold corrected (synthetic oak, 20 cm)", "",
-             f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py --threshold-only --iterations {args.iterations}` "
-             f"({minutes:.1f} min). " + machine_line(load0) + " The default oak (outward leaves, clusters of 0.35 m; the "
-             "estimators' G per voxel for outward leaves) and the most random one (uniform azimuth, clusters of "
-             "3 m), two VZ-400 scans each, true poses and classes, echoes weighted by their beam share, `bcmle`, "
-             "uniform leaf inclination (the truth), dense layout, 20 cm voxels.", "",
+    lines = _section("The detection threshold corrected (synthetic oak, 20 cm)", "--threshold-only", args, t_all,
+                     load0, _THRESHOLD_SETUP) + ["",
              "| oak | scanner's detection threshold | `undetected` | total leaf area (error) | leaf area in seen "
              "voxels (error) | given back (share of the recorded leaf echo weight, per round) | voxelize time |",
              "|---|---|---|---|---|---|---|"]
@@ -176,6 +185,182 @@ def threshold_table(args):
               "resolution of a recorded echo of the same pulse. The -60 dB rows are the floor the correction can "
               "reach: what is left there is not the scanner's term.", ""]
     write_page(args.threshold_out, lines)
+
+
+
+def _unclumped(tree, h, seed=7):
+    """The same tree with every leaf moved to a uniform random place inside its own voxel of a grid of
+    ``h`` on multiples of ``h`` (voxelize's grid): each voxel keeps its leaves (and so its leaf area,
+    but for leaves that cross a face), their normals and its LAD, and loses their arrangement inside."""
+    from tlsvox.truth._mesh import leaf_mesh, polygon_area_factor
+    from tlsvox.truth.synthetic import SyntheticTree
+    from voxlidar.materials import Material
+
+    rng = np.random.default_rng(seed)
+    c = tree.leaf_centers
+    new = (np.floor(c / h) + rng.random(c.shape)) * h
+    p = tree.params
+    scale = np.sqrt(p.total_leaf_area / (len(c) * polygon_area_factor() * 0.25 * p.leaf_length * p.leaf_width))
+    lv, lt = leaf_mesh(new, tree.leaf_normals, p.leaf_length * scale, p.leaf_width * scale, rng)
+    keep = tree.material != Material.LEAF
+    tris = tree.triangles[keep]
+    used = np.unique(tris)
+    remap = np.full(len(tree.vertices), -1)
+    remap[used] = np.arange(len(used))
+    return SyntheticTree(vertices=np.concatenate([tree.vertices[used], lv]),
+                         triangles=np.concatenate([remap[tris], lt + len(used)]).astype(np.int64),
+                         material=np.concatenate([tree.material[keep], np.full(len(lt), Material.LEAF, np.uint8)]),
+                         leaf_normals=tree.leaf_normals, leaf_centers=new, cylinders=tree.cylinders,
+                         targets=tree.targets, ground_z=tree.ground_z, crown_center=tree.crown_center, params=p,
+                         seed=tree.seed)
+
+
+#: the set-up the threshold section's page states
+_THRESHOLD_SETUP = ("The default oak (outward leaves, clusters of 0.35 m; the "
+    "estimators' G per voxel for outward leaves) and the most random one (uniform azimuth, clusters of "
+    "3 m), two VZ-400 scans each, true poses and classes, echoes weighted by their beam share, `bcmle`, "
+    "uniform leaf inclination (the truth), dense layout, 20 cm voxels.")
+#: the set-up the area section's page states
+_AREA_SETUP = ("Two VZ-400 scans each, true poses and classes, "
+    "echoes weighted by their beam share, `bcmle`, uniform leaf inclination (the truth), the estimators' G "
+    "per voxel for outward leaves on outward oaks (crown axis from the leaf echoes' extent unless given), "
+    "dense layout.")
+
+
+def _section(title, option, args, t_all, load0, text) -> list[str]:
+    """A page section's title and its paragraph: the command, its time, the machine, then ``text``."""
+    minutes = (time.perf_counter() - t_all) / 60
+    return [f"## {title}", "", f"Command: `.venv/bin/python benchmarks/bench_lad_terms.py {option} --iterations "
+            f"{args.iterations}` ({minutes:.1f} min). " + machine_line(load0) + " " + text]
+
+
+def _score(tree, res, lad=None, occluded=None):
+    """Total and seen-voxel leaf area against the mesh (score_lad dicts); ``lad`` and
+    ``occluded`` default to the result's."""
+    from tlsvox.voxel.voxlad import score_lad
+
+    g = res.grid
+    truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
+    est = res.lad.lad if lad is None else lad
+    occ = res.lad.occluded if occluded is None else occluded
+    return (score_lad(est, truth, voxel_volume=g.voxel_volume),
+            score_lad(np.where(occ, 0, est), np.where(occ, 0, truth), voxel_volume=g.voxel_volume))
+
+
+def _subvoxel_ratio(scans, res, azimuth, tracer):
+    """Parent LAD times k = (mean of the seen children's estimates) / (the estimate of their pooled
+    sums), children at half the voxel size (the heterogeneity inside a voxel that the turbid
+    estimate averages away); k = 1 where fewer than 2 children are seen."""
+    from tlsvox.voxel.estimators import safe_divide
+    from tlsvox.voxel.voxlad import voxelize
+
+    g2 = res.grid
+    h = g2.voxel_size / 2
+    bounds = np.array([g2.lower, g2.lower + np.array(g2.shape) * g2.voxel_size])
+    r1 = voxelize(scans, voxel_size=h, leaf_angle="uniform", leaf_azimuth=azimuth, ground=0.0, layout="dense",
+                  progress=False, bounds=bounds, crown_center=res.scene.crown_center, tracer=tracer)
+    nx, ny, nz = g2.shape
+
+    def parent(a):
+        return a[:2 * nx, :2 * ny, :2 * nz].reshape(nx, 2, ny, 2, nz, 2)
+    seen = parent(~r1.lad.occluded)
+    axes = (1, 3, 5)
+    n_seen = seen.sum(axis=axes)
+    mean = safe_divide((parent(r1.lad.lad_raw) * seen).sum(axis=axes), n_seen)
+    pooled = safe_divide((parent(r1.stats.field("leaf_w")) * seen).sum(axis=axes),
+                         (parent(r1.stats.field("path_wg")) * seen).sum(axis=axes))
+    k = np.where((n_seen >= 2) & (pooled > 0), safe_divide(mean, pooled), 1.0)
+    return res.lad.lad * k, k
+
+
+def area_table(args):
+    """What is left at the floor, term by term, and the filled totals at -20 dB with the detection model."""
+    from tlsvox.voxel.estimators import estimate_lad
+    from tlsvox.voxel.trace import Tracer
+    from tlsvox.voxel.voxlad import voxelize
+
+    load0 = os.getloadavg()
+    t_all = time.perf_counter()
+    tracer = Tracer()
+    floor = args.threshold_db
+    rows = []  # (oak, change, voxel, total, seen, seconds)
+
+    def add(oak, change, h, tot, seen, seconds):
+        rows.append((oak, change, h, tot, seen, seconds))
+        print(f"{oak} | {change} | {h * 100:g} cm: total {100 * tot['area_error']:+.1f} %, seen "
+              f"{seen['total_area']:.1f} of {seen['true_area']:.1f} ({100 * seen['area_error']:+.1f} %) "
+              f"[{seconds:.0f} s]", flush=True)
+
+    def run(tree, scans, azimuth, h=0.2, **kw):
+        t0 = time.perf_counter()
+        res = voxelize(scans, voxel_size=h, leaf_angle="uniform", leaf_azimuth=azimuth, ground=0.0, layout="dense",
+                       progress=False, tracer=tracer, **kw)
+        return res, time.perf_counter() - t0
+
+    ratios = []
+    for azimuth, sigma, unclump, label in (("outward", 0.35, None, "default (outward, 0.35 m)"),
+                                           ("outward", 0.35, 0.2, "default, leaves placed at random in their 20 cm voxel"),
+                                           ("uniform", 0.35, None, "uniform azimuth, 0.35 m"),
+                                           ("outward", 3.0, None, "outward, 3 m")):
+        tree, scans = _oak_scans(azimuth, sigma, floor, unclump)
+        res, sec = run(tree, scans, azimuth)
+        tot, seen = _score(tree, res)
+        add(label, "-", 0.2, tot, seen, sec)
+        t0 = time.perf_counter()
+        lad_k, k = _subvoxel_ratio(scans, res, azimuth, tracer)
+        sec_k = time.perf_counter() - t0
+        tot_k, seen_k = _score(tree, res, lad_k)
+        sel = ~res.lad.occluded & (res.lad.lad > 0)
+        ratios.append((label, seen, seen_k, float((k[sel] * res.lad.lad[sel]).sum() / res.lad.lad[sel].sum()), sec_k))
+        if unclump is None and azimuth == "outward" and sigma == 0.35:
+            res_c, sec = run(tree, scans, azimuth, crown_center=(0.0, 0.0))
+            add(label, "the crown axis given (the tree's, x = y = 0)", 0.2, *_score(tree, res_c), sec)
+            for est in ("voxlad", "beer_lambert"):
+                lad = estimate_lad(res.stats, estimator=est)
+                add(label, f"estimator `{est}`", 0.2, *_score(tree, res, lad.lad, lad.occluded), 0.0)
+            res_10, sec = run(tree, scans, azimuth, h=0.1)
+            add(label, "10 cm voxels", 0.1, *_score(tree, res_10), sec)
+    # the total with occluded voxels filled, at the VZ-400's -20 dB with the detection model
+    filled = []
+    tree, scans = _oak_scans("outward", 0.35, -20.0)
+    for rule, fill in (("ignore", "layer"), ("model", "layer"), ("model", "neighbourhood")):
+        res, sec = run(tree, scans, "outward", undetected=rule, fill=fill, undetected_iterations=args.iterations)
+        tot, seen = _score(tree, res)
+        occ = res.lad.occluded
+        unfilled, _ = _score(tree, res, np.where(occ, 0.0, res.lad.lad))
+        g = res.grid
+        truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape)
+        filled.append((rule, fill, unfilled, tot, seen, float(truth[occ].sum()),
+                       float(res.lad.lad[occ].sum() * g.voxel_volume), sec))
+        print(f"-20 dB {rule} fill={fill}: total {100 * tot['area_error']:+.1f} % (unfilled "
+              f"{100 * unfilled['area_error']:+.1f} %), seen {100 * seen['area_error']:+.1f} %, occluded truth "
+              f"{filled[-1][5]:.1f} m2 filled with {filled[-1][6]:.1f} m2 [{sec:.0f} s]", flush=True)
+    lines = _section("What is left of the leaf area, term by term (synthetic oak, 20 cm)", "--area-only", args, t_all,
+                     load0, _AREA_SETUP) + ["",
+             f"### At the floor: every echo kept ({floor:g} dB, `undetected='ignore'`)", "",
+             "| oak | changed | voxel | total leaf area (error) | leaf area in seen voxels (error) | voxelize time |",
+             "|---|---|---|---|---|---|"]
+    for oak, change, h, tot, seen, sec in rows:
+        lines.append(f"| {oak} | {change} | {h * 100:g} cm | {tot['total_area']:.1f} of {tot['true_area']:.1f} m2 "
+                     f"({100 * tot['area_error']:+.1f} %) | {seen['total_area']:.1f} of {seen['true_area']:.1f} m2 "
+                     f"({100 * seen['area_error']:+.1f} %) | {sec:.0f} s |")
+    lines += ["", "A sub-voxel heterogeneity ratio, measured and not adopted: each 20 cm voxel's LAD times k = (mean "
+              "of its seen 10 cm children's estimates) / (the estimate of their pooled sums).", "",
+              "| oak | seen voxels, plain | seen voxels, times k | LAD-weighted mean k | time of the 10 cm trace |",
+              "|---|---|---|---|---|"]
+    for label, seen, seen_k, kbar, sec in ratios:
+        lines.append(f"| {label} | {100 * seen['area_error']:+.1f} % | {100 * seen_k['area_error']:+.1f} % | "
+                     f"{kbar:.3f} | {sec:.0f} s |")
+    lines += ["", "### The total with occluded voxels filled (the VZ-400's -20 dB, default oak)", "",
+              "| `undetected` | `fill` | total, no fill | total, filled | seen voxels | true leaf area in occluded "
+              "voxels | given them | voxelize time |", "|---|---|---|---|---|---|---|---|"]
+    for rule, fill, unfilled, tot, seen, occ_true, occ_given, sec in filled:
+        lines.append(f"| {rule} | {fill} | {unfilled['total_area']:.1f} m2 ({100 * unfilled['area_error']:+.1f} %) | "
+                     f"{tot['total_area']:.1f} m2 ({100 * tot['area_error']:+.1f} %) | "
+                     f"{seen['total_area']:.1f} of {seen['true_area']:.1f} m2 ({100 * seen['area_error']:+.1f} %) | "
+                     f"{occ_true:.1f} m2 | {occ_given:.1f} m2 | {sec:.0f} s |")
+    lines += ["", "Reading: see docs/voxelize.md, *What is left*.", ""]
+    write_page(args.area_out, lines)
 
 
 if __name__ == "__main__":

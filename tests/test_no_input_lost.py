@@ -177,8 +177,10 @@ def test_simulate_takes_a_target_and_a_vox_scene(files, tmp_path, capsys):
     vox = write_vox(Scene.load(files / "scene.npz"), tmp_path / "scene.vox")
     assert clsim_main(["simulate", str(vox), "--photons", "2000", "-o", str(tmp_path / "v.npz"), "-q"]) == 0
     assert np.load(tmp_path / "v.npz")["waveform"].sum() > 0
-    assert clsim_main(["simulate", str(files / "scene.npz"), "-o", str(tmp_path / "x.npz"), "--target", "1"]) == 2
-    assert "--target '1' must be X,Y" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # a usage error: argparse's exit 2, one line
+        clsim_main(["simulate", str(files / "scene.npz"), "-o", str(tmp_path / "x.npz"), "--target", "1"])
+    assert stop.value.code == 2
+    assert "argument --target: must be X,Y or X,Y,Z in metres" in capsys.readouterr().err
 
 
 def test_voxelize_strict_fails_on_a_quality_warning(files, tmp_path, monkeypatch, capsys):

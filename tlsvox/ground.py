@@ -87,12 +87,15 @@ def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, n
     distance_threshold : float, metres
         RANSAC inlier distance.
     num_iterations : int
+        RANSAC iterations.
     seed : int
         Seeds the RANSAC.
 
     Returns
     -------
     GroundPlane
+        The plane through the lowest point of each column, with its inlier
+        count and RMSE.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) < 3:

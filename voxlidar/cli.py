@@ -25,7 +25,7 @@ import sys
 
 from voxlidar.errors import VoxlidarError, exit_code
 
-__all__ = ["Parser", "number", "run", "with_debug"]
+__all__ = ["Parser", "number", "numbers", "run", "with_debug"]
 
 
 class Parser(argparse.ArgumentParser):
@@ -79,6 +79,39 @@ def number(kind=float, *, lo=None, hi=None, lo_open=False, hi_open=False, unit: 
         if bad:
             raise argparse.ArgumentTypeError(f"must be {wanted}, got {text!r}")
         return value
+
+    parse.__name__ = wanted
+    return parse
+
+
+def numbers(*counts: int, what: str = "", example: str = ""):
+    """An argparse ``type`` for comma-separated finite numbers, as many as one of ``counts``.
+
+    Returns a tuple of floats.  ``what`` names them in the error (e.g.
+    ``"X,Y in metres"``) and ``example`` shows a value that works.
+
+    >>> xy = numbers(2, what="X,Y in metres", example="1.5,-2")
+    >>> xy("3,4")
+    (3.0, 4.0)
+    >>> try:
+    ...     xy("3")
+    ... except argparse.ArgumentTypeError as err:
+    ...     print(err)
+    must be X,Y in metres (2 comma-separated finite numbers), e.g. 1.5,-2; got '3'
+    """
+    how_many = " or ".join(str(n) for n in counts)
+    wanted = f"{what + ' (' if what else ''}{how_many} comma-separated finite numbers{')' if what else ''}"
+    if example:
+        wanted += f", e.g. {example}"
+
+    def parse(text):
+        try:
+            values = tuple(float(v) for v in str(text).split(","))
+        except ValueError:
+            values = ()
+        if len(values) not in counts or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"must be {wanted}; got {text!r}")
+        return values
 
     parse.__name__ = wanted
     return parse

@@ -6,10 +6,8 @@ them in-process.
 
 Examples
 --------
->>> import argparse
->>> p = argparse.ArgumentParser(prog="clsim")
->>> register(p.add_subparsers(dest="command"))
->>> a = p.parse_args(["simulate", "scene.npz", "--photons", "1000", "-o", "wf.npz"])
+>>> from clsim.cli.app import build_parser
+>>> a = build_parser().parse_args(["simulate", "scene.npz", "--photons", "1000", "-o", "wf.npz"])
 >>> a.mode, a.detect, a.max_order, a.sensor
 ('exact', 'nee', 3, 'ahab-chiroptera-i')
 """
@@ -23,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from voxlidar.cli import number
+from voxlidar.cli import number, numbers
 from voxlidar.safeio import staged, check_figure_path, check_outputs
 
 from clsim.errors import InputError
@@ -46,6 +44,7 @@ def register(subparsers) -> None:
                                  "trees (clsim.scenes.PlotScene.save), or an AMAPVox "
                                  ".vox (its PadBVTotal as LAD; no wood, no ground)")
     p.add_argument("--target", default=None, metavar="X,Y[,Z]",
+                   type=numbers(2, 3, what="X,Y or X,Y,Z in metres", example="1.5,-2"),
                    help="where the beam axis meets the ground, metres in the scene's frame "
                         "(default: the centre of the grid at ground level); a negative X needs '=': "
                         "--target=-1.5,2")
@@ -103,19 +102,6 @@ def register(subparsers) -> None:
     b.add_argument("--repeats", type=number(int, lo=1), default=3)
     b.set_defaults(func=cmd_bench)
 
-
-
-def _parse_target(text):
-    """``"X,Y"`` or ``"X,Y,Z"`` (metres) -> tuple, or None."""
-    if text is None:
-        return None
-    try:
-        values = tuple(float(v) for v in str(text).split(","))
-    except ValueError:
-        values = ()
-    if len(values) not in (2, 3) or not all(np.isfinite(values)):
-        raise InputError(f"--target {text!r} must be X,Y or X,Y,Z in metres, for example --target 1.5,-2")
-    return values
 
 
 #: longest run `clsim simulate` starts without --max-hours
@@ -180,7 +166,7 @@ def cmd_simulate(args) -> int:
     check_figure_path("--trace-plot", args.trace_plot)
     if args.trace_plot and not args.trace:
         raise InputError("--trace-plot needs --trace N (the number of photons to draw)")
-    target = _parse_target(args.target)
+    target = args.target
     targets = None
     if args.targets is not None:
         if args.target is not None or args.trace_plot:

@@ -9,10 +9,8 @@ the end the waveforms are written as LAS 1.4 (``OUT/survey.las`` with its
 
 Examples
 --------
->>> import argparse
->>> p = argparse.ArgumentParser(prog="clsim")
->>> register(p.add_subparsers(dest="command"))
->>> a = p.parse_args(["survey", "scene.npz", "-o", "out", "--pulses", "1000"])
+>>> from clsim.cli.app import build_parser
+>>> a = build_parser().parse_args(["survey", "scene.npz", "-o", "out", "--pulses", "1000"])
 >>> a.sensor, a.photons, a.batch_size, a.pulses
 ('riegl-lms-q680i', 1000, 256, 1000)
 """
@@ -25,9 +23,7 @@ import shutil
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from voxlidar.cli import number
+from voxlidar.cli import number, numbers
 from clsim.errors import InputError
 from clsim.sensor import list_presets
 
@@ -48,10 +44,11 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", required=True, help="output folder (survey.json, batches/, survey.las)")
     p.add_argument("--sensor", default="riegl-lms-q680i",
                    help=f"preset with a [survey] table ({', '.join(list_presets())}) or a .toml file")
-    p.add_argument("--start", default=None, metavar="X,Y",
+    p.add_argument("--start", default=None, metavar="X,Y", type=numbers(2, what="X,Y in metres", example="-20,0"),
                    help="start of the line, metres (default: the scene's west edge at its middle y); a "
                         "negative X needs '=': --start=-20,0")
-    p.add_argument("--end", default=None, metavar="X,Y", help="end of the line (default: the scene's east edge)")
+    p.add_argument("--end", default=None, metavar="X,Y", type=numbers(2, what="X,Y in metres", example="20,0"),
+                   help="end of the line (default: the scene's east edge)")
     p.add_argument("--altitude", type=number(lo=0, lo_open=True, unit="m"), default=None,
                    help="flying height, m (default: the preset's typical flying height)")
     p.add_argument("--speed", type=number(lo=0, lo_open=True, unit="m/s"), default=None,
@@ -87,18 +84,6 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_survey)
 
 
-def _xy(text, name):
-    if text is None:
-        return None
-    try:
-        v = tuple(float(s) for s in str(text).split(","))
-    except ValueError:
-        v = ()
-    if len(v) != 2 or not all(np.isfinite(v)):
-        raise InputError(f"--{name} {text!r} must be X,Y in metres, for example --{name}=-20,0")
-    return v
-
-
 def line_through(scene, start=None, end=None):
     """(start, end) of the default line: across the scene along x at its middle y."""
     lo, hi = scene.extent
@@ -118,7 +103,7 @@ def cmd_survey(args) -> int:
                                    ("fov_deg", args.fov)) if v is not None}
     pattern = ScanPattern.preset(args.sensor, **overrides)
     flight = typical_flight(args.sensor)
-    start, end = line_through(scene, _xy(args.start, "start"), _xy(args.end, "end"))
+    start, end = line_through(scene, args.start, args.end)
     if start == end:
         raise InputError(f"--start and --end are the same point {start}; give a line of some length")
     tr = Trajectory.line(start, end, altitude_m=args.altitude or flight.altitude_m,

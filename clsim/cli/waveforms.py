@@ -47,7 +47,8 @@ def register(subparsers) -> None:
                     "when the file has geometry, x, y, z of the echo.")
     dec.add_argument("file", type=Path)
     dec.add_argument("-o", "--output", type=Path, required=True, help="echo table (.csv)")
-    dec.add_argument("--plot", type=Path, help="PNG of the first waveforms with their fits")
+    dec.add_argument("--plot", type=Path, metavar="PATH", help="picture of the first waveforms with their fits "
+                     "(the suffix picks the format: png, pdf, svg, jpg)")
     dec.add_argument("--plot-count", type=number(int, lo=1), default=6, help="waveforms in the plot (6)")
     dec.add_argument("--dt-ns", type=number(lo=0, lo_open=True, unit="ns"), default=None,
                      help="sample spacing for CSV input (default 1 ns)")

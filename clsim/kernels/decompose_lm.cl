@@ -39,6 +39,22 @@ CLSIM_INLINE float hsum8(const float8 v)
     return (a.x + a.y) + (a.z + a.w);
 }
 
+/* The sums of the packed accumulators: v (M) into x, the upper triangle m
+ * (M (M + 1) / 2, row by row) into the full symmetric M x M matrix mat. */
+CLSIM_INLINE void unpack_sums(const float8 *v, const float8 *m, const int M, float *x,
+                              float *mat)
+{
+    int idx = 0;
+    for (int p = 0; p < M; ++p) {
+        x[p] = hsum8(v[p]);
+        for (int c = p; c < M; ++c) {
+            const float s = hsum8(m[idx++]);
+            mat[p * M + c] = s;
+            mat[c * M + p] = s;
+        }
+    }
+}
+
 /* Residual sum of squares at q and, when want, J^T J (h, NF x NF, full) and J^T r (g).
  * A censored sample counts only where the model falls below it (Tobin 1958).
  * Eight samples at a time (float8: one SIMD register on a CPU), over the blocks
@@ -107,17 +123,7 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
             }
         }
     }
-    if (want) {
-        int idx = 0;
-        for (int p = 0; p < NF; ++p) {
-            g[p] = hsum8(gv[p]);
-            for (int c = p; c < NF; ++c) {
-                const float v = hsum8(hv[idx++]);
-                h[p * NF + c] = v;
-                h[c * NF + p] = v;
-            }
-        }
-    }
+    if (want) unpack_sums(gv, hv, NF, g, h);
     return hsum8(cost);
 }
 
@@ -187,15 +193,7 @@ CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, co
         }
     }
     float x[NL], sc[NL];
-    int idx = 0;
-    for (int p = 0; p < NL; ++p) {
-        x[p] = hsum8(bv[p]);
-        for (int c2 = p; c2 < NL; ++c2) {
-            const float v = hsum8(av[idx++]);
-            c[p * NL + c2] = v;
-            c[c2 * NL + p] = v;
-        }
-    }
+    unpack_sums(bv, av, NL, x, c);
     for (int p = 0; p < NL; ++p) {
         if (!(c[p * NL + p] > 0.0f)) return;
         sc[p] = rsqrt(c[p * NL + p]);
@@ -268,24 +266,29 @@ CLSIM_INLINE void correlate(global const float *x, const int b0, const int b1, c
     }
 }
 
-/* One launch: waveform `row[w]` of the uploaded samples for each work-item w,
- * from the start values Q (G x NP).  FW: the matched filter's weights (np_, lag 0
- * at pc), then the 9 of the Gaussian of sigma 1 (lag 0 at 4); M at least
- * max(pc, np_ - 1 - pc, 4) + 8. */
+/* One launch: waveform `row[r0 + w]` of the uploaded samples for each work-item w,
+ * from the start values at Q + q0 (G x NP), its row of results at OUT + o0 + w x
+ * (OUT_RES + 2 M + 3 n): the launches of one round of fits (one per number of
+ * echoes) share the row, start and result buffers.  FW: the matched filter's
+ * weights (np_, lag 0 at pc), then the 9 of the Gaussian of sigma 1 (lag 0 at 4);
+ * M at least max(pc, np_ - 1 - pc, 4) + 8. */
 kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
-                   global const int *row, global const int2 *span,
+                   global const int *ROW, global const int2 *span,
                    global const float *noise, global const float *Q, global float *OUT,
                    const int G, const int max_iter, const float tol, const int linear,
-                   global const float *FW, const int np_, const int pc, const int M)
+                   global const float *FW, const int np_, const int pc, const int M,
+                   const int r0, const long q0, const long o0)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
+    global const int *row = ROW + r0;
+    global const float *qin = Q + q0 + (size_t)w * NP;
     global const float *y = Y + (size_t)row[w] * n;
     global const uchar *fl = FL + (size_t)row[w] * n;
-    global float *out = OUT + (size_t)w * (OUT_RES + 2 * M + 3 * n);
+    global float *out = OUT + o0 + (size_t)w * (OUT_RES + 2 * M + 3 * n);
     float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
     float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
-    for (int p = 0; p < NP; ++p) q[p] = Q[w * NP + p];
+    for (int p = 0; p < NP; ++p) q[p] = qin[p];
     const float first = (float)span[row[w]].x, last = (float)span[row[w]].y;
     /* the blocks of 8 samples from the first counted sample to the last */
     const int b0 = span[row[w]].x & ~7, b1 = min(n, (span[row[w]].y & ~7) + 8);

@@ -1,4 +1,4 @@
-/* Directions, leaf normals, bi-Lambertian scattering.  Twin: clsim/transport_ref.py. */
+/* Directions, leaf normals, bi-Lambertian scattering.  Twin: clsim/transport/reference_geometry.py. */
 #ifndef CLSIM_GEOMETRY_CL
 #define CLSIM_GEOMETRY_CL
 

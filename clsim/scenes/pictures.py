@@ -20,6 +20,7 @@ def plot_canopy(plot, path, *, title: str | None = None, footprints=None) -> Pat
     Parameters
     ----------
     plot : clsim.scenes.PlotScene
+        The plot: its voxel columns, trees and crowns.
     path : str or Path
         Picture file; the format follows the suffix (png, pdf, svg, jpg).
     title : str, optional

@@ -12,6 +12,7 @@ from voxlidar.errors import finite_number
 from clsim.sensor import Sensor
 from clsim.survey._pattern import ScanPattern
 from clsim.survey._trajectory import Trajectory
+from clsim.transport.rng import check_seed
 
 __all__ = ["Pulses", "pulse_count", "pulse_range", "survey_pulses"]
 
@@ -229,12 +230,7 @@ def survey_pulses(trajectory: Trajectory, pattern: ScanPattern, sensor: Sensor |
     sensor = Sensor() if sensor is None else sensor
     if not isinstance(sensor, Sensor):
         raise InputError(f"sensor must be a clsim.Sensor (for its beam divergence), got {type(sensor).__name__}")
-    try:
-        seed = int(seed)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"seed must be an integer, got {seed!r}") from err
-    if not 0 <= seed < 2**64:
-        raise InputError(f"seed must lie in [0, 2**64), got {seed!r}")
+    seed = check_seed(seed)
     if not float(dem_step_m) > 0:
         raise InputError(f"dem_step_m must be > 0 m, got {dem_step_m!r}")
     first, count = pulse_range(pattern, trajectory, first, count, start_s, duration_s)

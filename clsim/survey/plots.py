@@ -23,6 +23,7 @@ def plot_footprints(pulses, path, *, title: str | None = None, max_points: int =
     Parameters
     ----------
     pulses : clsim.survey.Pulses
+        The pulses of a flight (:func:`clsim.survey.survey_pulses`).
     path : str or Path
         Picture file; the format follows the suffix (png, pdf, svg, jpg).
     title : str, optional
@@ -107,7 +108,8 @@ def plot_radargram(survey, path, *, max_scan_angle_deg: float | None = 0.5, n_co
     Parameters
     ----------
     survey : SurveyLas or path
-        From :func:`clsim.survey.read_survey_las`, or a survey ``.las``.
+        The survey whose waveforms are drawn: from :func:`clsim.survey.read_survey_las`
+        (with its waveform packets), or a survey ``.las`` with its ``.wdp``.
     path : str or Path
         Picture file (png, pdf, svg, jpg).
     max_scan_angle_deg : float or None
@@ -215,7 +217,8 @@ def plot_point_cloud(survey, path, *, color: str = "height", include_withheld: b
     Parameters
     ----------
     survey : SurveyLas or path
-        From :func:`clsim.survey.read_survey_las`, or a survey ``.las``.
+        The survey whose returns are drawn: from :func:`clsim.survey.read_survey_las`,
+        or a survey ``.las``.
     path : str or Path
         Picture file (png, pdf, svg, jpg).
     color : {"height", "return"}

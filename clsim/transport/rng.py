@@ -32,7 +32,7 @@ import numpy as np
 
 from clsim.errors import InputError
 
-__all__ = ["philox4x32_10", "uniforms", "split_seed"]
+__all__ = ["check_seed", "philox4x32_10", "uniforms", "split_seed"]
 
 _M0 = np.uint64(0xD2511F53)
 _M1 = np.uint64(0xCD9E8D57)
@@ -42,14 +42,20 @@ _MASK = np.uint64(0xFFFFFFFF)
 _S32 = np.uint64(32)
 
 
-def split_seed(seed: int) -> tuple[int, int]:
-    """(lo, hi) 32-bit words of a non-negative 64-bit ``seed``."""
+def check_seed(seed) -> int:
+    """``seed`` as an int in [0, 2**64) (the key of the Philox streams), or an InputError."""
     try:
         s = int(seed)
     except (TypeError, ValueError) as err:
         raise InputError(f"seed must be an integer in [0, 2**64), got {seed!r}") from err
     if not 0 <= s < 2**64:
         raise InputError(f"seed must be an integer in [0, 2**64), got {seed!r}")
+    return s
+
+
+def split_seed(seed: int) -> tuple[int, int]:
+    """(lo, hi) 32-bit words of a non-negative 64-bit ``seed``."""
+    s = check_seed(seed)
     return s & 0xFFFFFFFF, s >> 32
 
 

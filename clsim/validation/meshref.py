@@ -40,12 +40,12 @@ from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
 from clsim.transport.result import assemble_result
 from clsim.transport.setup import STAT_NAMES, Detect, prepare_run
-from clsim.transport.reference import row_dot, cosine_dir as _cosine_dir, receiver_view
+from clsim.transport.reference_geometry import beam_directions, cosine_dir, receiver_view, row_dot
+from clsim.transport.reference_walk import RR_SURVIVE, RR_THRESHOLD
 
 __all__ = ["MeshReferenceSimulator"]
 
 _S = {n: i for i, n in enumerate(STAT_NAMES)}
-RR_THRESHOLD, RR_SURVIVE = 0.1, 0.5
 EPS = 2e-4  # m: offset off a surface, well above float32 rounding at scene scale
 
 
@@ -176,10 +176,7 @@ class _Context:
         n = len(ids)
         batch = ids % s.batches
         u = rng.random((n, 2))
-        rr = self.sigma * np.sqrt(-2.0 * np.log(1.0 - u[:, 0]))
-        ph = 2.0 * np.pi * u[:, 1]
-        d = self.axis + (rr * np.cos(ph))[:, None] * self.e1 + (rr * np.sin(ph))[:, None] * self.e2
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        d = beam_directions(self.axis, self.e1, self.e2, self.sigma, 1.0 - u[:, 0], u[:, 1])
         x = np.tile(self.sensor, (n, 1))
         L = np.zeros(n)
         w = np.ones(n)
@@ -228,7 +225,7 @@ class _Context:
             keep = ~dead & ~kill
             mm = np.where(reflect[:, None], m, -m)
             a, mm, uu = a[keep], mm[keep], uu[keep]
-            d[a] = _cosine_dir(mm, uu[:, 1], uu[:, 2])
+            d[a] = cosine_dir(mm, uu[:, 1], uu[:, 2])
             x[a] += mm * EPS  # leave the surface on the chosen side
             alive = a
 

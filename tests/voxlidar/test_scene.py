@@ -56,6 +56,28 @@ def test_vox_round_trip(scene, tmp_path):
     _same(scene, back)
 
 
+def test_vox_keeps_bark_directions_and_optics(scene, rng, tmp_path):
+    """Directional bark (wood_beta, wood_axis) and the materials' optics survive a .vox round trip."""
+    m = len(scene.ijk)
+    axis = rng.normal(size=(m, 3))
+    scene.wood_axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+    scene.wood_beta = np.where(scene.wood > 0, rng.random(m), 0.0)
+    scene.materials = {**scene.materials, "bark": {"1064": [0.41, 0.0]}}
+    back = read_vox(write_vox(scene, tmp_path / "d.vox"))
+    _same(scene, back)
+    np.testing.assert_allclose(back.dense("wood_beta"), scene.dense("wood_beta"), rtol=1e-8)
+    woody = scene.wood_beta > 0
+    lookup = {tuple(v): a for v, a in zip(back.ijk, back.wood_axis)}
+    got = np.array([lookup[tuple(v)] for v in scene.ijk[woody]])
+    np.testing.assert_allclose(got, scene.wood_axis[woody], atol=1e-8)
+    assert back.materials == scene.materials
+
+
+def test_vox_without_bark_directions_has_the_plain_columns(scene, tmp_path):
+    header = write_vox(scene, tmp_path / "p.vox").read_text().splitlines()[6]
+    assert header == "i j k PadBVTotal wood occluded lad_std"
+
+
 def test_vox_occluded_unfilled_is_nan(scene, tmp_path):
     path = write_vox(scene, tmp_path / "s.vox")
     rows = np.loadtxt(path, skiprows=7)

@@ -1,7 +1,7 @@
 """``tlsvox voxelize``: registered scans -> voxel scene (NPZ, optionally AMAPVox .vox).
 
-The lead wires :func:`register` into ``tlsvox/cli/app.py``; :func:`main` runs the
-subcommand alone (in-process tests, ``python -m tlsvox.cli.voxelize``).
+:func:`register` adds it to the ``tlsvox`` command (``tlsvox/cli/app.py``); :func:`main`
+runs it alone (``python -m tlsvox.cli.voxelize``), with the same conventions (:mod:`voxlidar.cli`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from voxlidar.errors import VoxlidarError, exit_code
+from voxlidar.cli import numbers
 from voxlidar.safeio import check_distinct, check_outputs, json_text, staged
 
 from tlsvox.errors import InputError, TlsvoxError
@@ -54,16 +54,6 @@ examples:
 """
 
 
-def _floats(text: str, n: int, name: str) -> list[float]:
-    try:
-        vals = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{name} must be {n} comma-separated numbers, got {text!r}") from None
-    if len(vals) != n:
-        raise argparse.ArgumentTypeError(f"{name} must be {n} comma-separated numbers, got {len(vals)}")
-    return vals
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of the voxelize subcommand."""
     from tlsvox.voxel.estimators import Estimator, FillMode
@@ -78,68 +68,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(x y z time return_index return_count, miss rows for empty pulses: .txt/.csv/.asc)")
     p.add_argument("-o", "--output", required=True, help="scene file to write (.npz)")
     p.add_argument("--vox", help="also write an AMAPVox .vox file")
-    p.add_argument("--voxel-size", type=float, default=0.2, help="voxel edge in metres (default 0.2)")
-    p.add_argument("--leaf-angle", default=None, choices=[k.value for k in LeafAngleKind] + ["measured"],
-                   help="leaf inclination distribution for G(theta) (default uniform, the paper; the "
-                        "summary and the scene say which was used); 'measured': from the leaf echoes' plane "
-                        "fits (tlsvox.leafangles), a beta distribution fitted to the whole crown, the per-layer "
-                        "histograms kept in the scene's meta")
-    p.add_argument("--leaf-angle-layers", type=int, default=4,
-                   help="crown layers of --leaf-angle measured (default 4)")
-    p.add_argument("--leaf-azimuth", default="uniform", choices=[a.value for a in LeafAzimuth],
-                   help="leaf normal azimuths: any (default), or facing away from the crown axis, which then "
-                        "gives each voxel the G of outward leaves for each beam (and the simulator uses it)")
-    p.add_argument("--estimator", default="bcmle", choices=[e.value for e in Estimator],
-                   help="LAD estimator (default bcmle, Pimont et al. 2018)")
-    p.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
-                   help="wood model (default count_stretch, the paper)")
-    p.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
-                   help="occluded voxels: leave at 0 or fill with their height layer's mean")
-    p.add_argument("--echo-weights", default="auto", choices=[w.value for w in EchoWeights],
-                   help="how echoes share their pulse: auto (default: fraction with a beam_fraction column, "
-                        "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper)")
-    p.add_argument("--leaf-reflectance", type=float,
-                   help="nominal leaf reflectance of a full hit (fraction from reflectance, threshold); "
-                        "default the leaf optics at the scanner's wavelength")
-    p.add_argument("--wood-reflectance", type=float, help="nominal bark reflectance of a full hit (fraction)")
-    p.add_argument("--undetected", default="ignore", choices=[u.value for u in Undetected],
-                   help="leaf hits under the scanner's detection threshold: ignore (default; LAD biased low) or "
-                        "model (give the expected unrecorded interception back; docs/voxelize.md)")
-    p.add_argument("--detection-threshold-db", type=float,
-                   help="the scanner's detection threshold, dB of a white target (default: the scan's preset; "
-                        "the RIEGL VZ-400: -20)")
-    p.add_argument("--leaf-shape", default="0.05,0.025",
-                   help="leaf length,width in metres for --undetected model (default 0.05,0.025)")
-    p.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
-    p.add_argument("--min-explored", type=float, default=0.05,
-                   help="explored depth fraction a voxel needs (else occluded; default 0.05)")
-    p.add_argument("--leaf-size", type=float, default=0.05, help="leaf size in metres for the large-leaf flag")
-    p.add_argument("--small-voxel-factor", type=float, default=1.0,
-                   help="multiply every LAD (the paper used 0.95; default 1)")
-    p.add_argument("--ground", default="ransac",
-                   help="'ransac' (fit the lowest echoes), 'none', or a ground height in metres")
-    p.add_argument("--bounds", type=lambda t: _floats(t, 6, "--bounds"),
-                   help="xmin,ymin,zmin,xmax,ymax,zmax of the region (default: the vegetation's box); the "
-                        "grid starts exactly at the minimum corner")
-    p.add_argument("--snap", action="store_true",
-                   help="snap --bounds outwards to multiples of the voxel size (grids of runs line up)")
-    p.add_argument("--layout", default="auto", choices=[m.value for m in Layout],
-                   help="tracer memory: sums for every voxel (dense), or only for voxels holding echoes "
-                        "plus coarse sums per 8^3 brick (sparse; small voxels); default auto: dense up to 1 GiB")
-    p.add_argument("--plan", action="store_true",
-                   help="print what the grid will cost in memory for each layout, and exit (writes nothing)")
-    p.add_argument("--transforms", metavar="JSON",
-                   help="poses from 'tlsvox register' (its .transforms.json); they replace the "
-                        ".pose.json sidecars, matched by scan name")
-    p.add_argument("--scanner-frame", action="store_true",
-                   help="a single scan without pose: use its own frame as the world")
-    p.add_argument("--angular-grid", type=lambda t: _floats(t, 6, "--angular-grid"),
-                   help="zenith0,zstep,nzenith,azimuth0,astep,nazimuth (degrees) to rebuild empty pulses")
-    p.add_argument("--scanner-rpy", type=lambda t: _floats(t, 3, "--scanner-rpy"),
-                   help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
-    p.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
-    p.add_argument("--scan-origin", type=lambda t: _floats(t, 3, "--scan-origin"),
-                   help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
                    "device; `clsim devices` lists them)")
@@ -147,6 +75,75 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fail (exit 2, nothing written) when a quality gate warns: LAD above 20 m2/m3, "
                         "more than half the voxels occluded, or a poor angular-grid fit")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
+    grid = p.add_argument_group("the grid")
+    grid.add_argument("--voxel-size", type=float, default=0.2, help="voxel edge in metres (default 0.2)")
+    grid.add_argument("--bounds", type=numbers(6),
+                      help="xmin,ymin,zmin,xmax,ymax,zmax of the region (default: the vegetation's box); the "
+                           "grid starts exactly at the minimum corner")
+    grid.add_argument("--snap", action="store_true",
+                      help="snap --bounds outwards to multiples of the voxel size (grids of runs line up)")
+    grid.add_argument("--layout", default="auto", choices=[m.value for m in Layout],
+                      help="tracer memory: sums for every voxel (dense), or only for voxels holding echoes "
+                           "plus coarse sums per 8^3 brick (sparse; small voxels); default auto: dense up to 1 GiB")
+    grid.add_argument("--plan", action="store_true",
+                      help="print what the grid will cost in memory for each layout, and exit (writes nothing)")
+    grid.add_argument("--ground", default="ransac",
+                      help="'ransac' (fit the lowest echoes), 'none', or a ground height in metres")
+    model = p.add_argument_group("the leaf and wood model")
+    model.add_argument("--leaf-angle", default=None, choices=[k.value for k in LeafAngleKind] + ["measured"],
+                       help="leaf inclination distribution for G(theta) (default uniform, the paper; the "
+                            "summary and the scene say which was used); 'measured': from the leaf echoes' plane "
+                            "fits (tlsvox.leafangles), a beta distribution fitted to the whole crown, the per-layer "
+                            "histograms kept in the scene's meta")
+    model.add_argument("--leaf-angle-layers", type=int, default=4,
+                       help="crown layers of --leaf-angle measured (default 4)")
+    model.add_argument("--leaf-azimuth", default="uniform", choices=[a.value for a in LeafAzimuth],
+                       help="leaf normal azimuths: any (default), or facing away from the crown axis, which then "
+                            "gives each voxel the G of outward leaves for each beam (and the simulator uses it)")
+    model.add_argument("--estimator", default="bcmle", choices=[e.value for e in Estimator],
+                       help="LAD estimator (default bcmle, Pimont et al. 2018)")
+    model.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
+                       help="wood model (default count_stretch, the paper)")
+    model.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
+                       help="occluded voxels: leave at 0, fill with their height layer's mean, or with the mean "
+                            "of the nearest seen crown voxels (neighbourhood; dense layout)")
+    model.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
+    model.add_argument("--min-explored", type=float, default=0.05,
+                       help="explored depth fraction a voxel needs (else occluded; default 0.05)")
+    model.add_argument("--leaf-size", type=float, default=0.05, help="leaf size in metres for the large-leaf flag")
+    model.add_argument("--small-voxel-factor", type=float, default=1.0,
+                       help="multiply every LAD (the paper used 0.95; default 1)")
+    weights = p.add_argument_group("echo weights (how echoes share their pulse)")
+    weights.add_argument("--echo-weights", default="auto", choices=[w.value for w in EchoWeights],
+                         help="how echoes share their pulse: auto (default: fraction with a beam_fraction column, "
+                              "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper)")
+    weights.add_argument("--leaf-reflectance", type=float,
+                         help="nominal leaf reflectance of a full hit (fraction from reflectance, threshold); "
+                              "default the leaf optics at the scanner's wavelength")
+    weights.add_argument("--wood-reflectance", type=float, help="nominal bark reflectance of a full hit (fraction)")
+    missed = p.add_argument_group("leaf hits under the detection threshold")
+    missed.add_argument("--undetected", default="ignore", choices=[u.value for u in Undetected],
+                        help="leaf hits under the scanner's detection threshold: ignore (default; LAD biased low) or "
+                             "model (give the expected unrecorded interception back; docs/voxelize.md)")
+    missed.add_argument("--leaf-shape", default="0.05,0.025", type=numbers(2, what="length,width in metres",
+                                                                   example="0.05,0.025"),
+                        help="leaf length,width in metres for --undetected model (default 0.05,0.025)")
+    missed.add_argument("--detection-threshold-db", type=float,
+                        help="the scanner's detection threshold, dB of a white target (default: the scan's preset; "
+                             "the RIEGL VZ-400: -20)")
+    poses = p.add_argument_group("poses, and the empty pulses of scans without a pulse table")
+    poses.add_argument("--transforms", metavar="JSON",
+                       help="poses from 'tlsvox register' (its .transforms.json); they replace the "
+                            ".pose.json sidecars, matched by scan name")
+    poses.add_argument("--scanner-frame", action="store_true",
+                       help="a single scan without pose: use its own frame as the world")
+    poses.add_argument("--angular-grid", type=numbers(6),
+                       help="zenith0,zstep,nzenith,azimuth0,astep,nazimuth (degrees) to rebuild empty pulses")
+    poses.add_argument("--scanner-rpy", type=numbers(3),
+                       help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
+    poses.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
+    poses.add_argument("--scan-origin", type=numbers(3),
+                       help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -164,21 +161,21 @@ def apply_transforms(scans, path) -> None:
 
     path = Path(path)
     if not path.is_file():
-        raise TlsvoxError(f"--transforms {path} does not exist; 'tlsvox register ... -o merged.laz' "
+        raise InputError(f"--transforms {path} does not exist; 'tlsvox register ... -o merged.laz' "
                           "writes merged.transforms.json")
     try:
         poses = read_transforms(path)
     except (ValueError, KeyError, TypeError) as err:
-        raise TlsvoxError(f"--transforms {path} is not a tlsvox registration JSON ({err}); "
+        raise InputError(f"--transforms {path} is not a tlsvox registration JSON ({err}); "
                           "write it with 'tlsvox register'") from None
     missing = [s.name for s in scans if s.name not in poses]
     if missing:
-        raise TlsvoxError(f"--transforms {path} has no pose for scan(s) {missing}; it holds "
+        raise InputError(f"--transforms {path} has no pose for scan(s) {missing}; it holds "
                           f"{sorted(poses)}. Register these scans together, or name the files alike")
     for s in scans:
         pose = poses[s.name]
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-            raise TlsvoxError(f"--transforms {path}: the pose of {s.name!r} is not a finite 4x4 matrix")
+            raise InputError(f"--transforms {path}: the pose of {s.name!r} is not a finite 4x4 matrix")
         s.pose = pose
 
 
@@ -208,75 +205,66 @@ def run(args) -> int:
     from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import voxelize
 
-    try:
-        if args.bounds is not None and not np.all(np.reshape(args.bounds, (2, 3))[1] > np.reshape(args.bounds, (2, 3))[0]):
-            raise InputError(f"--bounds {args.bounds}: give xmin,ymin,zmin,xmax,ymax,zmax with each max above its min")
-        check_distinct("scan", args.scans)
-        check_outputs([("scan", p) for path in args.scans for p in (path, *sidecar_paths(path))]
-                      + [("--transforms", args.transforms)],
-                      [("-o", args.output), ("--vox", args.vox)])
-        if Path(args.output).suffix.lower() != ".npz":
-            raise InputError(f"-o {args.output} must end in .npz (the scene file); --vox PATH adds an AMAPVox .vox")
-        if args.vox is not None and Path(args.vox).suffix.lower() != ".vox":
-            raise InputError(f"--vox {args.vox} must end in .vox")
-        scans = [read_scan(path, i, args.scan_origin) for i, path in enumerate(args.scans)]
-        if args.transforms:
-            apply_transforms(scans, args.transforms)
-        ground = args.ground
-        if ground not in ("ransac", "none"):
-            try:
-                ground = float(ground)
-            except ValueError:
-                raise TlsvoxError(f"--ground={ground!r} must be 'ransac', 'none' or a height in metres") from None
-        elif ground == "none":
-            ground = None
-        grid = None
-        if args.angular_grid:
-            z0, dz, nz, a0, da, na = args.angular_grid
-            grid = AngularGrid(z0, dz, int(nz), a0, da, int(na))
-        rot = rotation_from_rpy(*args.scanner_rpy) if args.scanner_rpy else None
-        bounds = None if args.bounds is None else np.reshape(args.bounds, (2, 3))
-        if args.plan:
-            print(voxelize(scans, voxel_size=args.voxel_size, ground=ground, bounds=bounds, snap=args.snap,
-                           scanner_frame=args.scanner_frame, angular_grid=grid, socs_rotation=rot,
-                           max_range=args.max_range, progress=not args.quiet, layout=args.layout,
-                           tracer=Tracer(args.device) if args.device else None, plan_only=True).describe())
-            return 0
-        measured = None
-        leaf_angle = args.leaf_angle or "uniform"
-        if args.leaf_angle == "measured":
-            from tlsvox.leafangles import measure_leaf_angles
+    if args.bounds is not None and not np.all(np.reshape(args.bounds, (2, 3))[1] > np.reshape(args.bounds, (2, 3))[0]):
+        raise InputError(f"--bounds {args.bounds}: give xmin,ymin,zmin,xmax,ymax,zmax with each max above its min")
+    check_distinct("scan", args.scans)
+    check_outputs([("scan", p) for path in args.scans for p in (path, *sidecar_paths(path))]
+                  + [("--transforms", args.transforms)],
+                  [("-o", args.output), ("--vox", args.vox)])
+    if Path(args.output).suffix.lower() != ".npz":
+        raise InputError(f"-o {args.output} must end in .npz (the scene file); --vox PATH adds an AMAPVox .vox")
+    if args.vox is not None and Path(args.vox).suffix.lower() != ".vox":
+        raise InputError(f"--vox {args.vox} must end in .vox")
+    scans = [read_scan(path, i, args.scan_origin) for i, path in enumerate(args.scans)]
+    if args.transforms:
+        apply_transforms(scans, args.transforms)
+    ground = args.ground
+    if ground not in ("ransac", "none"):
+        try:
+            ground = float(ground)
+        except ValueError:
+            raise InputError(f"--ground={ground!r} must be 'ransac', 'none' or a height in metres") from None
+    elif ground == "none":
+        ground = None
+    grid = None
+    if args.angular_grid:
+        z0, dz, nz, a0, da, na = args.angular_grid
+        grid = AngularGrid(z0, dz, int(nz), a0, da, int(na))
+    rot = rotation_from_rpy(*args.scanner_rpy) if args.scanner_rpy else None
+    bounds = None if args.bounds is None else np.reshape(args.bounds, (2, 3))
+    options = dict(voxel_size=args.voxel_size, estimator=args.estimator, snap=args.snap, layout=args.layout,
+                   leaf_azimuth=args.leaf_azimuth, wood=args.wood, fill=args.fill, n_min=args.n_min,
+                   min_explored=args.min_explored, leaf_size=args.leaf_size,
+                   small_voxel_factor=args.small_voxel_factor, ground=ground, bounds=bounds,
+                   scanner_frame=args.scanner_frame, angular_grid=grid, socs_rotation=rot, max_range=args.max_range,
+                   progress=not args.quiet, echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
+                   wood_reflectance=args.wood_reflectance, undetected=args.undetected,
+                   detection_threshold_db=args.detection_threshold_db, leaf_shape=args.leaf_shape,
+                   tracer=Tracer(args.device) if args.device else None)
+    if args.plan:  # the same run's plan (the leaf angle model does not change what it holds)
+        print(voxelize(scans, plan_only=True, **options).describe())
+        return 0
+    measured = None
+    leaf_angle = args.leaf_angle or "uniform"
+    if args.leaf_angle == "measured":
+        from tlsvox.leafangles import measure_leaf_angles
 
-            if args.leaf_angle_layers < 1:
-                raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
-            measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
-            leaf_angle = measured.leaf_angle
-        res = voxelize(scans, voxel_size=args.voxel_size, leaf_angle=leaf_angle,
-                       estimator=args.estimator, snap=args.snap, layout=args.layout,
-                       leaf_azimuth=args.leaf_azimuth,
-                       wood=args.wood, fill=args.fill, n_min=args.n_min, min_explored=args.min_explored,
-                       leaf_size=args.leaf_size, small_voxel_factor=args.small_voxel_factor, ground=ground,
-                       bounds=bounds, scanner_frame=args.scanner_frame, angular_grid=grid,
-                       socs_rotation=rot, max_range=args.max_range, progress=not args.quiet,
-                       echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
-                       wood_reflectance=args.wood_reflectance, undetected=args.undetected,
-                       detection_threshold_db=args.detection_threshold_db,
-                       leaf_shape=_leaf_shape(args.leaf_shape),
-                       tracer=Tracer(args.device) if args.device else None)
-        for w in res.scene.meta["warnings"]:
-            print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
-        if args.strict and res.scene.meta["warnings"]:
-            raise TlsvoxError(f"{len(res.scene.meta['warnings'])} quality warning(s) with --strict; "
-                              "nothing was written (drop --strict to keep the result)")
-        if measured is not None:
-            res.scene.meta["leaf_angle_measured"] = measured.to_dict()
-        with staged([args.output, args.vox]) as tmp:  # the scene and its .vox: both or neither
-            res.scene.save(tmp[args.output])
-            if args.vox:
-                write_vox(res.scene, tmp[args.vox])
-    except VoxlidarError as err:
-        print(f"tlsvox voxelize: error: {err}", file=sys.stderr)
-        return exit_code(err)
+        if args.leaf_angle_layers < 1:
+            raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
+        measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
+        leaf_angle = measured.leaf_angle
+    res = voxelize(scans, leaf_angle=leaf_angle, **options)
+    for w in res.scene.meta["warnings"]:
+        print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
+    if args.strict and res.scene.meta["warnings"]:
+        raise TlsvoxError(f"{len(res.scene.meta['warnings'])} quality warning(s) with --strict; "
+                          "nothing was written (drop --strict to keep the result)")
+    if measured is not None:
+        res.scene.meta["leaf_angle_measured"] = measured.to_dict()
+    with staged([args.output, args.vox]) as tmp:  # the scene and its .vox: both or neither
+        res.scene.save(tmp[args.output])
+        if args.vox:
+            write_vox(res.scene, tmp[args.vox])
     if not args.quiet:
         s = res.scene
         summary = {"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,
@@ -297,20 +285,11 @@ def run(args) -> int:
     return 0
 
 
-def _leaf_shape(text: str) -> tuple[float, float]:
-    try:
-        length, width = (float(v) for v in str(text).split(","))
-    except ValueError:
-        raise InputError(f"--leaf-shape {text!r} must be length,width in metres, e.g. 0.05,0.025") from None
-    return length, width
-
-
 def main(argv=None) -> int:
     """Run ``voxelize`` alone: ``python -m tlsvox.cli.voxelize SCAN... -o scene.npz``."""
-    parser = argparse.ArgumentParser(prog="tlsvox voxelize", description=DESCRIPTION, epilog=EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
+    from tlsvox.cli.app import main as tlsvox_main
+
+    return tlsvox_main(["voxelize", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -27,8 +27,9 @@
  * in-brick indices brick_key[] sorted ascending (binary search).  Every
  * brick keeps NB coarse sums of its own, per beam crossing it:
  *   0 count (beams crossing), 1 visits (voxels entered: the dense count summed),
- *   2 n_w (weight entering), 3 path_w (free path), 4 chord_w, 5 path_wg
- * (the last three: the sums of the dense fields over the voxels crossed)
+ *   2 n_w (weight entering), 3 path_w (free path), 4 chord_w, 5 path_wg,
+ *   6 visits_w (weight entering each voxel: the dense n_w summed)
+ * (3, 4, 5 and 6: the sums of the dense fields over the voxels crossed)
  * which tell the occlusion of the voxels that hold no echo.
  *
  * Compile-time options:
@@ -56,7 +57,7 @@
 
 #define BRICK_BITS 3
 #define BRICK (1 << BRICK_BITS)
-#define NB 6
+#define NB 7
 
 #define KIND_LEAF 1
 #define KIND_WOOD 2
@@ -165,7 +166,7 @@ inline void trace_one(const long b, TRACE_INPUTS,
 #ifdef SPARSE
     const int bny = (ny + BRICK - 1) >> BRICK_BITS, bnz = (nz + BRICK - 1) >> BRICK_BITS;
     long brick = -1;
-    double b_w = 0.0, b_path = 0.0, b_chord = 0.0, b_visits = 0.0, b_pathg = 0.0;
+    double b_w = 0.0, b_path = 0.0, b_chord = 0.0, b_visits = 0.0, b_pathg = 0.0, b_visits_w = 0.0;
 #endif
     while (t < t1 && w > 1e-12) {
         int a = 0;
@@ -181,10 +182,10 @@ inline void trace_one(const long b, TRACE_INPUTS,
                 if (brick >= 0) {
                     __global double *brow = bacc + brick * NB;
                     ADD(brow + 0, 1.0); ADD(brow + 1, b_visits); ADD(brow + 2, b_w); ADD(brow + 3, b_path);
-                    ADD(brow + 4, b_chord); ADD(brow + 5, b_pathg);
+                    ADD(brow + 4, b_chord); ADD(brow + 5, b_pathg); ADD(brow + 6, b_visits_w);
                 }
                 brick = vb;
-                b_w = w; b_path = 0.0; b_chord = 0.0; b_visits = 0.0; b_pathg = 0.0;
+                b_w = w; b_path = 0.0; b_chord = 0.0; b_visits = 0.0; b_pathg = 0.0; b_visits_w = 0.0;
             }
             /* this voxel's row, if it holds an echo: binary search in its brick */
             const ushort key = (ushort)((((ijk[0] & (BRICK - 1)) << BRICK_BITS | (ijk[1] & (BRICK - 1)))
@@ -235,6 +236,7 @@ inline void trace_one(const long b, TRACE_INPUTS,
             b_chord += w_in * chord;
             b_pathg += gv * path;
             b_visits += 1.0;
+            b_visits_w += w_in;
             if (row) {
 #else
             {
@@ -263,7 +265,7 @@ inline void trace_one(const long b, TRACE_INPUTS,
     if (brick >= 0) {
         __global double *brow = bacc + brick * NB;
         ADD(brow + 0, 1.0); ADD(brow + 1, b_visits); ADD(brow + 2, b_w); ADD(brow + 3, b_path);
-        ADD(brow + 4, b_chord); ADD(brow + 5, b_pathg);
+        ADD(brow + 4, b_chord); ADD(brow + 5, b_pathg); ADD(brow + 6, b_visits_w);
     }
 #endif
 #ifdef USE_ATOMICS

@@ -48,19 +48,29 @@ __all__ = ["ScannerPreset", "ScanPose", "simulate_scan", "paper_scan_poses", "su
 class ScannerPreset:
     """Instrument parameters (angles in degrees, lengths in metres)."""
 
+    #: preset name (tlsvox/presets/NAME.toml)
     name: str = "riegl-vz400"
+    #: laser wavelength, nm (chooses the materials' reflectance)
     wavelength_nm: float = 1550.0
+    #: angular steps of the scan grid, degrees
     zenith_step_deg: float = 0.06
     azimuth_step_deg: float = 0.06
+    #: beam diameter at the exit aperture, m, and full divergence, mrad
     beam_exit_diameter_m: float = 0.007
     divergence_mrad: float = 0.35
+    #: range noise (1 sigma) of an echo, m
     range_noise_m: float = 0.005
+    #: two hits of one pulse closer than this along the beam give one echo, m
     range_resolution_m: float = 0.5
+    #: apparent-reflectance noise (1 sigma), dB, and the detection threshold, dB
     reflectance_noise_db: float = 0.3
     min_reflectance_db: float = -20.0
+    #: ranges recorded, m
     min_range_m: float = 1.5
     max_range_m: float = 350.0
+    #: sub-rays sampling the Gaussian beam (a centre ray plus full rings)
     n_subrays: int = 7
+    #: margin of the scan window around the scene, degrees
     window_margin_deg: float = 2.0
 
     def __post_init__(self):

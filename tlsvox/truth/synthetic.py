@@ -46,26 +46,39 @@ class TreeParams:
     inside it.
     """
 
+    #: tree height, m
     height: float = 13.6
+    #: height of the crown's lowest point (the scaffolds start above it), m
     crown_base: float = 3.0
+    #: horizontal semi-axis of the ellipsoidal crown envelope, m
     crown_radius: float = 6.0
+    #: trunk radius (the leader and scaffolds are thinner), m
     trunk_radius: float = 0.25
+    #: one-sided leaf area of the whole tree, m2 (met exactly: the leaves are scaled)
     total_leaf_area: float = 500.0
+    #: leaf length and width (an elliptical polygon), m
     leaf_length: float = 0.05
     leaf_width: float = 0.025
+    #: leaf inclination model (voxlidar.leafangle.LeafAngle name) and its beta parameters
     leaf_angle: str = "uniform"
     leaf_mu: float = 1.0
     leaf_nu: float = 1.0
+    #: leaf normal azimuths: "outward" (facing out from the trunk) or "uniform"
     leaf_azimuth: str = "outward"
+    #: scaffold branches from the trunk, levels of side branches below them, and children per branch
     n_scaffolds: int = 6
     branch_levels: int = 3
     children_per_branch: int = 3
+    #: spread (1 sigma, per axis) of the leaves around the terminal shoots: how clumped the foliage is, m
     leaf_cluster_sigma: float = 0.35
+    #: half the side of the square ground plane, m
     ground_half_size: float = 40.0
+    #: registration targets (cylinders) on an irregular ring around the tree: count, distance, radius, height
     n_targets: int = 5
     target_distance: float = 8.0
     target_radius: float = 0.05
     target_height: float = 0.20
+    #: close each bark cylinder's ends (solid wood)
     capped_wood: bool = True
 
     def __post_init__(self):

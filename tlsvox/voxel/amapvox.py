@@ -15,9 +15,12 @@ one row per voxel of the whole grid::
 ``PadBVTotal`` is the plant (here: leaf) area density in m2/m3, ``NaN`` where
 it could not be estimated.  Corners are the grid box's corners in metres.
 Columns this package writes: ``PadBVTotal``, ``wood``, ``occluded`` (0/1),
-``lad_std``; on import, unknown columns are ignored, a missing ``occluded``
-column is taken from ``NaN`` PAD values, and ``#res`` may also come from the
-corners and split.
+``lad_std``, and for a scene with directional bark (``Scene.wood_directional``)
+``wood_beta`` and the bark axis ``wood_axis_x wood_axis_y wood_axis_z``; the
+``#voxlidar:`` line keeps the leaf angle model, ground, wood kind, crown
+centre and the materials' optics.  On import, unknown columns are ignored, a
+missing ``occluded`` column is taken from ``NaN`` PAD values, and ``#res`` may
+also come from the corners and split.
 
 Examples
 --------
@@ -45,6 +48,8 @@ from voxlidar.scene import Scene
 __all__ = ["read_vox", "write_vox"]
 
 COLUMNS = ("PadBVTotal", "wood", "occluded", "lad_std")
+#: written only for a scene with directional bark
+WOOD_DIR_COLUMNS = ("wood_beta", "wood_axis_x", "wood_axis_y", "wood_axis_z")
 
 
 #: grids above this many voxels are refused by :func:`write_vox` (the format lists every voxel, as text)
@@ -82,6 +87,13 @@ def write_vox(scene: Scene, path: "str | os.PathLike", *, max_pad: float | None 
     mp = float(max_pad) if max_pad is not None else max(1.0, float(np.max(lad, initial=0.0)))
     ii, jj, kk = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
     cols = [ii.ravel(), jj.ravel(), kk.ravel(), pad.ravel(), wood.ravel(), occ.ravel().astype(int), std.ravel()]
+    names, fmt = COLUMNS, ["%d", "%d", "%d", "%.9g", "%.9g", "%d", "%.9g"]
+    if scene.wood_directional:
+        beta = scene.dense("wood_beta")
+        axis = np.zeros(tuple(scene.shape) + (3,))
+        axis[tuple(scene.ijk.T)] = scene.wood_axis
+        cols += [beta.ravel()] + [axis[..., c].ravel() for c in range(3)]
+        names, fmt = names + WOOD_DIR_COLUMNS, fmt + ["%.9g"] * 4
     header = [
         "VOXEL SPACE",
         f"#min_corner: {lo[0]:.6f} {lo[1]:.6f} {lo[2]:.6f}",
@@ -92,14 +104,14 @@ def write_vox(scene: Scene, path: "str | os.PathLike", *, max_pad: float | None 
     if metadata:
         meta = {"leaf_angle": scene.leaf_angle.to_dict(), "leaf_azimuth": scene.leaf_azimuth,
                 "ground_z": scene.ground_z, "wood_kind": scene.wood_kind,
-                "crown_center": scene.crown_center.tolist()}
+                "crown_center": scene.crown_center.tolist(), "materials": scene.materials}
         header.append("#voxlidar: " + json.dumps(meta))
-    header.append("i j k " + " ".join(COLUMNS))
+    header.append("i j k " + " ".join(names))
 
     def write(tmp):
         with open(tmp, "w") as fh:
             fh.write("\n".join(header) + "\n")
-            np.savetxt(fh, np.column_stack(cols), fmt=["%d", "%d", "%d", "%.9g", "%.9g", "%d", "%.9g"])
+            np.savetxt(fh, np.column_stack(cols), fmt=fmt)
 
     return atomic_write(path, write)
 
@@ -196,6 +208,11 @@ def read_vox(path: "str | os.PathLike", *, pad_column: str = "PadBVTotal") -> Sc
         kw = dict(leaf_angle=meta.get("leaf_angle", "uniform"), leaf_azimuth=meta.get("leaf_azimuth", "uniform"),
                   ground_z=meta.get("ground_z"), wood_kind=meta.get("wood_kind", "probability"),
                   crown_center=meta.get("crown_center", [0.0, 0.0]))
+        if "materials" in meta:
+            kw["materials"] = meta["materials"]
+    if all(c in col for c in WOOD_DIR_COLUMNS):
+        kw["wood_beta"] = col["wood_beta"][keep]
+        kw["wood_axis"] = np.column_stack([col[c][keep] for c in WOOD_DIR_COLUMNS[1:]])
     return Scene(origin=lo, voxel_size=res, shape=tuple(shape), ijk=ijk[keep], lad=lad[keep],
                  wood=wood[keep], occluded=occluded[keep],
                  lad_std=None if std is None else np.nan_to_num(std[keep]), meta={"source": str(path)}, **kw)

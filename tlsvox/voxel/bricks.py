@@ -8,12 +8,13 @@ need to know of it is whether beams saw it empty or never reached it
 
 - a full row of the tracer's sums (:data:`tlsvox.voxel.trace.FIELDS`) for
   each *row voxel*: a voxel that holds at least one leaf or wood echo;
-- six coarse sums per *brick* of ``BRICK**3`` voxels (beams crossing it,
+- seven coarse sums per *brick* of ``BRICK**3`` voxels (beams crossing it,
   voxels they entered in it, weight entering, free path, potential chord,
-  free path times G),
+  free path times G, weight entering its voxels),
   from which the voxels of the brick that hold no echo are judged seen or
-  occluded: by the mean beams per voxel (visits over the brick's voxels) and
-  the explored share (free path over potential chord).
+  occluded: by the mean beams per voxel (visits over the brick's voxels),
+  with ``weighted_count`` also by the mean beam weight per voxel, and the
+  explored share (free path over potential chord).
 
 Memory then scales with the echoes (rows) and with the grid / 512 (bricks),
 not with the grid.  Row voxels are found in the kernel through their brick:
@@ -41,7 +42,8 @@ from tlsvox.voxel.grid import VoxelGrid
 __all__ = ["BRICK", "BRICK_FIELDS", "Bricks"]
 
 BRICK = 8  #: voxels per brick edge (trace.cl BRICK_BITS = 3)
-BRICK_FIELDS = ("count", "visits", "n_w", "path_w", "chord_w", "path_wg")  #: coarse sums per brick (trace.cl NB)
+#: coarse sums per brick (trace.cl NB); ``visits_w``: the weight entering its voxels (the dense ``n_w`` summed)
+BRICK_FIELDS = ("count", "visits", "n_w", "path_w", "chord_w", "path_wg", "visits_w")
 
 
 @dataclass(frozen=True, eq=False)

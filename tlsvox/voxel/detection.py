@@ -90,6 +90,8 @@ __all__ = ["DetectionModel", "Undetected", "missed_share", "projection_tables", 
 
 #: leaf echoes given back per pulse tail (at the quantiles of where the unrecorded stop lies)
 ECHOES_PER_TAIL = 4
+#: samples along the beams walked at once by :func:`unrecorded_echoes` (its working memory)
+CHUNK_SAMPLES = 4_000_000
 #: beam-part positions tried per (mu, w) cell of the missed-share table
 PLACEMENTS = 6000
 
@@ -371,7 +373,7 @@ def _interp_h(h, w_nodes, theta, c, w):
 
 def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *, outward=None, box=None,
                       echoes_per_tail: int = ECHOES_PER_TAIL, step: float | None = None,
-                      chunk_samples: int = 4_000_000):
+                      chunk_samples: int = CHUNK_SAMPLES):
     """The beams with the expected unrecorded leaf interception given back as leaf echoes.
 
     Parameters

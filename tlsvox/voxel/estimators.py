@@ -85,8 +85,8 @@ from tlsvox.errors import InputError
 from voxlidar.choices import Choice
 from tlsvox.voxel.trace import VoxelStats
 
-__all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "brick_occlusion", "estimate_lad", "fill_layers",
-           "hull_mask"]
+__all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "brick_layer_means", "brick_occlusion", "estimate_lad",
+           "fill_layers", "fill_neighbourhood", "hull_mask"]
 
 _TINY = 1e-12
 
@@ -106,6 +106,7 @@ class FillMode(str, Choice):
 
     NONE = "none"  #: leave them at 0, flagged
     LAYER = "layer"  #: mean LAD of the visible voxels of the same height layer (Béland 2014)
+    NEIGHBOURHOOD = "neighbourhood"  #: mean LAD of the nearest seen crown voxels (:func:`fill_neighbourhood`)
 
 
 
@@ -201,16 +202,20 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
         ``LARGE_LEAVES`` when the mean chord < ratio x leaf_size.
     small_voxel_factor : float
         Multiplies every LAD (the paper used 0.95 for small voxels; default 1).
-    fill : {"none", "layer"}
+    fill : {"none", "layer", "neighbourhood"}
         ``layer``: occluded voxels inside ``fill_mask`` get the mean LAD of the
         visible voxels of their height layer inside ``fill_mask``.
+        ``neighbourhood`` (dense traces): the mean LAD of the seen voxels of
+        ``fill_mask`` in the smallest cube around them that holds at least
+        ``FILL_MIN_SEEN`` of them (:func:`fill_neighbourhood`).
     fill_mask : (nx, ny, nz) bool, optional
         Where filling is allowed (the crown); default :func:`hull_mask` of the
         voxels with leaf hits.
     weighted_count : bool
         Also flag ``FEW_BEAMS`` where the beam weight entering (``n_w``, in
         pulses) is under ``n_min``: voxels reached only by the leftovers of
-        pulse tails (``voxelize(undetected="model")``; dense traces).
+        pulse tails (``voxelize(undetected="model")``).  Sparse traces judge
+        their echo-free voxels alike per brick (:func:`brick_occlusion`).
 
     Returns
     -------
@@ -289,7 +294,12 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     std = np.where(occluded, 0.0, std)
     sparse = {}
     if stats.sparse:
-        sparse = dict(rows=stats.rows, brick_occluded=brick_occlusion(stats, n_min=n_min, min_explored=min_explored))
+        sparse = dict(rows=stats.rows, brick_occluded=brick_occlusion(stats, n_min=n_min, min_explored=min_explored,
+                                                                      weighted_count=weighted_count))
+        if fill is FillMode.NEIGHBOURHOOD:
+            raise InputError("fill='neighbourhood' needs every voxel's own sums (the dense layout): use "
+                             "layout='dense' (CLI --layout dense), or fill='layer', which the sparse layout "
+                             "does per brick layer")
         if fill is FillMode.LAYER:
             if fill_mask is not None:
                 raise InputError("fill_mask is for dense traces; a sparse trace fills inside the hull of its "
@@ -297,32 +307,72 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
             out, filled, sparse["extra_ijk"], sparse["extra_lad"] = _fill_bricks(
                 out, occluded, stats, sparse["brick_occluded"], hits, small_voxel_factor)
             flags[filled] |= np.uint8(Flag.FILLED)
-    elif fill is FillMode.LAYER:
+    elif fill is not FillMode.NONE:
         mask = hull_mask(hits > _TINY, stats.grid) if fill_mask is None else np.asarray(fill_mask, bool)
         if mask.shape != out.shape:
             raise InputError(f"fill_mask must have the grid's shape {out.shape}, got {mask.shape}")
-        out, filled = fill_layers(out, occluded, mask)
+        if fill is FillMode.LAYER:
+            out, filled = fill_layers(out, occluded, mask)
+        else:
+            out, filled = fill_neighbourhood(out, occluded, mask)
         flags[filled] |= np.uint8(Flag.FILLED)
     out = out * float(small_voxel_factor)
     std = std * float(small_voxel_factor)
     options = dict(n_min=int(n_min), min_explored=float(min_explored), leaf_size=leaf_size,
                    large_leaf_ratio=float(large_leaf_ratio), small_voxel_factor=float(small_voxel_factor),
                    fill=fill.value, weighted_count=bool(weighted_count))
+    if fill is FillMode.NEIGHBOURHOOD:
+        options.update(fill_radii=list(FILL_RADII), fill_min_seen=FILL_MIN_SEEN)
     return LadEstimate(lad=out, lad_std=std, lad_raw=lad_raw, flags=flags, g_eff=g_eff,
                        estimator=est, options=options, **sparse)
 
 
-def brick_occlusion(stats: VoxelStats, *, n_min: int = 5, min_explored: float = 0.05) -> np.ndarray:
+def brick_occlusion(stats: VoxelStats, *, n_min: int = 5, min_explored: float = 0.05,
+                    weighted_count: bool = False) -> np.ndarray:
     """Sparse traces: (bx, by, bz) bool, the bricks whose echo-free voxels count as occluded.
 
     The rule of the voxel flags, on the brick's sums: fewer than ``n_min``
     beams entered its voxels on average (visits over the brick's voxels
-    inside the grid), or they explored less than ``min_explored`` of the
-    voxels they crossed (free path over potential chord).
+    inside the grid), with ``weighted_count`` also less than ``n_min``
+    pulses' worth of beam weight on average (``visits_w`` over the voxels:
+    the dense rule ``n_w < n_min`` on the brick's mean voxel), or they
+    explored less than ``min_explored`` of the voxels they crossed (free
+    path over potential chord).
     """
-    per_voxel = stats.brick_field("visits") / stats.rows.voxels_in_grid()
+    voxels = stats.rows.voxels_in_grid()
+    per_voxel = stats.brick_field("visits") / voxels
     explored = safe_divide(stats.brick_field("path_w"), stats.brick_field("chord_w"))
-    return (per_voxel < n_min) | (explored < min_explored)
+    occluded = (per_voxel < n_min) | (explored < min_explored)
+    if weighted_count:
+        occluded |= stats.brick_field("visits_w") / voxels < n_min
+    return occluded
+
+
+def brick_layer_means(stats: VoxelStats, brick_occluded, hits):
+    """Sparse traces: the crown bricks and the pooled LAD of each brick layer's seen crown bricks.
+
+    The crown is the hull of the bricks holding leaf echoes (``hits`` > 0 per
+    row); a brick layer's value is ``sum(leaf hits) / sum(G x free path)`` over
+    its seen crown bricks (the maximum-likelihood LAD of those bricks taken as
+    one medium).
+
+    Returns crown (n_bricks,) bool, each brick's layer (n_bricks,), the
+    layers' LAD (n_layers,) and whether a layer has a seen crown brick.
+    """
+    rows = stats.rows
+    row_brick = rows.brick_of_rows()
+    occ = np.asarray(brick_occluded, bool).reshape(-1)
+    seed_bricks = np.zeros(rows.n_bricks, bool)
+    seed_bricks[row_brick[np.asarray(hits) > _TINY]] = True
+    crown = hull_mask(seed_bricks.reshape(rows.shape), None).reshape(-1)
+    bz = np.unravel_index(np.arange(rows.n_bricks), rows.shape)[2]
+    seen = crown & ~occ
+    n_layers = rows.shape[2]
+    hits_per_brick = np.bincount(row_brick, weights=hits, minlength=rows.n_bricks)
+    mean = safe_divide(np.bincount(bz[seen], weights=hits_per_brick[seen], minlength=n_layers),
+                       np.bincount(bz[seen], weights=stats.brick_field("path_wg").reshape(-1)[seen], minlength=n_layers))
+    has_mean = np.bincount(bz[seen], minlength=n_layers) > 0
+    return crown, bz, mean, has_mean
 
 
 def _fill_bricks(lad, occluded, stats, brick_occluded, hits, small_voxel_factor):
@@ -344,16 +394,7 @@ def _fill_bricks(lad, occluded, stats, brick_occluded, hits, small_voxel_factor)
     rows = stats.rows
     row_brick = rows.brick_of_rows()
     occ = brick_occluded.reshape(-1)
-    seed_bricks = np.zeros(rows.n_bricks, bool)
-    seed_bricks[row_brick[hits > _TINY]] = True
-    crown = hull_mask(seed_bricks.reshape(rows.shape), None).reshape(-1)
-    bz = np.unravel_index(np.arange(rows.n_bricks), rows.shape)[2]
-    seen = crown & ~occ
-    n_layers = rows.shape[2]
-    hits_per_brick = np.bincount(row_brick, weights=hits, minlength=rows.n_bricks)
-    mean = safe_divide(np.bincount(bz[seen], weights=hits_per_brick[seen], minlength=n_layers),
-                       np.bincount(bz[seen], weights=stats.brick_field("path_wg").reshape(-1)[seen], minlength=n_layers))
-    has_mean = np.bincount(bz[seen], minlength=n_layers) > 0
+    crown, bz, mean, has_mean = brick_layer_means(stats, brick_occluded, hits)
     row_layer = bz[row_brick]
     filled = occluded & crown[row_brick] & has_mean[row_layer]
     lad = np.where(filled, mean[row_layer], lad)
@@ -363,6 +404,81 @@ def _fill_bricks(lad, occluded, stats, brick_occluded, hits, small_voxel_factor)
     value = mean[ijk[:, 2] // BRICK] * float(small_voxel_factor) if len(ijk) else np.zeros(0)
     keep = value > 0
     return lad, filled, ijk[keep], value[keep]
+
+
+#: ``fill="neighbourhood"``: half-widths (voxels) of the cubes tried, smallest first
+FILL_RADII = (1, 2, 4, 8)
+#: ``fill="neighbourhood"``: seen crown voxels a cube must hold to give its mean
+FILL_MIN_SEEN = 5
+
+
+def fill_neighbourhood(lad, occluded, mask, *, radii=FILL_RADII, min_seen: int = FILL_MIN_SEEN):
+    """Fill occluded crown voxels with the mean LAD of the nearest seen crown voxels.
+
+    For each occluded voxel of ``mask``, the cubes of half-width ``r`` in
+    ``radii`` voxels around it are tried, smallest first; the first holding at
+    least ``min_seen`` seen voxels of ``mask`` gives their mean LAD (seen empty
+    voxels count, as 0).  Voxels no cube serves take their height layer's mean
+    (:func:`fill_layers`).  Foliage is spatially correlated at the scale of
+    shoots and clusters, which a crown-wide layer mean averages away: the
+    voxels a dense cluster occludes are its own core and the space behind it,
+    and their nearest seen voxels are that cluster's outskirts.
+
+    Parameters
+    ----------
+    lad : (nx, ny, nz) float
+        LAD with occluded voxels at 0.
+    occluded, mask : (nx, ny, nz) bool
+        Occluded voxels; voxels of the crown (only these fill and are filled).
+    radii : sequence of int
+    min_seen : int
+
+    Returns
+    -------
+    filled_lad : (nx, ny, nz) float64
+    filled : (nx, ny, nz) bool
+        Voxels that received a value.
+
+    Examples
+    --------
+    >>> lad = np.zeros((5, 1, 1)); lad[:2] = 2.0; lad[3] = 1.0
+    >>> occ = np.zeros((5, 1, 1), bool); occ[2] = True
+    >>> out, filled = fill_neighbourhood(lad, occ, np.ones((5, 1, 1), bool), radii=(1, 2), min_seen=2)
+    >>> float(out[2, 0, 0]), bool(filled[2, 0, 0])
+    (1.5, True)
+    """
+    from scipy import ndimage
+
+    if int(min_seen) != min_seen or min_seen < 1:
+        raise InputError(f"min_seen={min_seen!r} must be an integer >= 1 (seen voxels a cube needs to give its mean)")
+    radii = tuple(radii)
+    if not radii or any(int(r) != r or r < 1 for r in radii):
+        raise InputError(f"radii={radii!r} must be positive integers (cube half-widths in voxels, e.g. (1, 2, 4, 8))")
+    lad = np.array(lad, dtype=np.float64)
+    occluded = np.asarray(occluded, bool)
+    mask = np.asarray(mask, bool)
+    seen = mask & ~occluded
+    target = occluded & mask
+    todo = target.copy()
+    values = np.where(seen, lad, 0.0)
+    weight = seen.astype(np.float64)
+    for r in radii:
+        if not todo.any():
+            break
+        k = 2 * int(r) + 1
+        # box sums (mean times volume; rounded, the counts are whole numbers)
+        total = ndimage.uniform_filter(values, size=k, mode="constant") * k**3
+        count = np.rint(ndimage.uniform_filter(weight, size=k, mode="constant") * k**3)
+        ok = todo & (count >= min_seen)
+        lad[ok] = np.maximum(total[ok] / count[ok], 0.0)  # the filter's running sums may round below 0
+        todo &= ~ok
+    filled = target & ~todo
+    if todo.any():  # the layer's mean over its seen voxels (not over those filled above)
+        rest, by_layer = fill_layers(np.where(seen, lad, 0.0), occluded, mask)
+        by_layer &= todo
+        lad = np.where(by_layer, rest, lad)
+        filled |= by_layer
+    return lad, filled
 
 
 def fill_layers(lad, occluded, mask):

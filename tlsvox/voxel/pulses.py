@@ -204,6 +204,8 @@ def reconstruct_empty_pulses(directions, grid: AngularGrid, *, socs_rotation=Non
     Returns
     -------
     Reconstruction
+        The empty pulses' directions (scan frame) and how well the grid fitted
+        the returned ones.
     """
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     if len(d) < 100:

@@ -1,41 +1,24 @@
 """Beam tracing through a voxel grid (Amanatides-Woo DDA) on OpenCL.
 
-Every laser pulse is a ray from its origin along its unit direction.  It
-carries a weight, initially 1: each recorded echo at range ``r`` removes its
-weight (``1/n`` for an ``n``-echo pulse), and the *tail* weight (echoes the
-file did not keep, e.g. cut off by a range limit) carries on to the beam's
-``max_range``.  A pulse with no echo is a beam of tail weight 1: it is what
-tells a voxel that light got through.
-
-Per voxel the tracer accumulates (:data:`FIELDS`, pooled over all beams given):
-
-=============  ==============================================================
-``count``      number of beams entering
-``n_w``        beam weight entering, N
-``leaf_w``     leaf echo weight inside, N_I
-``wood_w``     wood echo weight inside
-``other_w``    weight stopped by other surfaces (ground, targets)
-``path_w``     free path: integral of the beam weight along its path inside
-               (entry to echo, or the whole chord), m
-``path_wg``    the same times G(theta) of each beam (its leaf projection), m
-``leaf_zw``    sum over leaf echoes of weight x (echo range - entry), m
-``leaf_zwg``   the same times G(theta)
-``wood_zw``    sum over wood echoes of weight x (echo range - entry), m
-``chord_w``    entering weight x potential chord delta (as if unobstructed), m
-``chord2_w``   entering weight x delta^2, m2
-``dir_x/y/z``  entering weight x beam direction (mean direction = dir / n_w)
-``leaf_w_g``   leaf echo weight / G(theta)
-=============  ==============================================================
+Each beam (:class:`~tlsvox.voxel.beams.Beams`: a pulse with its echoes and
+the weight they remove) is walked voxel by voxel, and every voxel it enters
+gets the per-voxel sums of :data:`~tlsvox.voxel.stats.FIELDS` (a
+:class:`~tlsvox.voxel.stats.VoxelStats`), pooled over all beams given.
 
 With ``rows`` (a :class:`~tlsvox.voxel.bricks.Bricks`), the trace is
 *sparse*: full rows only for the listed voxels (those holding echoes) and
-six coarse sums per brick of 8^3 voxels (:mod:`tlsvox.voxel.bricks`), so
+seven coarse sums per brick of 8^3 voxels (:mod:`tlsvox.voxel.bricks`), so
 memory follows the echoes rather than the grid; the listed voxels' sums are
 the dense trace's, bit for bit.
 
 On a CPU device each work-item owns a private copy of the accumulators and
 strides over the beams: no atomics, and the sums come out bit-identical from
 run to run.  On a GPU the beams run one per work-item with atomic adds.
+The brute-force NumPy reference the tests compare with is
+:func:`tlsvox.voxel.trace_reference.trace_reference`.
+
+``Beams``, ``EchoKind``, ``FIELDS``, ``VoxelStats``, ``echo_rows``,
+``echo_voxels`` and ``trace_reference`` are importable from here too.
 
 References
 ----------
@@ -63,10 +46,8 @@ Examples
 
 from __future__ import annotations
 
-import enum
 import functools
 import time
-from dataclasses import dataclass, field
 from importlib import resources
 
 import numpy as np
@@ -75,248 +56,13 @@ from voxlidar.devices import build_program, choose_device, describe, open_queue,
 from voxlidar.errors import DeviceError as AnyDeviceError
 
 from tlsvox.errors import DeviceError, InputError
+from tlsvox.voxel.beams import Beams, EchoKind, echo_rows, echo_voxels
 from tlsvox.voxel.bricks import BRICK, BRICK_FIELDS, Bricks
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
+from tlsvox.voxel.stats import FIELDS, NF, VoxelStats
+from tlsvox.voxel.trace_reference import _slab, trace_reference  # noqa: F401 (_slab: tlsvox.voxel.detection)
 
 __all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "echo_rows", "echo_voxels", "trace", "trace_reference"]
-
-FIELDS = ("count", "n_w", "leaf_w", "wood_w", "other_w", "path_w", "path_wg", "leaf_zw",
-          "leaf_zwg", "wood_zw", "chord_w", "chord2_w", "dir_x", "dir_y", "dir_z", "leaf_w_g")
-NF = len(FIELDS)
-_INDEX = {name: i for i, name in enumerate(FIELDS)}
-
-
-class EchoKind(enum.IntEnum):
-    """What an echo means to the tracer."""
-
-    IGNORE = 0  #: noise: neither stops the beam nor counts
-    LEAF = 1  #: a leaf hit (the LAD estimators' events)
-    WOOD = 2  #: a wood hit (the wood estimators' events)
-    OTHER = 3  #: stops the beam but is neither (ground, targets)
-
-
-@dataclass
-class Beams:
-    """Beams to trace, in one (world) frame, with their echoes in CSR form.
-
-    Parameters
-    ----------
-    origin : (B, 3) float64, metres
-        Start of each beam.
-    direction : (B, 3) float64
-        Unit direction of each beam.
-    echo_start : (B + 1,) int64
-        Echoes of beam ``b`` are rows ``echo_start[b]:echo_start[b + 1]``.
-    echo_range : (E,) float64, metres
-        Distance of each echo from its beam's origin, increasing within a beam.
-    echo_weight : (E,) float64
-        Weight each echo removes from its beam (1/n).
-    echo_kind : (E,) uint8
-        :class:`EchoKind` of each echo (IGNORE echoes must be removed before).
-    tail : (B,) float64
-        Weight left after the last echo, carried to ``max_range``.
-    max_range : (B,) float64, metres
-        Where the beam's knowledge ends (>= its last echo's range).
-    g : (B,) float64, optional
-        G(theta) of each beam for the leaf angle model (default 1).
-    scan_index : (B,) int16, optional
-        Which scan each beam came from.
-    """
-
-    origin: np.ndarray
-    direction: np.ndarray
-    echo_start: np.ndarray
-    echo_range: np.ndarray
-    echo_weight: np.ndarray
-    echo_kind: np.ndarray
-    tail: np.ndarray
-    max_range: np.ndarray
-    g: np.ndarray | None = None
-    scan_index: np.ndarray | None = None
-    meta: dict = field(default_factory=dict)
-
-    def __post_init__(self):
-        self.direction = np.ascontiguousarray(np.asarray(self.direction, dtype=np.float64).reshape(-1, 3))
-        b = len(self.direction)
-        origin = np.asarray(self.origin, dtype=np.float64)
-        if origin.size == 3 and b != 1:
-            origin = np.broadcast_to(origin.reshape(1, 3), (b, 3))
-        self.origin = np.ascontiguousarray(origin.reshape(-1, 3))
-        if len(self.origin) != b:
-            raise InputError(f"beams: origin has {len(self.origin)} rows for {b} directions")
-        norms = np.linalg.norm(self.direction, axis=1)
-        if b and (not np.all(np.isfinite(self.direction)) or np.any(np.abs(norms - 1) > 1e-6)):
-            raise InputError("beams: every direction must be a finite unit vector (normalise them)")
-        if not np.all(np.isfinite(self.origin)):
-            raise InputError("beams: origins must be finite")
-        self.echo_start = np.ascontiguousarray(np.asarray(self.echo_start, dtype=np.int64).reshape(-1))
-        if len(self.echo_start) != b + 1 or self.echo_start[0] != 0 or np.any(np.diff(self.echo_start) < 0):
-            raise InputError(
-                f"beams: echo_start must be ({b + 1},) non-decreasing offsets starting at 0, "
-                f"got shape {self.echo_start.shape}"
-            )
-        e = int(self.echo_start[-1])
-        self.echo_range = np.ascontiguousarray(np.asarray(self.echo_range, dtype=np.float64).reshape(-1))
-        self.echo_weight = np.ascontiguousarray(np.asarray(self.echo_weight, dtype=np.float64).reshape(-1))
-        self.echo_kind = np.ascontiguousarray(np.asarray(self.echo_kind, dtype=np.uint8).reshape(-1))
-        for name in ("echo_range", "echo_weight", "echo_kind"):
-            if len(getattr(self, name)) != e:
-                raise InputError(f"beams: {name} has {len(getattr(self, name))} values for {e} echoes")
-        if e and (not np.all(np.isfinite(self.echo_range)) or self.echo_range.min() < 0):
-            raise InputError("beams: echo ranges must be finite and >= 0 metres")
-        if e and np.any(self.echo_weight < 0):
-            raise InputError("beams: echo weights must be >= 0")
-        if e and np.any(self.echo_kind > EchoKind.OTHER):
-            raise InputError(f"beams: echo_kind must be one of {[int(k) for k in EchoKind]}")
-        self.tail = np.ascontiguousarray(np.broadcast_to(np.asarray(self.tail, dtype=np.float64), (b,)))
-        self.max_range = np.ascontiguousarray(
-            np.broadcast_to(np.asarray(self.max_range, dtype=np.float64), (b,)))
-        if np.any(self.tail < 0) or np.any(np.isnan(self.max_range)) or np.any(self.max_range < 0):
-            raise InputError("beams: tail weights must be >= 0 and max_range >= 0 (inf allowed)")
-        if self.g is None:
-            self.g = np.ones(b)
-        self.g = np.ascontiguousarray(np.broadcast_to(np.asarray(self.g, dtype=np.float64), (b,)))
-        if b and (not np.all(np.isfinite(self.g)) or self.g.min() <= 0):
-            raise InputError("beams: g (G(theta) per beam) must be finite and > 0")
-        if self.scan_index is not None:
-            self.scan_index = np.asarray(self.scan_index, dtype=np.int16).reshape(b)
-
-    def __len__(self) -> int:
-        return len(self.direction)
-
-    @property
-    def n_echoes(self) -> int:
-        return int(self.echo_start[-1])
-
-    @classmethod
-    def from_rays(cls, origin, direction, *, hit_range=None, kind=EchoKind.LEAF,
-                  max_range=np.inf) -> "Beams":
-        """Single-echo beams: each stops at ``hit_range`` (inf = no echo).
-
-        Parameters
-        ----------
-        origin : (3,) or (B, 3) float, metres
-        direction : (B, 3) float
-            Normalised here.
-        hit_range : (B,) float, metres, optional
-            Range of the single echo; ``inf`` (or None) for a gap.
-        kind : EchoKind or (B,) int
-        max_range : float or (B,) float, metres
-            How far gap beams are followed.
-        """
-        d = np.asarray(direction, dtype=np.float64).reshape(-1, 3)
-        n = np.linalg.norm(d, axis=1, keepdims=True)
-        if np.any(n == 0):
-            raise InputError("direction has zero-length rows")
-        d = d / n
-        b = len(d)
-        r = np.full(b, np.inf) if hit_range is None else np.asarray(hit_range, dtype=np.float64).reshape(b)
-        hit = np.isfinite(r)
-        start = np.concatenate([[0], np.cumsum(hit)])
-        kinds = np.broadcast_to(np.asarray(kind, dtype=np.uint8), (b,))[hit]
-        mr = np.broadcast_to(np.asarray(max_range, dtype=np.float64), (b,)).copy()
-        mr[hit] = np.maximum(mr[hit], r[hit])
-        return cls(origin=origin, direction=d, echo_start=start, echo_range=r[hit],
-                   echo_weight=np.ones(int(hit.sum())), echo_kind=kinds,
-                   tail=(~hit).astype(np.float64), max_range=mr)
-
-    @classmethod
-    def concat(cls, parts: "list[Beams]") -> "Beams":
-        """Join beams of several scans (``scan_index`` filled by position)."""
-        if not parts:
-            raise InputError("no beams to concatenate")
-        starts, off = [], 0
-        for p in parts:
-            starts.append(p.echo_start[:-1] + off)
-            off += p.n_echoes
-        starts.append(np.array([off]))
-        scan_index = np.concatenate([
-            p.scan_index if p.scan_index is not None else np.full(len(p), i, np.int16)
-            for i, p in enumerate(parts)])
-        return cls(
-            origin=np.concatenate([p.origin for p in parts]),
-            direction=np.concatenate([p.direction for p in parts]),
-            echo_start=np.concatenate(starts),
-            echo_range=np.concatenate([p.echo_range for p in parts]),
-            echo_weight=np.concatenate([p.echo_weight for p in parts]),
-            echo_kind=np.concatenate([p.echo_kind for p in parts]),
-            tail=np.concatenate([p.tail for p in parts]),
-            max_range=np.concatenate([p.max_range for p in parts]),
-            g=np.concatenate([p.g for p in parts]),
-            scan_index=scan_index,
-        )
-
-    def zenith(self) -> np.ndarray:
-        """(B,) zenith angle of each beam, radians (0 = straight up)."""
-        return np.arccos(np.clip(self.direction[:, 2], -1.0, 1.0))
-
-    def echo_points(self) -> np.ndarray:
-        """(E, 3) world positions of the echoes."""
-        beam = np.repeat(np.arange(len(self)), np.diff(self.echo_start))
-        return self.origin[beam] + self.direction[beam] * self.echo_range[:, None]
-
-
-@dataclass
-class VoxelStats:
-    """Accumulated beam statistics on a grid (see :data:`FIELDS`).
-
-    Attributes
-    ----------
-    grid : VoxelGrid
-    acc : (n_rows, NF) float64
-        One row per voxel in flat C order (dense), or per row voxel of
-        ``rows`` (sparse); one column per field.
-    rows : Bricks or None
-        The row voxels of a sparse trace (None: dense).
-    bricks : (n_bricks, 4) float64 or None
-        Sparse: the coarse sums per brick (:data:`tlsvox.voxel.bricks.BRICK_FIELDS`).
-    n_beams : int
-    n_steps : int
-        Voxel visits (segments of beams inside voxels).
-    seconds : float
-        Wall time of the trace.
-    """
-
-    grid: VoxelGrid
-    acc: np.ndarray
-    n_beams: int = 0
-    n_steps: int = 0
-    seconds: float = 0.0
-    device: str = ""
-    rows: Bricks | None = None
-    bricks: np.ndarray | None = None
-
-    @property
-    def sparse(self) -> bool:
-        return self.rows is not None
-
-    def field(self, name: str) -> np.ndarray:
-        """One field: an (nx, ny, nz) view (dense), or (n_rows,) in row order (sparse)."""
-        if name not in _INDEX:
-            raise InputError(f"field={name!r} is not a tracer field; choose one of {', '.join(FIELDS)}")
-        column = self.acc[:, _INDEX[name]]
-        return column if self.sparse else column.reshape(self.grid.shape)
-
-    def brick_field(self, name: str) -> np.ndarray:
-        """Sparse traces: one coarse field per brick, shape :attr:`Bricks.shape`."""
-        if not self.sparse:
-            raise InputError("brick_field: this trace is dense; every voxel has its own sums (field)")
-        if name not in BRICK_FIELDS:
-            raise InputError(f"field={name!r} is not a brick field; choose one of {', '.join(BRICK_FIELDS)}")
-        return self.bricks[:, BRICK_FIELDS.index(name)].reshape(self.rows.shape)
-
-    def __add__(self, other: "VoxelStats") -> "VoxelStats":
-        if other.grid != self.grid or (self.rows is None) != (other.rows is None) or (
-                self.sparse and not (np.array_equal(self.rows.start, other.rows.start)
-                                     and np.array_equal(self.rows.key, other.rows.key))):
-            raise InputError("cannot add VoxelStats of different grids or rows")
-        return VoxelStats(self.grid, self.acc + other.acc, self.n_beams + other.n_beams,
-                          self.n_steps + other.n_steps, self.seconds + other.seconds, self.device,
-                          self.rows, None if self.bricks is None else self.bricks + other.bricks)
-
-    @property
-    def beams_per_second(self) -> float:
-        return self.n_beams / self.seconds if self.seconds > 0 else float("nan")
 
 
 def probe_build(device) -> str | None:
@@ -605,30 +351,6 @@ def check_bytes(need: int, max_bytes: int | None, what: str, *, fraction: float 
     return need
 
 
-def echo_positions(beams: Beams, kinds=(EchoKind.LEAF, EchoKind.WOOD), *, nudge: float = 0.0) -> np.ndarray:
-    """(E, 3) world positions of the beams' echoes of ``kinds``, each moved ``nudge`` metres along its beam."""
-    sel = np.isin(beams.echo_kind, np.asarray(kinds, dtype=np.uint8))
-    b = np.repeat(np.arange(len(beams)), np.diff(beams.echo_start))[sel]
-    return beams.origin[b] + beams.direction[b] * (beams.echo_range[sel] + nudge)[:, None]
-
-
-def echo_voxels(grid: VoxelGrid, beams: Beams) -> np.ndarray:
-    """(K, 3) the distinct voxels of ``grid`` holding a leaf or wood echo of ``beams``.
-
-    An echo on a voxel face may be counted by the kernel on either side, so
-    the voxels just before and just after it along its beam are both taken.
-    """
-    eps = 1e-6 * grid.voxel_size
-    ijk = np.vstack([grid.index_of(echo_positions(beams, nudge=s)) for s in (-eps, eps)])
-    ijk = ijk[grid.contains_index(ijk)]
-    return grid.unflat(np.unique(grid.flat(ijk)))
-
-
-def echo_rows(grid: VoxelGrid, beams: Beams) -> Bricks:
-    """The rows a sparse trace must list: the voxels holding a leaf or wood echo (:func:`echo_voxels`)."""
-    return Bricks.from_ijk(grid, echo_voxels(grid, beams))
-
-
 @functools.lru_cache(maxsize=2)
 def _default_tracer() -> Tracer:
     return Tracer()
@@ -640,79 +362,3 @@ def trace(grid: VoxelGrid, beams: Beams, *, tracer: Tracer | None = None, **kwar
     See :meth:`Tracer.trace` for the keyword options.
     """
     return (tracer or _default_tracer()).trace(grid, beams, **kwargs)
-
-
-def _slab(o, d, lo, hi):
-    """Per-voxel entry/exit (vectorised slab test) of one ray against boxes."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        ta = (lo - o) * inv
-        tb = (hi - o) * inv
-    tmin = np.where(d == 0, np.where((o >= lo) & (o < hi), -np.inf, np.inf), np.minimum(ta, tb))
-    tmax = np.where(d == 0, np.where((o >= lo) & (o < hi), np.inf, -np.inf), np.maximum(ta, tb))
-    return tmin.max(axis=1), tmax.min(axis=1)
-
-
-def trace_reference(grid: VoxelGrid, beams: Beams) -> VoxelStats:
-    """Brute-force NumPy reference of :func:`trace`: every ray against every voxel.
-
-    Independent of the DDA: each voxel's entry and exit come from a slab test
-    of the ray against that voxel's box.  O(beams x voxels); for tests and
-    small grids only.
-    """
-    if grid.n_voxels * len(beams) > 5e7:
-        raise InputError(
-            f"trace_reference is brute force: {len(beams)} beams x {grid.n_voxels} voxels is too "
-            "many; use trace() or a smaller case"
-        )
-    t_start = time.perf_counter()
-    h = grid.voxel_size
-    ijk = grid.unflat(np.arange(grid.n_voxels))
-    lo = grid.lower + ijk * h
-    hi = lo + h
-    acc = np.zeros((grid.n_voxels, NF))
-    steps = 0
-    for b in range(len(beams)):
-        o, d, g = beams.origin[b], beams.direction[b], beams.g[b]
-        s0, s1 = beams.echo_start[b], beams.echo_start[b + 1]
-        rng_, wts, kinds = beams.echo_range[s0:s1], beams.echo_weight[s0:s1], beams.echo_kind[s0:s1]
-        w0 = beams.tail[b] + wts.sum()
-        tin, tout = _slab(o, d, lo, hi)
-        tin = np.maximum(tin, 0.0)
-        end = np.inf
-        if beams.tail[b] > 0:
-            end = beams.max_range[b]
-            tout = np.minimum(tout, end)
-        for v in np.nonzero(tout - tin > 1e-12 * h)[0]:
-            a, z = tin[v], tout[v]
-            w_in = w0 - wts[rng_ < a].sum()
-            if w_in <= 1e-12:
-                continue
-            inside = (rng_ >= a) & ((rng_ < z) | ((z == end) & (rng_ <= z)))
-            # free path: integral of the step-wise weight from a to z
-            pts = np.concatenate([[a], rng_[inside], [z]])
-            wseg = w_in - np.concatenate([[0.0], np.cumsum(wts[inside])])
-            wseg = np.where(wseg < 1e-12, 0.0, wseg)
-            path = float(np.sum(wseg * np.diff(pts)))
-            row = acc[v]
-            row[0] += 1
-            row[1] += w_in
-            leaf = inside & (kinds == EchoKind.LEAF)
-            wood = inside & (kinds == EchoKind.WOOD)
-            other = inside & (kinds == EchoKind.OTHER)
-            row[2] += wts[leaf].sum()
-            row[3] += wts[wood].sum()
-            row[4] += wts[other].sum()
-            row[5] += path
-            row[6] += g * path
-            lz = float(np.sum(wts[leaf] * (rng_[leaf] - a)))
-            row[7] += lz
-            row[8] += g * lz
-            row[9] += float(np.sum(wts[wood] * (rng_[wood] - a)))
-            row[10] += w_in * (z - a)
-            row[11] += w_in * (z - a) ** 2
-            row[12:15] += w_in * d
-            row[15] += wts[leaf].sum() / g
-            steps += 1
-    return VoxelStats(grid, acc, n_beams=len(beams), n_steps=steps,
-                      seconds=time.perf_counter() - t_start, device="numpy brute force")

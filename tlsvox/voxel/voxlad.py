@@ -5,8 +5,9 @@ pose), turns every pulse into a beam (:mod:`tlsvox.voxel.pulses`), traces them
 through a voxel grid (:mod:`tlsvox.voxel.trace`), estimates leaf area density
 (:mod:`tlsvox.voxel.estimators`) and wood (:mod:`tlsvox.voxel.wood`), finds the ground
 (:mod:`tlsvox.ground`), and returns a :class:`~voxlidar.scene.Scene` with the
-intermediate results for inspection.  :func:`score_lad` compares a LAD grid
-with a known truth.
+intermediate results for inspection.  :func:`score_lad` (:mod:`tlsvox.voxel.quality`) compares a LAD grid
+with a known truth; :func:`memory_plan` (:mod:`tlsvox.voxel.plan`) says what a
+grid will cost before it runs.
 
 Examples
 --------
@@ -31,7 +32,7 @@ import numpy as np
 
 from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, FillMode, LadEstimate, estimate_lad
-from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
+from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
 from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass, outward_g_table
@@ -39,85 +40,15 @@ from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
 from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
-from voxlidar.choices import Choice
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
 from tlsvox.voxel.detection import DetectionModel, Undetected, unrecorded_echoes
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
+from tlsvox.voxel.plan import (_ESTIMATE_BYTES, DENSE_AUTO_MAX, Layout, MemoryPlan,  # noqa: F401
+                               memory_plan, undetected_bytes)
+from tlsvox.voxel.quality import (LAD_PLAUSIBLE_MAX, LINE_FIT_MIN, OCCLUDED_SHARE_MAX,  # noqa: F401
+                                  quality_warnings, score_lad)
 
-__all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "voxelize", "score_lad"]
-
-#: estimator work arrays, bytes per voxel (dense) or row (sparse), on top of the tracer's
-_ESTIMATE_BYTES = 24 * 8
-#: ``layout="auto"`` traces densely up to this many bytes (small grids: every voxel's own sums)
-DENSE_AUTO_MAX = 1024**3
-
-
-class Layout(str, Choice):
-    """How the tracer keeps its sums (see :mod:`tlsvox.voxel.bricks`)."""
-
-    AUTO = "auto"  #: dense when it takes at most DENSE_AUTO_MAX bytes, else sparse
-    DENSE = "dense"  #: every voxel of the grid
-    SPARSE = "sparse"  #: voxels holding echoes, plus coarse sums per brick of 8^3 voxels
-
-
-@dataclass
-class MemoryPlan:
-    """What tracing and estimating a grid will take, before it runs (bytes)."""
-
-    grid: VoxelGrid
-    dense: int  #: bytes of the dense layout
-    sparse: int  #: bytes of the sparse layout
-    beams: int  #: bytes of the beams themselves
-    rows: int  #: voxels holding echoes (the sparse layout's rows)
-    limit: int  #: bytes allowed
-    layout: Layout  #: the layout chosen
-
-    @property
-    def need(self) -> int:
-        return self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse)
-
-    def sizes(self) -> str:
-        """The grid and what each layout costs."""
-        nx, ny, nz = self.grid.shape
-        return (f"grid {nx} x {ny} x {nz} = {self.grid.n_voxels:,} voxels of {self.grid.voxel_size:g} m; "
-                f"{self.rows:,} hold echoes; dense layout {format_bytes(self.dense)}, sparse "
-                f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}")
-
-    def describe(self) -> str:
-        return (f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
-                f"{format_bytes(self.limit)} available")
-
-
-def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
-                max_bytes: int | None = None, check: bool = True) -> MemoryPlan:
-    """The bytes each layout would take for ``beams`` on ``grid``, and the layout to use.
-
-    With ``check``, raises :class:`InputError` (with the sizes and the fix)
-    when the chosen layout does not fit ``max_bytes`` (default: 80 % of the
-    available memory).
-    """
-    layout = Layout.parse(layout, "layout")
-    limit = memory_limit(max_bytes)
-    n_rows = len(echo_voxels(grid, beams) if voxels is None else voxels)
-    n_bricks = int(np.prod(Bricks.shape_of(grid)))
-    per_row = tracer.bytes_per_voxel() + _ESTIMATE_BYTES
-    dense = grid.n_voxels * per_row
-    sparse = n_rows * per_row + n_bricks * (tracer.bytes_per_brick() + 8) + Bricks.bytes_for(n_rows, n_bricks)
-    beam_bytes = sum(np.asarray(getattr(beams, k)).nbytes for k in
-                     ("origin", "direction", "echo_start", "echo_range", "echo_weight", "echo_kind", "tail",
-                      "max_range", "g"))
-    if layout is Layout.AUTO:
-        layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes) else Layout.SPARSE
-    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout)
-    if check and plan.need > limit:
-        fix = ("layout='sparse' (CLI --layout sparse), " if layout is Layout.DENSE and sparse + beam_bytes <= limit
-               else "")
-        factor = (plan.need / max(limit, 1)) ** (1 / 3)
-        raise InputError(f"{plan.sizes()}; the {layout.value} layout needs {format_bytes(plan.need)} but only "
-                         f"{format_bytes(limit)} is available; use {fix}a voxel_size of at least "
-                         f"{grid.voxel_size * factor:.3g} m, or a smaller region (bounds=...)")
-    return plan
-
+__all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "score_lad", "undetected_bytes", "voxelize"]
 
 @dataclass
 class VoxelizeResult:
@@ -202,7 +133,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         Snap given ``bounds`` outwards to multiples of ``voxel_size`` (so the
         grids of several runs line up).
     n_min, min_explored, leaf_size, small_voxel_factor, fill
-        See :func:`tlsvox.voxel.estimators.estimate_lad`.
+        See :func:`tlsvox.voxel.estimators.estimate_lad`.  ``fill="neighbourhood"``
+        (occluded crown voxels take the mean LAD of their nearest seen crown
+        voxels) needs the dense layout; ``fill="layer"`` works in both.
     max_range, angular_grid, socs_rotation
         See :func:`tlsvox.voxel.pulses.beams_from_scan` (real scans without pulse tables);
         ``max_range`` must be positive (metres).
@@ -364,6 +297,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                              "numbers")
         grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin, snap=bool(snap))
     layout = Layout.parse(layout, "layout")
+    if layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:  # known before the beams are built
+        raise InputError("fill='neighbourhood' needs the dense layout, but layout='sparse' was given; use "
+                         "fill='layer' (per brick layer in the sparse layout), or layout='dense' where memory allows")
     tracer = tracer or Tracer()
     if layout is Layout.DENSE and not plan_only:  # before the beams, when the answer is already known
         grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,
@@ -390,9 +326,15 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     timings["pulses"] = time.perf_counter() - t1
 
     if plan_only:
-        return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False)
+        return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False,
+                           undetected=undetected, fill=fill)
     voxels = echo_voxels(grid, beams)
-    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes)
+    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected,
+                       fill=fill)
+    if plan.layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:
+        raise InputError(f"fill='neighbourhood' needs the dense layout, but this run is sparse ({plan.describe()}); "
+                         "use fill='layer' (per brick layer in the sparse layout), a larger voxel_size, or "
+                         "layout='dense' where memory allows")
     rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
     del voxels
 
@@ -419,12 +361,14 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         rounds = []
         leaf_weight = float(beams.echo_weight[beams.echo_kind == EchoKind.LEAF].sum())
         for _ in range(int(undetected_iterations)):
-            lookup, box = _lad_lookup(grid, lad)
+            lookup, box = _lad_lookup(grid, lad, stats)
+            stats = beams = None  # the last round's sums and beams: not needed again (memory_plan counts on it)
             fixed, given = [], 0.0
             for part, model in zip(parts, detection):
                 b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box)
                 fixed.append(b)
                 given += info["given_back"]
+            del lookup
             beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
             del fixed
             rows = Bricks.from_ijk(grid, echo_voxels(grid, beams)) if plan.layout is Layout.SPARSE else None
@@ -469,36 +413,71 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
 
 
-def _lad_lookup(grid, lad: LadEstimate):
+def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
     """LAD at flat voxel indices, where the detection model puts the unrecorded interception; and
     the box (2, 3) of the voxels above 0 (None when there is none).
 
-    The seen voxels' estimates; occluded voxels (dense layout) take their height layer's mean
-    inside the crown hull (:func:`~tlsvox.voxel.estimators.fill_layers`), since a beam's optical
-    depth runs through them too; the sparse layout keeps their raw estimates.  Capped at
-    LAD_PLAUSIBLE_MAX.
+    The seen voxels' estimates; occluded voxels take a fill, since a beam's optical depth runs
+    through them too: dense layout, their height layer's mean inside the crown hull
+    (:func:`~tlsvox.voxel.estimators.fill_layers`; with ``fill="neighbourhood"`` that fill,
+    :func:`~tlsvox.voxel.estimators.fill_neighbourhood`); sparse layout (with ``stats``), the pooled
+    estimate of their brick layer's seen crown bricks
+    (:func:`~tlsvox.voxel.estimators.brick_layer_means`, the brick fill of ``fill="layer"``),
+    for occluded rows and the echo-free voxels of occluded crown bricks alike (looked up per
+    brick: nothing of the grid's size is made).  Capped at LAD_PLAUSIBLE_MAX.
     """
-    from tlsvox.voxel.estimators import fill_layers, hull_mask
+    from tlsvox.voxel.bricks import BRICK
+    from tlsvox.voxel.estimators import brick_layer_means, fill_layers, fill_neighbourhood, hull_mask
 
-    raw = np.clip(lad.lad_raw, 0.0, LAD_PLAUSIBLE_MAX) * float(lad.options.get("small_voxel_factor", 1.0))
+    factor = float(lad.options.get("small_voxel_factor", 1.0))
+    raw = np.clip(lad.lad_raw, 0.0, LAD_PLAUSIBLE_MAX) * factor
+    occ = lad.occluded
+    seen = np.where(occ, 0.0, raw)
     if lad.rows is None:
-        occ = lad.occluded
-        seen = np.where(occ, 0.0, raw)
-        raw, _ = fill_layers(seen, occ, hull_mask(seen > 0, grid))
-    ijk = np.argwhere(raw > 0) if lad.rows is None else lad.rows.ijk[raw > 0]
-    box = (np.array([grid.lower + ijk.min(axis=0) * grid.voxel_size, grid.lower + (ijk.max(axis=0) + 1) * grid.voxel_size])
-           if len(ijk) else None)
-    if lad.rows is None:
+        crown = hull_mask(seen > 0, grid)
+        if lad.options.get("fill") == "neighbourhood":
+            raw, _ = fill_neighbourhood(seen, occ, crown)
+        else:
+            raw, _ = fill_layers(seen, occ, crown)
+        ijk = np.argwhere(raw > 0)
         flat_values = raw.reshape(-1)
-        return (lambda flat: flat_values[flat]), box
-    keys = grid.flat(lad.rows.ijk)
+        return (lambda flat: flat_values[flat]), _box_of(grid, ijk)
+    rows = lad.rows
+    fill_brick = np.zeros(rows.n_bricks)  # the value of an occluded crown brick's voxels, 0 elsewhere
+    if stats is not None and lad.brick_occluded is not None:
+        crown, bz, mean, has_mean = brick_layer_means(stats, lad.brick_occluded, stats.field("leaf_w"))
+        fill_brick = np.where(crown & has_mean[bz], np.clip(mean[bz] * factor, 0.0, LAD_PLAUSIBLE_MAX), 0.0)
+        raw = np.where(occ, fill_brick[rows.brick_of_rows()], seen)
+        occ_bricks = lad.brick_occluded.reshape(-1) & (fill_brick > 0)
+    else:
+        occ_bricks = np.zeros(rows.n_bricks, bool)
+    ijk = rows.ijk[raw > 0]
+    filled = np.flatnonzero(occ_bricks)
+    if len(filled):  # the corners of the filled bricks, for the box
+        b_ijk = np.column_stack(np.unravel_index(filled, rows.shape)) * BRICK
+        ijk = np.vstack([ijk, b_ijk, np.minimum(b_ijk + BRICK - 1, np.array(grid.shape) - 1)])
+    keys = grid.flat(rows.ijk)
     order = np.argsort(keys)
     keys, values = keys[order], raw[order]
+    shape = np.array(grid.shape)
+    bshape = np.array(rows.shape)
 
     def lookup(flat):
-        i = np.minimum(np.searchsorted(keys, flat), len(keys) - 1)
-        return np.where(keys[i] == flat, values[i], 0.0) if len(keys) else np.zeros(np.shape(flat))
-    return lookup, box
+        flat = np.asarray(flat)
+        i = np.minimum(np.searchsorted(keys, flat), len(keys) - 1) if len(keys) else np.zeros(flat.shape, np.int64)
+        hit = keys[i] == flat if len(keys) else np.zeros(flat.shape, bool)
+        v = np.unravel_index(flat, tuple(shape))
+        brick = np.ravel_multi_index(tuple(a // BRICK for a in v), tuple(bshape))
+        echo_free = np.where(occ_bricks[brick], fill_brick[brick], 0.0)
+        return np.where(hit, values[i] if len(keys) else 0.0, echo_free)
+    return lookup, _box_of(grid, ijk)
+
+
+def _box_of(grid, ijk):
+    """The box (2, 3), metres, of the voxels ``ijk``; None when there is none."""
+    if not len(ijk):
+        return None
+    return np.array([grid.lower + ijk.min(axis=0) * grid.voxel_size, grid.lower + (ijk.max(axis=0) + 1) * grid.voxel_size])
 
 
 def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):
@@ -525,78 +504,3 @@ def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):
         occluded = occluded & ~below
     keep = (values > 0) | (wood_v > 0) | occluded
     return ijk[keep], values[keep], wood_v[keep], occluded[keep], std[keep]
-
-
-#: Quality gates (``tlsvox voxelize`` warns; with ``--strict`` it fails).
-LAD_PLAUSIBLE_MAX = 20.0  #: m2/m3: dense crowns reach a few, leaf clusters rarely 10
-OCCLUDED_SHARE_MAX = 0.5  #: of the stored voxels
-LINE_FIT_MIN = 0.9  #: of first echoes on their reconstructed scan line
-
-
-def quality_warnings(lad, occluded, infos) -> list[str]:
-    """Signs that a voxelisation went wrong, one sentence each, with the likely cause.
-
-    Parameters
-    ----------
-    lad : (M,) float, m2/m3, and occluded : (M,) bool
-        The stored voxels.
-    infos : list of dict
-        Per-scan pulse bookkeeping (``line_fit`` where empty pulses were rebuilt).
-
-    Examples
-    --------
-    >>> quality_warnings(np.array([1.0, 25.0]), np.array([False, False]), [])[0][:34]
-    '1 voxels have LAD above 20 m2/m3 ('
-    """
-    out = []
-    lad = np.asarray(lad, dtype=np.float64)
-    occluded = np.asarray(occluded, dtype=bool)
-    high = lad > LAD_PLAUSIBLE_MAX
-    if high.any():
-        out.append(f"{int(high.sum())} voxels have LAD above {LAD_PLAUSIBLE_MAX:g} m2/m3 (max {lad.max():.0f}), "
-                   "more than any canopy holds: check the angular grid, the voxel size and the scan's units")
-    if occluded.size and occluded.mean() > OCCLUDED_SHARE_MAX:
-        out.append(f"{100 * occluded.mean():.0f} % of the stored voxels are occluded (no estimate): add scan "
-                   "positions, or use a larger voxel size")
-    for info in infos:
-        fit = info.get("line_fit")
-        if fit is not None and fit < LINE_FIT_MIN:
-            out.append(f"scan {info.get('scan', '?')!r}: only {100 * fit:.0f} % of its first echoes lie on the "
-                       f"reconstructed scan lines (expected above {100 * LINE_FIT_MIN:.0f} %): the angular grid "
-                       "(--angular-grid) is probably wrong, so the rebuilt empty pulses are too")
-    return out
-
-
-def score_lad(lad, truth, *, mask=None, voxel_volume: float = 1.0) -> dict:
-    """Compare a LAD grid with the truth.
-
-    Parameters
-    ----------
-    lad, truth : (nx, ny, nz) float, m2/m3
-    mask : (nx, ny, nz) bool, optional
-        Voxels scored for RMSE and bias (e.g. not occluded); default all.
-    voxel_volume : float, m3
-        For total leaf areas.
-
-    Returns
-    -------
-    dict
-        ``total_area``, ``true_area`` (m2, all voxels), ``area_error`` (relative),
-        ``rmse``, ``bias`` (m2/m3, in ``mask``), ``n_scored``.
-
-    Examples
-    --------
-    >>> s = score_lad(np.array([1.0, 2.0]), np.array([1.0, 1.0]))
-    >>> s["area_error"], s["bias"]
-    (0.5, 0.5)
-    """
-    lad = np.asarray(lad, dtype=np.float64)
-    truth = np.asarray(truth, dtype=np.float64)
-    if lad.shape != truth.shape:
-        raise InputError(f"lad {lad.shape} and truth {truth.shape} must have the same shape")
-    m = np.ones(lad.shape, bool) if mask is None else np.asarray(mask, bool)
-    diff = (lad - truth)[m]
-    ta, tt = float(lad.sum() * voxel_volume), float(truth.sum() * voxel_volume)
-    return {"total_area": ta, "true_area": tt, "area_error": (ta - tt) / tt if tt > 0 else float("nan"),
-            "rmse": float(np.sqrt(np.mean(diff**2))) if diff.size else 0.0,
-            "bias": float(np.mean(diff)) if diff.size else 0.0, "n_scored": int(m.sum())}

@@ -55,15 +55,18 @@ The steps, each an option of :func:`decompose`:
 waveforms at once and returns an :class:`EchoTable`: on an OpenCL device the
 detection (:mod:`._detect_cl`) and the Levenberg-Marquardt fits
 (:mod:`._batch_cl`) run there, one waveform per work-item; without one, each
-step is one NumPy call over all of them (:mod:`._batch`, :mod:`._batch_fit`).
+step is one NumPy call over all of them (:mod:`._batch_detect`,
+:mod:`._batch_select`, :mod:`._batch_fit`).
 
 Modules: ``_model`` (the Gaussian sum, :class:`Components`), ``_results``
 (:class:`EchoTable`, records, CSV), ``_checks``, ``_noise`` (baseline, noise,
 gaps, clipping), ``_detection`` (local maxima and terraces), ``_matched``
 (matched filter, false-alarm threshold), ``_deconvolve``, ``_fitting`` (one
 waveform's Levenberg-Marquardt), ``_selection`` (pruning, BIC additions),
-``_single`` (:func:`decompose`), ``_batch_fit`` (NumPy), ``_batch_cl`` (OpenCL
-fits), ``_detect_cl`` (OpenCL detection) and ``_batch`` (:func:`decompose_batch`).
+``_single`` (:func:`decompose`), ``_batch_detect`` (NumPy detection of the
+batch), ``_batch_select`` (its grouped fits, pruning and additions),
+``_batch_fit`` (NumPy fits), ``_batch_cl`` (OpenCL fits), ``_detect_cl`` (OpenCL
+detection) and ``_batch`` (:func:`decompose_batch`: input, chunks, the table).
 
 References
 ----------

@@ -8,11 +8,12 @@ sigmas, where its exponential is under 1.3e-14); the step's linear system is
 scaled to a unit diagonal before its float32 Cholesky factorisation (Marquardt
 1963). The standard errors come from ``J^T J`` inverted in float64 on the host
 (:func:`._batch_fit.standard_errors`, as on the NumPy path). A chunk's samples
-are uploaded once (:meth:`DeviceFitter.bind`); each group of waveforms with the
-same number of echoes is then one launch that sends the row indices and start
-values and returns the fits, ``J^T J``, the residuals and, for the search of
-further echoes, the residuals through the matched filter and the Gaussian of
-sigma 1 sample (:meth:`BoundFitter.set_pulse`; float32 sums of the same weights
+are uploaded once (:meth:`DeviceFitter.bind`); a round of fits
+(:meth:`BoundFitter.fit_groups`: groups of waveforms, each with its own number of
+echoes) is then one upload of all their row indices and start values, one launch
+per group and one result buffer, which returns the fits, ``J^T J``, the residuals
+and, for the search of further echoes, the residuals through the matched filter
+and the Gaussian of sigma 1 sample (:meth:`BoundFitter.set_pulse`; float32 sums of the same weights
 as :func:`._matched.filter_output` and ``gaussian_filter1d``).
 
 Measured on the shared 2-core test machine: PoCL 3.1 fits two echoes to 150
@@ -138,7 +139,8 @@ class DeviceFitter:
             # the scalar arguments' types, declared once (set_args is then 30x faster)
             kern.set_scalar_arg_dtypes([None, None, np.int32, None, None, None, None, None,
                                         np.int32, np.int32, np.float32, np.int32, None,
-                                        np.int32, np.int32, np.int32])
+                                        np.int32, np.int32, np.int32, np.int32, np.int64,
+                                        np.int64])
             self._kernels[key] = kern
         return self._kernels[key]
 
@@ -208,64 +210,90 @@ class BoundFitter:
         :func:`._batch_fit.fit_group` does (``linear``: the start amplitudes and
         baseline first by linear least squares, :func:`._batch_fit.linear_start`;
         with the baseline fitted only)."""
-        return self.start(rows, a, m, s, b, fit_baseline=fit_baseline, linear=linear,
-                          max_iter=max_iter, tol=tol)()
+        return self.fit_groups([(rows, a, m, s, b)], fit_baseline=fit_baseline, linear=linear,
+                               max_iter=max_iter, tol=tol)[0]
 
-    def start(self, rows, a, m, s, b, *, fit_baseline=True, linear=False, max_iter=40,
-              tol=_TOL):
-        """:meth:`fit` enqueued: returns ``finish()``, which waits for the device and
-        returns the :class:`GroupFit` (several groups then share one wait)."""
+    def fit_groups(self, groups, *, fit_baseline=True, linear=False, max_iter=40,
+                   tol=_TOL) -> list:
+        """Fit several groups ``[(rows, a, m, s, b), ...]`` (each its own number of
+        echoes K) as :meth:`fit` does, in one round: one upload of all their rows
+        and start values, one launch per group, one copy back, one wait, and the
+        standard errors of every group in one call. Returns their
+        :class:`GroupFit`, in order."""
         cl = self.fitter._cl
         queue = self.fitter.queue
-        g, k = a.shape
-        npar = 3 * k + 1
-        nf = 3 * k + (1 if fit_baseline else 0)
-        q = np.empty((g, npar), dtype=np.float32)
-        q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1] = a, m, s, b
-        # one row per waveform: fit, rss, n_eff, iterations, J^T J, residual, its matched
-        # filter and smoothing (the kernel's OUT)
-        base, pad = npar + 3 + nf * nf, self.pad
-        out = np.empty((g, base + 2 * pad + 3 * self.n), dtype=np.float32)
-        key = (int(k), bool(fit_baseline))
-        if key in self.fitter.too_large:
-            return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
-        mf = cl.mem_flags
-        ctx = self.fitter.context
-        d_row = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                          hostbuf=np.ascontiguousarray(rows, dtype=np.int32))
-        d_q = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=q)
-        d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-        kern = self.fitter.kernel(k, fit_baseline)
-        with self.fitter.lock:
-            kern.set_args(self.y, self.flags, self.n, d_row, self.span, self.noise, d_q, d_out,
-                          g, max_iter, tol, int(bool(linear) and bool(fit_baseline)),
-                          *self.filters)
-            try:
-                cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
-            except cl.Error as err:  # more private memory than the device gives a work-item
-                if getattr(err, "code", None) not in _TOO_LARGE:
-                    raise
-                self.fitter.too_large.add(key)
-                return self._host_fit(rows, a, m, s, b, fit_baseline, linear, max_iter, tol)
-        done = cl.enqueue_copy(queue, out, d_out, is_blocking=False)
-
-        def finish() -> GroupFit:
-            done.wait()
-            fit = out[:, :npar].astype(float)
-            rss = out[:, npar].astype(float)
-            n_eff = out[:, npar + 1].astype(int)
-            hess = out[:, npar + 3:npar + 3 + nf * nf].reshape(g, nf, nf).astype(float)
-            se = standard_errors(hess, rss, n_eff, k)
+        fb = bool(fit_baseline)
+        n, pad = self.n, self.pad
+        plan, q_parts, q_off, o_off, host = [], [], 0, 0, {}
+        for i, (rows, a, m, s, b) in enumerate(groups):
+            g, k = a.shape
+            npar, nf = 3 * k + 1, 3 * k + (1 if fb else 0)
+            if (k, fb) in self.fitter.too_large:
+                host[i] = self._host_fit(rows, a, m, s, b, fb, linear, max_iter, tol)
+                continue
+            q = np.empty((g, npar), dtype=np.float32)
+            q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1] = a, m, s, b
+            # one row per waveform: fit, rss, n_eff, iterations, J^T J, residual, its
+            # matched filter and smoothing (the kernel's OUT)
+            stride = npar + 3 + nf * nf + 2 * pad + 3 * n
+            plan.append((i, rows, g, k, npar, nf, stride, q_off, o_off))
+            q_parts.append(q.reshape(-1))
+            q_off += q.size
+            o_off += g * stride
+        results = [None] * len(groups)
+        if plan:
+            mf = cl.mem_flags
+            ctx = self.fitter.context
+            r0 = np.concatenate([[0], np.cumsum([p[2] for p in plan])])
+            d_row = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.concatenate(
+                [np.asarray(p[1], dtype=np.int32) for p in plan]))
+            d_q = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.concatenate(q_parts))
+            out = np.empty(o_off, dtype=np.float32)
+            d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+            launched = []
+            with self.fitter.lock:
+                for j, (i, rows, g, k, npar, nf, stride, qo, oo) in enumerate(plan):
+                    kern = self.fitter.kernel(k, fb)
+                    kern.set_args(self.y, self.flags, n, d_row, self.span, self.noise, d_q,
+                                  d_out, g, max_iter, tol, int(bool(linear) and fb),
+                                  *self.filters, int(r0[j]), qo, oo)
+                    try:
+                        cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
+                    except cl.Error as err:  # more private memory than a work-item gets
+                        if getattr(err, "code", None) not in _TOO_LARGE:
+                            raise
+                        self.fitter.too_large.add((k, fb))
+                        a, m, s, b = groups[i][1:]
+                        host[i] = self._host_fit(rows, a, m, s, b, fb, linear, max_iter, tol)
+                        continue
+                    # each group's rows of OUT come back as soon as its launch ends:
+                    # the host turns one group into results while the next computes
+                    launched.append((j, cl.enqueue_copy(
+                        queue, out[oo:oo + g * stride], d_out, src_offset=4 * oo,
+                        is_blocking=False)))
             ns = self.n_samples
-            r = out[:, base + pad:base + pad + ns]
-            flt = out[:, base + 2 * pad + self.n:].reshape(g, 2, self.n)[:, :, :ns]
-            return GroupFit(fit[:, :k], fit[:, k:2 * k], fit[:, 2 * k:3 * k], fit[:, -1], rss,
-                            se, n_eff, out[:, npar + 2].astype(int), r, flt)
-
-        return finish
+            for j, done in launched:
+                i, rows, g, k, npar, nf, stride, qo, oo = plan[j]
+                done.wait()
+                o = out[oo:oo + g * stride].reshape(g, stride)
+                base = npar + 3 + nf * nf
+                fit = o[:, :npar].astype(float)
+                rss = o[:, npar].astype(float)
+                n_eff = o[:, npar + 1].astype(int)
+                # (in float64 on the host, as on the NumPy path)
+                se = standard_errors(o[:, npar + 3:base].reshape(g, nf, nf).astype(float), rss,
+                                     n_eff, k)
+                r = o[:, base + pad:base + pad + ns]
+                flt = o[:, base + 2 * pad + n:].reshape(g, 2, n)[:, :, :ns]
+                results[i] = GroupFit(fit[:, :k], fit[:, k:2 * k], fit[:, 2 * k:3 * k],
+                                      fit[:, -1], rss, se, n_eff, o[:, npar + 2].astype(int),
+                                      r, flt)
+        for i, res in host.items():
+            results[i] = res
+        return results
 
     def _host_fit(self, rows, a, m, s, b, fit_baseline, linear, max_iter, tol):
-        """``finish`` of the NumPy fit (:func:`._batch_fit.fit_group`) of ``rows``, from
+        """The NumPy fit (:func:`._batch_fit.fit_group`) of ``rows``, from
         the chunk's samples read back from the device once."""
         from clsim.waveforms.decompose._batch_fit import fit_group, linear_start
 
@@ -283,9 +311,8 @@ class BoundFitter:
         y, use, cens, noise = (v[rows] for v in self._host)
         if linear and fit_baseline:
             a, b = linear_start(y, use & ~cens, a, m, s, b)
-        res = fit_group(y, use, a, m, s, b, fit_baseline=fit_baseline, noise=noise, cens=cens,
-                        max_iter=max_iter, tol=tol)
-        return lambda: res
+        return fit_group(y, use, a, m, s, b, fit_baseline=fit_baseline, noise=noise, cens=cens,
+                         max_iter=max_iter, tol=tol)
 
 
 #: Fitters built in this process, by device key (a context and built programs each).

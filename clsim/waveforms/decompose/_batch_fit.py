@@ -33,28 +33,32 @@ _TOL = 1e-6
 
 @dataclass
 class GroupFit:
-    """Result of :func:`fit_group` for G waveforms of K echoes.
-
-    ``a, m, s`` (G, K) in samples; ``b`` (G,); ``rss`` (G,); ``se`` (G, P)
-    standard errors in the order [a_1..a_K, m_1..m_K, s_1..s_K, b]
-    (b's NaN when the baseline was held); ``n_eff`` (G,) samples that count;
-    ``n_iter`` (G,) Levenberg-Marquardt iterations (one model and Jacobian each);
-    ``resid`` (G, n) float32 samples minus model at the fit, zero where a sample
-    does not count or is censored, or None (the NumPy path does not keep it);
-    ``filtered`` (G, 2, n) float32 that residual through the matched filter and
-    the Gaussian of sigma 1 sample (the device fits), or None.
-    """
+    """Result of :func:`fit_group` for G waveforms of K echoes (one line on each
+    attribute below)."""
 
     a: np.ndarray
+    """(G, K) amplitudes, in the units of the samples."""
     m: np.ndarray
+    """(G, K) locations, samples."""
     s: np.ndarray
+    """(G, K) Gaussian widths, samples."""
     b: np.ndarray
+    """(G,) baselines."""
     rss: np.ndarray
+    """(G,) residual sums of squares."""
     se: np.ndarray
+    """(G, 3K + 1) standard errors in the order [a_1..a_K, m_1..m_K, s_1..s_K, b]
+    (b's NaN when the baseline was held)."""
     n_eff: np.ndarray
+    """(G,) samples that count."""
     n_iter: np.ndarray
+    """(G,) Levenberg-Marquardt iterations (one model and Jacobian each)."""
     resid: np.ndarray | None = None
+    """(G, n) float32 samples minus model at the fit, zero where a sample does not
+    count or is censored; None on the NumPy path, which does not keep it."""
     filtered: np.ndarray | None = None
+    """(G, 2, n) float32 that residual through the matched filter and the Gaussian
+    of sigma 1 sample (the device fits), or None."""
 
 
 def _evaluate(y, w, cens, t, a, m, s, b, fit_baseline, want_jac):
@@ -257,3 +261,4 @@ def standard_errors(hess, rss, n_eff, k):
             var = np.diagonal(cov, axis1=1, axis2=2) * (rss[okh] / dof[okh])[:, None]
             se[np.ix_(okh, np.arange(p))] = np.sqrt(np.clip(var, 0.0, None))
     return se
+

@@ -1,7 +1,7 @@
 """The detection of :mod:`._batch` on an OpenCL device, one work-item per waveform.
 
 ``clsim/kernels/decompose_detect.cl`` runs the NumPy detection's steps in
-float32 (:func:`._batch.detect_numpy` is the reference): kernel ``noise_stats``
+float32 (:mod:`._batch_detect` is the reference): kernel ``noise_stats``
 gives each waveform's robust baseline and noise sigma, the no-data zeros left
 out, the clipped samples, the clipping-tolerant baseline and the half-maximum
 width of its strongest echo (the host then takes the batch's pulse width and

@@ -50,19 +50,6 @@ FALSE_ALARM = 0.01
 _FALLBACK_SIGMA = 2.0
 
 
-class Detection(str, Choice):
-    """Echo detection of :func:`decompose`.
-
-    ``matched``: matched filter with the system pulse, threshold from the
-    false-alarm rate (:func:`detect_echoes`). ``amplitude``: local maxima of the
-    smoothed samples ``min_amplitude`` above the baseline (the earlier rule).
-    """
-
-    MATCHED = "matched"
-    AMPLITUDE = "amplitude"
-
-
-
 @dataclass(frozen=True)
 class Pulse:
     """A sampled system pulse (unit peak) for the matched filter.
@@ -110,6 +97,18 @@ class Pulse:
         xr = (c + right[0] - 1 + (h[c + right[0] - 1] - 0.5)
               / (h[c + right[0] - 1] - h[c + right[0]]) if right.size else h.size - 1.0)
         return cls(h, c, max(float(xr - xl) / FWHM_PER_SIGMA, 0.5))
+
+
+class Detection(str, Choice):
+    """Echo detection of :func:`decompose`.
+
+    ``matched``: matched filter with the system pulse, threshold from the
+    false-alarm rate (:func:`detect_echoes`). ``amplitude``: local maxima of the
+    smoothed samples ``min_amplitude`` above the baseline (the earlier rule).
+    """
+
+    MATCHED = "matched"
+    AMPLITUDE = "amplitude"
 
 
 def threshold(n_samples: int, pulse: Pulse, *, false_alarm: float = FALSE_ALARM) -> float:

@@ -10,7 +10,23 @@ FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
 
 @dataclass
-class Components:
+class EchoColumns:
+    """The per-echo columns of :class:`Components` (one waveform) and of
+    :class:`._results.EchoTable` (many): equal-length arrays, in ``COLUMNS`` order."""
+
+    amplitude: np.ndarray
+    location_ns: np.ndarray
+    sigma_ns: np.ndarray
+    amplitude_se: np.ndarray
+    location_se_ns: np.ndarray
+    sigma_se_ns: np.ndarray
+
+    COLUMNS = ("amplitude", "location_ns", "sigma_ns", "amplitude_se", "location_se_ns",
+               "sigma_se_ns")
+
+
+@dataclass
+class Components(EchoColumns):
     """Gaussian echoes of one waveform: a table of equal-length columns.
 
     Attributes
@@ -31,19 +47,10 @@ class Components:
         Residual sum of squares of the fit.
     """
 
-    amplitude: np.ndarray
-    location_ns: np.ndarray
-    sigma_ns: np.ndarray
-    amplitude_se: np.ndarray
-    location_se_ns: np.ndarray
-    sigma_se_ns: np.ndarray
     baseline: float = 0.0
     baseline_se: float = float("nan")
     noise_sigma: float = float("nan")
     rss: float = float("nan")
-
-    COLUMNS = ("amplitude", "location_ns", "sigma_ns", "amplitude_se", "location_se_ns",
-               "sigma_se_ns")
 
     def __len__(self) -> int:
         return int(np.size(self.amplitude))

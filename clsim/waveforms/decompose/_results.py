@@ -8,39 +8,31 @@ from pathlib import Path
 import numpy as np
 
 from clsim.errors import InputError
-from clsim.waveforms.decompose._model import Components
+from clsim.waveforms.decompose._model import Components, EchoColumns
 
 
-@dataclass
-class EchoTable:
+@dataclass(kw_only=True)
+class EchoTable(EchoColumns):
     """Gaussian echoes of N waveforms: one row per echo, sorted by waveform then time.
 
     Attributes
     ----------
+    amplitude, location_ns, sigma_ns, amplitude_se, location_se_ns, sigma_se_ns : (E,) float64
+        As in :class:`Components` (``COLUMNS``).
     waveform : (E,) int64
         Index of the waveform each echo belongs to.
-    amplitude, location_ns, sigma_ns, amplitude_se, location_se_ns, sigma_se_ns : (E,) float64
-        As in :class:`Components`.
     baseline, baseline_se, noise_sigma, rss : (N,) float64
         Per waveform.
 
     ``table[i]`` is waveform ``i``'s :class:`Components` (:meth:`components`: all of
-    them); ``len(table)`` is N.
+    them); ``len(table)`` is N. Build it with keywords (the columns come first).
     """
 
     waveform: np.ndarray
-    amplitude: np.ndarray
-    location_ns: np.ndarray
-    sigma_ns: np.ndarray
-    amplitude_se: np.ndarray
-    location_se_ns: np.ndarray
-    sigma_se_ns: np.ndarray
     baseline: np.ndarray
     baseline_se: np.ndarray
     noise_sigma: np.ndarray
     rss: np.ndarray
-
-    COLUMNS = Components.COLUMNS
 
     def __len__(self) -> int:
         return int(self.baseline.size)
@@ -105,4 +97,4 @@ class EchoTable:
                 for c in cls.COLUMNS}
         per = {k: np.array([getattr(x, k) for x in comps], dtype=float)
                for k in ("baseline", "baseline_se", "noise_sigma", "rss")}
-        return cls(np.repeat(np.arange(len(comps)), counts), **cols, **per)
+        return cls(waveform=np.repeat(np.arange(len(comps)), counts), **cols, **per)

@@ -221,6 +221,29 @@ def test_device_residual_and_its_filters(cl_device_for_fits):
                                    atol=1e-5 * np.abs(ref).max())
 
 
+def test_device_round_of_groups_matches_each_group_alone(cl_device_for_fits):
+    """One round of three groups (1, 2 and 3 echoes, in the order 2, 1, 3; one upload
+    of rows and starts, a launch per group at its offsets into them and into the
+    shared result buffer) gives every group exactly the fits, standard errors and
+    residuals it gets fitted alone (the same kernel on the same inputs)."""
+    ys = _three(np.random.default_rng(12), 30)
+    use = np.ones(ys.shape, bool)
+    bound = device_fitter(cl_device_for_fits).bind(ys, use, None, np.full(30, 2.0))
+    bound.set_pulse(Pulse.gaussian(2.5))
+    groups = []
+    for k, rows in ((2, np.arange(0, 12)), (1, np.arange(12, 19)), (3, np.arange(19, 30))):
+        g = rows.size
+        groups.append((rows, np.tile(0.9 * TRUE["a"][:k], (g, 1)),
+                       np.tile(TRUE["m"][:k] + 0.4, (g, 1)), np.tile(TRUE["s"][:k] * 1.1, (g, 1)),
+                       np.full(g, 11.0)))
+    together = bound.fit_groups(groups, linear=True)
+    for group, got in zip(groups, together):
+        alone = bound.fit_groups([group], linear=True)[0]
+        for name in ("a", "m", "s", "b", "rss", "se", "n_eff", "n_iter", "resid", "filtered"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(alone, name), name)
+    assert [g.a.shape[1] for g in together] == [2, 1, 3]
+
+
 def test_device_and_numpy_agree(cl_device_for_fits):
     """The whole batched decomposition on the device and in NumPy: the same echo count
     for every waveform and locations within 0.05 standard error."""

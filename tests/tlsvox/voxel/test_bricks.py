@@ -87,9 +87,10 @@ def test_atomic_sums_agree_within_their_resolution(tracer):
 def test_brick_sums_gather_the_dense_sums(traced):
     grid, _, rows, dense, sparse = traced
     brick = tuple((grid.unflat(np.arange(grid.n_voxels)) // BRICK).T)
-    for name in ("path_w", "chord_w"):
+    for name, dense_name in (("path_w", "path_w"), ("chord_w", "chord_w"), ("path_wg", "path_wg"),
+                             ("visits_w", "n_w"), ("visits", "count")):
         gathered = np.zeros(rows.shape)
-        np.add.at(gathered, brick, dense.field(name).ravel())
+        np.add.at(gathered, brick, dense.field(dense_name).ravel())
         np.testing.assert_allclose(sparse.brick_field(name), gathered, rtol=1e-12, atol=1e-12)
     # beams crossing a brick: at least as many as enter its busiest voxel, at most the visits
     busiest = np.zeros(rows.shape)
@@ -148,6 +149,12 @@ def test_sparse_layer_fill_recovers_the_box(box_scans):  # noqa: F811
         res = voxelize(box_scans, layout=layout, **kw)
         assert res.scene.occluded.mean() > 0.3
         assert res.scene.lad.sum() * 0.1**3 == pytest.approx(truth, rel=0.1), layout
+    # the neighbourhood fill (dense only) on the same homogeneous box: as close
+    res = voxelize(box_scans, layout="dense", **{**kw, "fill": "neighbourhood"})
+    assert res.scene.meta["options"]["fill"] == "neighbourhood" and res.scene.meta["options"]["fill_radii"]
+    assert res.scene.lad.sum() * 0.1**3 == pytest.approx(truth, rel=0.1)
+    with pytest.raises(InputError, match="fill='neighbourhood' needs the dense layout"):
+        voxelize(box_scans, layout="sparse", **{**kw, "fill": "neighbourhood"})
 
 
 def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
@@ -165,6 +172,54 @@ def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
         memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
     with pytest.raises(InputError, match="voxel_size of at least"):
         memory_plan(grid, beams, tracer, max_bytes=1024)
+
+
+def test_memory_plan_counts_the_detection_model(box_scans, tracer):  # noqa: F811
+    """undetected='model' keeps the scans' beams, a corrected copy and the joined copy (with up to
+    ECHOES_PER_TAIL added echoes per pulse with a tail), its walk along the beams and a LAD lookup:
+    the plan adds them, and a budget that fits the plain run but not the model refuses the model."""
+    from tlsvox.voxel.detection import ECHOES_PER_TAIL
+    from tlsvox.voxel.pulses import beams_from_scan
+    from tlsvox.voxel.voxlad import undetected_bytes
+
+    grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)
+    beams = Beams.concat([beams_from_scan(s)[0] for s in box_scans])
+    plain = memory_plan(grid, beams, tracer, layout="dense")
+    model = memory_plan(grid, beams, tracer, layout="dense", undetected="model")
+    assert plain.undetected == 0 and model.undetected == undetected_bytes(grid, beams, plain.beams, "dense", plain.rows)
+    # at least the two extra copies of the beams and the added echoes' ranges and weights
+    with_tail = int(np.count_nonzero(beams.tail > 1e-9))
+    assert model.undetected >= 2 * plain.beams + with_tail * ECHOES_PER_TAIL * 16 + grid.n_voxels * 8
+    assert model.need == plain.need + model.undetected
+    assert "undetected='model'" in model.describe() and "undetected" not in plain.describe()
+    with pytest.raises(InputError, match="dense layout needs"):
+        memory_plan(grid, beams, tracer, layout="dense", undetected="model", max_bytes=plain.need + 1024)
+
+
+def test_memory_plan_counts_the_neighbourhood_fill(box_scans, tracer, rng):  # noqa: F811
+    """fill='neighbourhood' (dense) adds NEIGHBOURHOOD_BYTES per voxel to the plan, and that bound
+    holds for the fill's measured peak (tracemalloc, after a first call has loaded scipy)."""
+    import tracemalloc
+
+    from tlsvox.voxel.estimators import fill_neighbourhood
+    from tlsvox.voxel.plan import NEIGHBOURHOOD_BYTES
+    from tlsvox.voxel.pulses import beams_from_scan
+
+    grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)
+    beams = Beams.concat([beams_from_scan(s)[0] for s in box_scans])
+    plain = memory_plan(grid, beams, tracer, layout="dense")
+    filled = memory_plan(grid, beams, tracer, layout="dense", fill="neighbourhood")
+    assert filled.fill == grid.n_voxels * NEIGHBOURHOOD_BYTES and filled.need == plain.need + filled.fill
+    assert "fill='neighbourhood'" in filled.describe()
+    assert memory_plan(grid, beams, tracer, layout="sparse", fill="neighbourhood").fill == 0  # refused later
+    shape = (60, 60, 60)
+    lad, occ, crown = rng.random(shape), rng.random(shape) < 0.3, rng.random(shape) < 0.8
+    fill_neighbourhood(lad[:4, :4, :4], occ[:4, :4, :4], crown[:4, :4, :4])
+    tracemalloc.start()
+    fill_neighbourhood(np.where(occ, 0.0, lad), occ, crown)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak <= NEIGHBOURHOOD_BYTES * lad.size
 
 
 def test_outward_leaves_take_g_per_voxel(tracer):

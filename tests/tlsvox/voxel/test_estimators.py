@@ -193,6 +193,58 @@ def test_layer_fill_and_small_voxel_factor(rng):
     np.testing.assert_allclose(scaled.lad, 0.95 * plain.lad, rtol=1e-12)
 
 
+def test_neighbourhood_fill_takes_the_nearest_seen_voxels(rng):
+    """LAD rising along the beams (0.4, 0.8, ... 2.0 in x = 0..4) over five rows; the last column
+    is never reached (occluded).  Its nearest cube holding at least FILL_MIN_SEEN seen voxels is
+    the half-width 2 one (x = 3, 4), so the fill is the mean of their estimates, whose true value
+    is 1.8 (a layer's mean would be 1.2): within 3 standard errors of that mean."""
+    from tlsvox.voxel.estimators import FILL_MIN_SEEN, fill_neighbourhood
+
+    h, g = 0.5, 0.5
+    grid = VoxelGrid((0, 0, 0), h, (6, 5, 1))
+    true = 0.4 * (np.arange(5) + 1)
+    n = 20000
+    o = np.column_stack([np.full(n, -1.0), rng.random(n) * 2.5, rng.random(n) * 0.5])
+    # free path through piecewise-constant LAD: the optical depth g u h per voxel crossed
+    tau = np.concatenate([[0.0], np.cumsum(g * true * h)])
+    e = rng.exponential(1.0, n)
+    col = np.searchsorted(tau, e) - 1  # the voxel where the beam stops (5: passes all)
+    inside = col < 5
+    x = np.where(inside, col * h + (e - tau[np.minimum(col, 4)]) / (g * true[np.minimum(col, 4)]), np.inf)
+    beams = Beams.from_rays(o, np.tile([1.0, 0, 0], (n, 1)), hit_range=np.where(inside, 1.0 + x, np.inf),
+                            max_range=1.0 + 5 * h)  # the sixth column is never reached
+    beams.g = np.full(n, g)
+    stats = trace(grid, beams)
+    plain = estimate_lad(stats, leaf_size=None)
+    assert plain.occluded[5].all() and not plain.occluded[:5].any()
+    mask = np.ones(grid.shape, bool)
+    filled = estimate_lad(stats, leaf_size=None, fill="neighbourhood", fill_mask=mask)
+    assert np.all(filled.flags[5] & Flag.FILLED) and filled.options["fill_min_seen"] == FILL_MIN_SEEN
+    near = plain.lad[3:5]  # x = 3, 4: ten seen voxels around each occluded one (fewer at the edge rows)
+    np.testing.assert_allclose(filled.lad[5, 2, 0], near.mean(), rtol=1e-12)
+    se = np.sqrt(np.mean(plain.lad_std[3:5] ** 2) / near.size)
+    assert abs(filled.lad[5, 2, 0] - 1.8) < 3 * se, (filled.lad[5, 2, 0], se)
+    layer = estimate_lad(stats, leaf_size=None, fill="layer", fill_mask=mask)
+    assert layer.lad[5, 2, 0] == pytest.approx(plain.lad[:5].mean(), rel=1e-12)
+    assert abs(layer.lad[5, 2, 0] - 1.2) < 0.1
+    # the function itself: voxels beyond every radius take their layer's mean
+    lad = np.zeros((20, 1, 1))
+    lad[0] = 3.0
+    occ = np.zeros((20, 1, 1), bool)
+    occ[15:] = True
+    out, done = fill_neighbourhood(lad, occ, np.ones((20, 1, 1), bool), radii=(1,), min_seen=1)
+    assert done[15:].all() and out[15, 0, 0] == 0.0 and out[19, 0, 0] == pytest.approx(3.0 / 15)
+    # never below 0: the box sums run over values of very different sizes
+    field = np.where(rng.random((30, 30, 30)) < 0.2, rng.lognormal(2.0, 2.0, (30, 30, 30)), 0.0)
+    hidden = rng.random(field.shape) < 0.3
+    out, done = fill_neighbourhood(np.where(hidden, 0.0, field), hidden, np.ones(field.shape, bool))
+    assert done[hidden].all() and np.all(out >= 0) and np.all(np.isfinite(out))
+    # a cube that needs no seen voxel would give 0 / 0
+    for bad in (dict(min_seen=0), dict(radii=(0,)), dict(radii=()), dict(radii=(1.5,))):
+        with pytest.raises(InputError, match="min_seen|radii"):
+            fill_neighbourhood(lad, occ, np.ones((20, 1, 1), bool), **bad)
+
+
 def test_bad_options_rejected(rng):
     grid = VoxelGrid((0, 0, 0), 0.3, (1, 1, 1))
     stats = trace(grid, _slab_beams(rng, grid, 10, 1.0))

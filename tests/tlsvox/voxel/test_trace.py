@@ -167,14 +167,3 @@ def test_grid_too_large_fails_before_allocating():
     beams = Beams.from_rays([0, 0, 0], [[1, 0, 0]])
     with pytest.raises(InputError, match=r"needs .*TiB.*voxel_size of at least"):
         trace(grid, beams)
-
-
-def test_bad_beams_rejected():
-    with pytest.raises(InputError, match="unit vector"):
-        Beams(origin=[0, 0, 0], direction=[[1, 1, 0]], echo_start=[0, 0], echo_range=[],
-              echo_weight=[], echo_kind=[], tail=1.0, max_range=np.inf)
-    with pytest.raises(InputError, match="echo_start"):
-        Beams(origin=[0, 0, 0], direction=[[1, 0, 0]], echo_start=[1, 2], echo_range=[1.0],
-              echo_weight=[1.0], echo_kind=[1], tail=0.0, max_range=np.inf)
-    with pytest.raises(InputError, match="field="):
-        trace(VoxelGrid((0, 0, 0), 1, (1, 1, 1)), Beams.from_rays([0, 0, 0], [[1, 0, 0]])).field("lad")

@@ -229,6 +229,11 @@ def test_cli_plan_layout_and_leaf_angle_note(box_files, tmp_path, capsys):
     text = capsys.readouterr().out
     assert rc == 0 and not out.exists()
     assert "hold echoes; dense layout" in text and "the dense layout needs" in text
+    assert "undetected='model'" not in text
+    rc = cli_main(paths + ["--voxel-size", "0.1", "--ground", "none", "--plan", "--undetected", "model",
+                           "--detection-threshold-db", "-20", "-o", str(out),
+                           "-q"])
+    assert rc == 0 and "undetected='model'" in capsys.readouterr().out  # the correction's bytes are planned
     rc = cli_main(paths + ["--voxel-size", "0.25", "--ground", "none", "--layout", "sparse", "--leaf-azimuth",
                            "outward", "-o", str(out)])
     summary = capsys.readouterr().out
