@@ -534,13 +534,13 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()
     # the first call in this process: it opens the OpenCL context and builds the
     # programs, which decompose_batch keeps for every later call (timed below)
-    cold = first_call(load_neon(data), args.device)
+    neon = load_neon(data)
+    cold = first_call(neon, args.device)
     if args.batched_only:
-        return batched_only(load_neon(data), args, rng, cold)
+        return batched_only(neon, args, rng, cold)
     gd_ok = gdecomp_available()
     failures: dict = {}
     runners = make_runners(gd_ok, args.gdecomp_timeout, failures, args.device)
-    neon = load_neon(data)
     leica, leica_t = load_leica(data)
     peer_path = data / "riegl-pulsewaves" / "adapt_gaussianfitter_tests.json"
 

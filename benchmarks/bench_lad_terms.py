@@ -234,13 +234,19 @@ def _section(title, option, args, t_all, load0, text) -> list[str]:
             f"{args.iterations}` ({minutes:.1f} min). " + machine_line(load0) + " " + text]
 
 
-def _score(tree, res, lad=None, occluded=None):
-    """Total and seen-voxel leaf area against the mesh (score_lad dicts); ``lad`` and
-    ``occluded`` default to the result's."""
+def _truth(tree, res):
+    """The mesh's leaf area density on the result's grid, m2/m3."""
+    g = res.grid
+    return tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
+
+
+def _score(tree, res, lad=None, occluded=None, truth=None):
+    """Total and seen-voxel leaf area against the mesh (score_lad dicts); ``lad``,
+    ``occluded`` and ``truth`` (:func:`_truth`) default to the result's."""
     from tlsvox.voxel.voxlad import score_lad
 
     g = res.grid
-    truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape) / g.voxel_volume
+    truth = _truth(tree, res) if truth is None else truth
     est = res.lad.lad if lad is None else lad
     occ = res.lad.occluded if occluded is None else occluded
     return (score_lad(est, truth, voxel_volume=g.voxel_volume),
@@ -325,12 +331,12 @@ def area_table(args):
     tree, scans = _oak_scans("outward", 0.35, -20.0)
     for rule, fill in (("ignore", "layer"), ("model", "layer"), ("model", "neighbourhood")):
         res, sec = run(tree, scans, "outward", undetected=rule, fill=fill, undetected_iterations=args.iterations)
-        tot, seen = _score(tree, res)
+        truth = _truth(tree, res)
+        tot, seen = _score(tree, res, truth=truth)
         occ = res.lad.occluded
-        unfilled, _ = _score(tree, res, np.where(occ, 0.0, res.lad.lad))
+        unfilled, _ = _score(tree, res, np.where(occ, 0.0, res.lad.lad), truth=truth)
         g = res.grid
-        truth = tree.leaf_area_per_voxel(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape)
-        filled.append((rule, fill, unfilled, tot, seen, float(truth[occ].sum()),
+        filled.append((rule, fill, unfilled, tot, seen, float(truth[occ].sum() * g.voxel_volume),
                        float(res.lad.lad[occ].sum() * g.voxel_volume), sec))
         print(f"-20 dB {rule} fill={fill}: total {100 * tot['area_error']:+.1f} % (unfilled "
               f"{100 * unfilled['area_error']:+.1f} %), seen {100 * seen['area_error']:+.1f} %, occluded truth "

@@ -218,9 +218,9 @@ class Scene:
         return float(self.lad.sum() * self.voxel_volume)
 
     def dense(self, name: str = "lad") -> np.ndarray:
-        """A dense (nx, ny, nz) array of one per-voxel field."""
+        """A dense (nx, ny, nz) array of one per-voxel field ((nx, ny, nz, 3) for ``wood_axis``)."""
         values = getattr(self, name)
-        out = np.zeros(self.shape, dtype=values.dtype)
+        out = np.zeros(tuple(self.shape) + values.shape[1:], dtype=values.dtype)
         i, j, k = self.ijk.T
         out[i, j, k] = values
         return out

@@ -237,7 +237,7 @@ CLSIM_INLINE void clip_box_axis(int s, int li, int lo, int hi, int base, float o
  * counted its voxels to the brick's exit, so the voxels beyond t_stop are
  * taken back and voxel_steps counts the voxels reached, as the
  * voxel-by-voxel walk does (it counts the voxel where it stops). */
-CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, __global const params_t *P, uint2 *steps)
+CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, uint2 *steps)
 {
     if (!w->useg)
         return;

@@ -40,7 +40,7 @@
 /* Profiling switches (benchmarks/bench_walk_profile.py; 1 by default, 0 only to time a part
  * by its absence, which changes the results): CLSIM_PROF_NEE (0: the shadow rays are not
  * walked, transmittance 1), CLSIM_PROF_G (0: G(d) is 1/2 without the table),
- * CLSIM_PROF_TALLY (0: no histogram atomics), CLSIM_PROF_STATS (0: no statistics atomics), CLSIM_PROF_LEAF (0: a leaf's normal is the
+ * CLSIM_PROF_TALLY (0: no histogram atomics), CLSIM_PROF_LEAF (0: a leaf's normal is the
  * first proposal, no rejection), CLSIM_PROF_PHILOX (philox.cl; 0: a cheap hash). */
 #ifndef CLSIM_PROF_NEE
 #define CLSIM_PROF_NEE 1
@@ -53,9 +53,6 @@
 #endif
 #ifndef CLSIM_PROF_LEAF
 #define CLSIM_PROF_LEAF 1
-#endif
-#ifndef CLSIM_PROF_STATS
-#define CLSIM_PROF_STATS 1
 #endif
 
 /* Kronecker lattice step: round(2^32 / phi), phi the golden ratio. */
@@ -339,7 +336,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                 if (wood_hit(S, k.w.row, k.e.y, d, b.y * sig - sl, &cyl)) {
                     *n = wood_normal(S, k.w.row, d, cyl, b.z, b.w);
                     *t = tc;
-                    walker_stop(&k.w, tc, P, steps);
+                    walker_stop(&k.w, tc, steps);
                     return EV_WOOD;
                 }
             } else if (tight) {
@@ -354,14 +351,14 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                 }
                 *n = nl;
                 *t = tc;
-                walker_stop(&k.w, tc, P, steps);
+                walker_stop(&k.w, tc, steps);
                 return EV_LEAF;
             } else {
                 const float3 nl = scene_leaf_normal(S, b, x);
                 if (b.y * sig < k.e.x * fast_abs(fast_dot(nl, d))) {
                     *n = nl;
                     *t = tc;
-                    walker_stop(&k.w, tc, P, steps);
+                    walker_stop(&k.w, tc, steps);
                     return EV_LEAF;
                 }
             }
@@ -428,7 +425,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
             od += sig * (tb - ta);
             if (od > 40.0f) {
                 /* cut off where the optical depth passes 40: the voxel walk stops in that voxel */
-                walker_stop(&w, ta + (40.0f - od0) / sig, P, steps);
+                walker_stop(&w, ta + (40.0f - od0) / sig, steps);
                 return 0.0f;
             }
         }
@@ -448,7 +445,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
             if (b.y * RR_SURVIVE < T) {
                 T = RR_SURVIVE;
             } else {
-                walker_stop(&k.w, tc, P, steps);
+                walker_stop(&k.w, tc, steps);
                 return 0.0f;
             }
         }
@@ -652,7 +649,7 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
         const uint b = (uint)(pid % (ulong)P->n_batches);
         if (b != batch) {
             for (int j = 0; j < NSTAT; ++j) {
-                if (CLSIM_PROF_STATS && acc[j])
+                if (acc[j])
                     add_u64(stats + batch * NSTAT + j, acc[j]);
                 acc[j] = 0ul;
             }
@@ -661,6 +658,6 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
         photon(&S, hist, stats, trace, key, pid, batch, acc);
     }
     for (int j = 0; j < NSTAT; ++j)
-        if (CLSIM_PROF_STATS && acc[j])
+        if (acc[j])
             add_u64(stats + batch * NSTAT + j, acc[j]);
 }

@@ -309,7 +309,8 @@ class Simulator:
         if not isinstance(base, Sensor):
             raise InputError(f"base must be a clsim.Sensor (Sensor.preset(name)), got {type(base).__name__}")
         if scene_setup is None:
-            scene_setup = prepare_scene(scene, wavelength_nm=base.wavelength_nm, leaf_off=leaf_off)
+            scene_setup = prepare_scene(scene, wavelength_nm=base.wavelength_nm, leaf_off=leaf_off,
+                                        bricks=self._cached_bricks(scene, leaf_off))
         n = len(pulses)
         rows, t0, energy = [], np.zeros(n), np.zeros(n)
         bufs, bar, kernel_s = None, None, 0.0

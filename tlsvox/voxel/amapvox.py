@@ -90,8 +90,7 @@ def write_vox(scene: Scene, path: "str | os.PathLike", *, max_pad: float | None 
     names, fmt = COLUMNS, ["%d", "%d", "%d", "%.9g", "%.9g", "%d", "%.9g"]
     if scene.wood_directional:
         beta = scene.dense("wood_beta")
-        axis = np.zeros(tuple(scene.shape) + (3,))
-        axis[tuple(scene.ijk.T)] = scene.wood_axis
+        axis = scene.dense("wood_axis")
         cols += [beta.ravel()] + [axis[..., c].ravel() for c in range(3)]
         names, fmt = names + WOOD_DIR_COLUMNS, fmt + ["%.9g"] * 4
     header = [

@@ -448,9 +448,8 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
             ia = np.floor(rel[:, a:a + 1] + dv[:, a:a + 1] * tt).astype(np.int32)
             inside &= (ia >= 0) & (ia < grid.shape[a])
             ijk[..., a] = ia
-        flat = (ijk[..., 0].astype(np.int64) * grid.shape[1] + ijk[..., 1]) * grid.shape[2] + ijk[..., 2]
         u = np.zeros(t.shape)
-        u[inside] = lad_of(flat[inside])
+        u[inside] = lad_of(grid.flat(ijk[inside]))
         busy = (u > 0).any(axis=1)
         if not busy.any():
             start = stop
@@ -465,7 +464,7 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
         tv = t[sel_r, sel_c]
         if outward is not None:
             gtab, cc = outward
-            centre = lo[:2] + (ijk[sel_r, sel_c, :2] + 0.5) * h
+            centre = grid.centers(ijk[sel_r, sel_c])[:, :2]
             rx, ry = centre[:, 0] - cc[0], centre[:, 1] - cc[1]
             rr = np.hypot(rx, ry)
             dx, dy = d[sel, 0][sel_r], d[sel, 1][sel_r]
@@ -489,8 +488,7 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
         # have merged into it: none there
         if n_e.sum():
             row = np.repeat(np.arange(len(sel)), n_e)
-            e_idx = np.concatenate([np.arange(a, b) for a, b in zip(beams.echo_start[sel][n_e > 0],
-                                                                     beams.echo_start[sel + 1][n_e > 0])])
+            e_idx = np.repeat(beams.echo_start[sel], n_e) + np.arange(n_e.sum()) - np.repeat(np.cumsum(n_e) - n_e, n_e)
             r_e = beams.echo_range[e_idx]
             first = np.clip(np.ceil((r_e - model.range_resolution - t0[sel][row]) / dsb[row] - 0.5), 0, m)
             last = np.clip(np.floor((r_e + model.range_resolution - t0[sel][row]) / dsb[row] - 0.5) + 1, 0, m)

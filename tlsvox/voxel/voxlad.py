@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tlsvox.errors import InputError
-from tlsvox.voxel.estimators import Estimator, FillMode, LadEstimate, estimate_lad
+from tlsvox.voxel.estimators import (Estimator, FillMode, LadEstimate, brick_layer_means, estimate_lad, fill_layers,
+                                     fill_neighbourhood, hull_mask)
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
@@ -426,9 +427,6 @@ def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
     for occluded rows and the echo-free voxels of occluded crown bricks alike (looked up per
     brick: nothing of the grid's size is made).  Capped at LAD_PLAUSIBLE_MAX.
     """
-    from tlsvox.voxel.bricks import BRICK
-    from tlsvox.voxel.estimators import brick_layer_means, fill_layers, fill_neighbourhood, hull_mask
-
     factor = float(lad.options.get("small_voxel_factor", 1.0))
     raw = np.clip(lad.lad_raw, 0.0, LAD_PLAUSIBLE_MAX) * factor
     occ = lad.occluded
