@@ -86,6 +86,14 @@ class Scene:
         The wood extinction along a direction at angle psi to the axis is the
         direction-averaged one times ``1 + beta (4 sin(psi) / pi - 1)``
         (docs/method.md, "Directional wood").
+    wood_solid : (M,) bool, optional
+        Voxels inside a solid branch or trunk (default none): opaque from every
+        direction whatever ``wood`` says, their surface the side of a cylinder
+        about ``wood_axis`` and its end caps (``wood_beta`` is not used there;
+        docs/method.md, "Solid wood").
+    wood_cap : (M,) float in [0, 1], optional
+        For solid voxels, the share of the nearby bark surface on the cylinder's
+        end caps (normals along ``wood_axis``); the rest is its side. Default 0.
     occluded : (M,) bool, optional
         Voxels whose LAD could not be estimated (too few beams).
     lad_std : (M,) float, optional
@@ -110,6 +118,8 @@ class Scene:
     wood_kind: str = "probability"
     wood_axis: np.ndarray | None = None
     wood_beta: np.ndarray | None = None
+    wood_solid: np.ndarray | None = None
+    wood_cap: np.ndarray | None = None
     occluded: np.ndarray | None = None
     lad_std: np.ndarray | None = None
     leaf_angle: LeafAngle = field(default_factory=LeafAngle)
@@ -161,6 +171,10 @@ class Scene:
         self.wood_beta = self._column("wood_beta", self.wood_beta, np.float64, m, default=0.0)
         if np.any((self.wood_beta < 0) | (self.wood_beta > 1)):
             raise InputError("wood_beta must lie in [0, 1] (0: randomly oriented bark, 1: a pure cylinder)")
+        self.wood_solid = self._column("wood_solid", self.wood_solid, bool, m, default=False)
+        self.wood_cap = self._column("wood_cap", self.wood_cap, np.float64, m, default=0.0)
+        if np.any((self.wood_cap < 0) | (self.wood_cap > 1)):
+            raise InputError("wood_cap must lie in [0, 1] (the share of a solid voxel's bark on end caps)")
         if self.wood_axis is None:
             self.wood_axis = np.tile([0.0, 0.0, 1.0], (m, 1))
             return
@@ -170,17 +184,17 @@ class Scene:
         if not np.all(np.isfinite(a)):
             raise InputError("wood_axis contains NaN or inf; every value must be finite")
         norm = np.linalg.norm(a, axis=1)
-        bad = (norm < 1e-6) & (self.wood_beta > 0)
+        bad = (norm < 1e-6) & ((self.wood_beta > 0) | self.wood_solid)
         if np.any(bad):
-            raise InputError(f"wood_axis has {int(bad.sum())} zero-length vectors where wood_beta > 0; "
-                             "give a unit bark axis there (or wood_beta = 0)")
+            raise InputError(f"wood_axis has {int(bad.sum())} zero-length vectors where wood_beta > 0 or wood_solid; "
+                             "give a unit bark axis there (or wood_beta = 0 and wood_solid False)")
         a = np.where(norm[:, None] < 1e-6, [[0.0, 0.0, 1.0]], a / np.maximum(norm, 1e-300)[:, None])
         self.wood_axis = a
 
     @property
     def wood_directional(self) -> bool:
-        """True when some voxel's bark has a direction (``wood_beta > 0``)."""
-        return bool(np.any(self.wood_beta > 0))
+        """True when some voxel's bark has a direction (``wood_beta > 0`` or a solid voxel)."""
+        return bool(np.any(self.wood_beta > 0) or np.any(self.wood_solid))
 
     @staticmethod
     def _column(name, values, dtype, m, default=None):
@@ -263,6 +277,9 @@ class Scene:
         if self.wood_directional:
             arrays["wood_axis"] = self.wood_axis
             arrays["wood_beta"] = self.wood_beta
+        if np.any(self.wood_solid):
+            arrays["wood_solid"] = self.wood_solid
+            arrays["wood_cap"] = self.wood_cap
         return write_npz(path, arrays)
 
     @classmethod
@@ -302,6 +319,8 @@ class Scene:
                 wood_kind=opt("wood_kind", str, "probability"),
                 wood_axis=opt("wood_axis", np.asarray),
                 wood_beta=opt("wood_beta", np.asarray),
+                wood_solid=opt("wood_solid", np.asarray),
+                wood_cap=opt("wood_cap", np.asarray),
                 occluded=opt("occluded", np.asarray),
                 lad_std=opt("lad_std", np.asarray),
                 leaf_angle=opt("leaf_angle", lambda v: json.loads(str(v)), "uniform"),

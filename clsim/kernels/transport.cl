@@ -79,7 +79,9 @@ CLSIM_INLINE float3 scene_leaf_normal(const scene_t *S, float4 b, float3 x)
  * psi the angle between d and the bark axis) and its random-facet part
  * (.y, sw (1 - beta)); sw is the direction-averaged extinction the pool holds.
  * Without directions (WOOD_DIR 0, a separate build) the parts are (0, sw)
- * and the code folds to the direction-free kernel bit for bit. */
+ * and the code folds to the direction-free kernel bit for bit.
+ * Solid wood (q.w = -1 - cap share < 0): opaque from every direction, all of
+ * it on the surface model (.x = sw; wood_normal picks side or end cap). */
 #ifndef WOOD_DIR
 #define WOOD_DIR 0
 #endif
@@ -91,6 +93,8 @@ CLSIM_INLINE float2 wood_parts(const scene_t *S, size_t row, float sw, float3 d)
     return (float2)(0.0f, sw);
 #else
     const float4 q = S->wdir[row];
+    if (q.w < 0.0f)
+        return (float2)(sw, 0.0f);
     const float c = fast_dot((float3)(q.x, q.y, q.z), d);
     const float sin_psi = fast_sqrt(fast_max(0.0f, 1.0f - c * c));
     return (float2)(sw * q.w * WOOD_4_OVER_PI * sin_psi, sw * (1.0f - q.w));
@@ -115,7 +119,7 @@ CLSIM_INLINE float wood_majorant(const scene_t *S, size_t row, float sw)
     return sw;
 #else
     const float beta = S->wdir[row].w;
-    return sw * beta * WOOD_4_OVER_PI + sw * (1.0f - beta);
+    return beta < 0.0f ? sw : sw * beta * WOOD_4_OVER_PI + sw * (1.0f - beta);
 #endif
 }
 
@@ -137,15 +141,25 @@ CLSIM_INLINE int wood_hit(const scene_t *S, size_t row, float sw, float3 d, floa
 /* Normal of a wood element hit from d, facing -d, weighted by |n . d|: on the
  * cylinder part perpendicular to the voxel's bark axis a (n = -cos(phi) u +
  * sin(phi) v, u the unit part of d across a, v = a x u, sin(phi) = 2 u1 - 1);
- * random facets: cosine-weighted about -d. */
+ * random facets: cosine-weighted about -d.  Solid wood: an end cap (n = -+a,
+ * facing -d) or the side, by their projected areas cap |cos psi| and
+ * (1 - cap) sin(psi) / pi (u2 chooses). */
 CLSIM_INLINE float3 wood_normal(const scene_t *S, size_t row, float3 d, int cyl, float u1, float u2)
 {
 #if WOOD_DIR
     if (cyl) {
         const float4 q = S->wdir[row];
         const float3 a = (float3)(q.x, q.y, q.z);
-        const float3 p = d - a * fast_dot(a, d);
+        const float ca = fast_dot(a, d);
+        const float3 p = d - a * ca;
         const float l2 = fast_dot(p, p);
+        if (q.w < 0.0f) {
+            const float cap = -1.0f - q.w;
+            const float end = cap * fast_abs(ca);
+            const float side = (1.0f - cap) * fast_sqrt(l2) * (1.0f / CLSIM_PI);
+            if (u2 * (end + side) < end)
+                return ca > 0.0f ? -a : a;
+        }
         if (l2 > 1.0e-12f) {
             const float3 u = p * (1.0f / fast_sqrt(l2));
             const float s = 2.0f * u1 - 1.0f;

@@ -20,6 +20,8 @@ voxel, and ``sigma_wood`` above is the direction-averaged extinction, which
 the kernel scales by ``1 + beta (4 sin(psi) / pi - 1)`` along a direction at
 angle psi to the axis (largest across the axis, ``1 + beta (4 / pi - 1)``: the
 tracking majorant; kernels/transport.cl ``wood_parts``, ``wood_majorant``).
+Solid voxels (``scene.wood_solid``) are opaque (``sigma_wood`` at the cap
+``p = WOOD_P_MAX``) and carry ``(axis, -1 - cap share)`` in ``wdir``.
 Scenes without directional wood have no ``wdir`` and are traced exactly as
 before.
 
@@ -75,14 +77,22 @@ def extinction(scene: Scene, *, leaf_off: bool = False) -> tuple[np.ndarray, np.
         sw = -np.log1p(-np.minimum(p, WOOD_P_MAX)) / scene.voxel_size
     else:
         sw = 0.5 * np.asarray(scene.wood, dtype=np.float64)
+    # solid wood stops a beam from every direction, whatever its wood value says
+    sw = np.where(scene.wood_solid, -np.log1p(-WOOD_P_MAX) / scene.voxel_size, sw)
     return lad, sw, flags
 
 
 def wood_direction(scene: Scene) -> np.ndarray | None:
-    """Per stored voxel ``(axis x, y, z, beta)`` float64, or None when no bark has a direction."""
+    """Per stored voxel ``(axis x, y, z, w)`` float64, or None when no bark has a direction.
+
+    ``w`` is ``beta`` in [0, 1] for bark as a turbid medium, and ``-1 - cap`` in
+    [-2, -1] for a solid voxel (``Scene.wood_solid``, cap share ``Scene.wood_cap``):
+    the kernel tells the two apart by the sign (kernels/transport.cl ``wood_parts``).
+    """
     if not scene.wood_directional:
         return None
-    return np.column_stack([scene.wood_axis, scene.wood_beta]).astype(np.float64)
+    w = np.where(scene.wood_solid, -1.0 - scene.wood_cap, scene.wood_beta)
+    return np.column_stack([scene.wood_axis, w]).astype(np.float64)
 
 
 @dataclass
@@ -135,11 +145,11 @@ def bricks_key(scene: Scene, *, leaf_off: bool = False) -> tuple:
     """A fingerprint of everything :func:`build_bricks` reads from ``scene``: equal keys, equal bricks.
 
     The grid, ``wood_kind``, ``leaf_off`` and a CRC-32 of each of the voxel
-    index, LAD and wood columns (about 25 ms for a million voxels on one core,
+    index, LAD and wood columns (with the bark directions and solid wood) (about 25 ms for a million voxels on one core,
     against hundreds for the build), so a cache keyed on it also notices a
     scene changed in place."""
     key = [tuple(scene.shape), float(scene.voxel_size), scene.wood_kind, bool(leaf_off)]
-    for a in (scene.ijk, scene.lad, scene.wood, scene.wood_axis, scene.wood_beta):
+    for a in (scene.ijk, scene.lad, scene.wood, scene.wood_axis, scene.wood_beta, scene.wood_solid, scene.wood_cap):
         if a is None:
             key.append(None)
             continue

@@ -48,14 +48,16 @@ def wood_parts(q, sw, d):
         return np.zeros_like(sw), sw
     c = row_dot(q[:, :3], d)
     sin_psi = np.sqrt(np.maximum(0.0, 1.0 - c * c))
-    return sw * q[:, 3] * (4.0 / np.pi) * sin_psi, sw * (1.0 - q[:, 3])
+    solid = q[:, 3] < 0  # solid wood (w = -1 - cap share): opaque, all on the surface model
+    return (np.where(solid, sw, sw * q[:, 3] * (4.0 / np.pi) * sin_psi),
+            np.where(solid, 0.0, sw * (1.0 - q[:, 3])))
 
 
 def wood_majorant(q, sw):
     """Largest wood extinction over directions, ``sw (beta 4 / pi + 1 - beta)`` (kernel ``wood_majorant``)."""
     if q is None:
         return sw
-    return sw * q[:, 3] * (4.0 / np.pi) + sw * (1.0 - q[:, 3])
+    return np.where(q[:, 3] < 0, sw, sw * q[:, 3] * (4.0 / np.pi) + sw * (1.0 - q[:, 3]))
 
 
 def wood_normal(q, d, cyl, u1, u2):
@@ -63,14 +65,23 @@ def wood_normal(q, d, cyl, u1, u2):
 
     Rows with ``cyl`` lie on the cylinder part, perpendicular to the bark axis
     (``n = -cos(phi) u + sin(phi) a x u``, ``sin(phi) = 2 u1 - 1``); the rest are
-    random facets, cosine-weighted about ``-d`` (kernel ``wood_normal``)."""
+    random facets, cosine-weighted about ``-d`` (kernel ``wood_normal``).  Solid
+    wood (``q[:, 3] = -1 - cap``): an end cap (``n = -sign(a . d) a``) when
+    ``u2 (end + side) < end``, ``end = cap |a . d|``, ``side = (1 - cap) sin(psi) / pi``
+    (their projected areas), else the side as above."""
     n = cosine_dir(-d, u1, u2)
     if q is None or not np.any(cyl):
         return n
     a = q[:, :3]
-    p = d - a * row_dot(a, d)[:, None]
+    ca = row_dot(a, d)
+    p = d - a * ca[:, None]
     l2 = row_dot(p, p)
-    use = cyl & (l2 > 1e-12)
+    cap = np.where(q[:, 3] < 0, -1.0 - q[:, 3], 0.0)
+    end = cap * np.abs(ca)
+    side = (1.0 - cap) * np.sqrt(l2) / np.pi
+    on_cap = cyl & (q[:, 3] < 0) & (u2 * (end + side) < end)
+    n[on_cap] = np.where((ca[on_cap] > 0)[:, None], -a[on_cap], a[on_cap])
+    use = cyl & ~on_cap & (l2 > 1e-12)
     if use.any():
         u = p[use] / np.sqrt(l2[use])[:, None]
         s = 2.0 * u1[use] - 1.0

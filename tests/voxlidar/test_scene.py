@@ -73,6 +73,18 @@ def test_vox_keeps_bark_directions_and_optics(scene, rng, tmp_path):
     assert back.materials == scene.materials
 
 
+def test_vox_keeps_solid_wood(scene, tmp_path):
+    """Solid voxels (wood_solid, wood_cap) survive a .vox round trip."""
+    solid = scene.wood > 0
+    scene.wood_solid = solid
+    scene.wood_cap = np.where(solid, 0.25, 0.0)
+    scene.__post_init__()
+    back = read_vox(write_vox(scene, tmp_path / "s.vox"))
+    np.testing.assert_array_equal(back.dense("wood_solid"), scene.dense("wood_solid"))
+    np.testing.assert_allclose(back.dense("wood_cap"), scene.dense("wood_cap"))
+    assert back.wood_directional
+
+
 def test_vox_without_bark_directions_has_the_plain_columns(scene, tmp_path):
     header = write_vox(scene, tmp_path / "p.vox").read_text().splitlines()[6]
     assert header == "i j k PadBVTotal wood occluded lad_std"
@@ -166,6 +178,8 @@ def test_wood_directions_round_trip_and_default(scene, tmp_path):
     (dict(wood_beta=[0.5], wood_axis=[[0.0, 0.0, 0.0]]), "zero-length"),
     (dict(wood_axis=[0.0, 0.0, 1.0, 0.0]), r"wood_axis must be one 3-vector per voxel"),
     (dict(wood_axis=[[np.nan, 0.0, 1.0]]), "NaN"),
+    (dict(wood_solid=[True], wood_cap=[-0.1]), "wood_cap must lie in"),
+    (dict(wood_solid=[True], wood_axis=[[0.0, 0.0, 0.0]]), "zero-length"),
 ])
 def test_bad_wood_directions(kw, word):
     with pytest.raises(InputError, match=word):

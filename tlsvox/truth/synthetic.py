@@ -219,6 +219,10 @@ class SyntheticTree:
             Unit axis (z >= 0) of the cylinder holding each centre (the last
             one listed where cylinders overlap).
         """
+        return self._solid_cells(origin, voxel_size, shape)[:2]
+
+    def _solid_cells(self, origin, voxel_size, shape):
+        """:meth:`solid_wood_voxels` and the row in ``cylinders`` of each voxel's cylinder."""
         origin = np.asarray(origin, dtype=np.float64)
         shape = tuple(int(v) for v in shape)
         a, b, r = self.cylinders[:, :3], self.cylinders[:, 3:6], self.cylinders[:, 6]
@@ -234,14 +238,19 @@ class SyntheticTree:
                 continue
             g = np.stack(np.meshgrid(*[np.arange(lo[k], hi[k] + 1) for k in range(3)], indexing="ij"),
                          -1).reshape(-1, 3)
-            inside = segment_distance(origin + (g + 0.5) * voxel_size, a[i], b[i]) < r[i]
+            x = origin + (g + 0.5) * voxel_size - a[i]
+            u = (b[i] - a[i]) / length[i]
+            t = x @ u  # along the axis from a, m
+            radial = np.linalg.norm(x - t[:, None] * u, axis=1)
+            inside = (t >= 0) & (t <= length[i]) & (radial < r[i])  # flat ends, as the mesh's caps
             flats.append(np.ravel_multi_index(g[inside].T, shape))
             owner.append(np.full(int(inside.sum()), i))
         if not flats:
-            return np.zeros(0, np.int64), np.zeros((0, 3))
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64)
         # np.unique keeps each voxel's first occurrence: reversed, that is the last cylinder listed
         flat, first = np.unique(np.concatenate(flats)[::-1], return_index=True)
-        return flat.astype(np.int64), axes[np.concatenate(owner)[::-1][first]]
+        own = np.concatenate(owner)[::-1][first]
+        return flat.astype(np.int64), axes[own], own.astype(np.int64)
 
     def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional",
                     solid_wood: bool = True):
@@ -266,8 +275,12 @@ class SyntheticTree:
         ``solid_wood`` (default) also fills the inside of the solid cylinders: every
         voxel whose centre lies inside one (:meth:`solid_wood_voxels`) becomes
         opaque wood (probability ``1 - 1e-6``, the transport's cap) from every
-        direction (``beta = 0``; the cylinder's axis is kept in ``wood_axis``).
-        Without it a trunk wider than a
+        direction; with ``wood_model="directional"`` it is solid wood
+        (``Scene.wood_solid``) whose surface is the cylinder's side and end caps
+        (axis in ``wood_axis``, cap share ``wood_cap`` from the bark normals around
+        the voxel), and the cylinder's own bark in the voxels beside its core is
+        dropped (the core already covers its cross-section; docs/method.md,
+        solid wood).  Without it a trunk wider than a
         voxel is a shell of bark voxels around empty ones, which a turbid
         medium lets beams through (docs/method.md, directional wood).  The
         mesh's cylinders are closed at both ends (``TreeParams.capped_wood``) to
@@ -287,10 +300,21 @@ class SyntheticTree:
         origin, shape = self.truth_grid(voxel_size)
         kw = dict(origin=origin, voxel_size=voxel_size, shape=shape)
         leaf = self.leaf_area_per_voxel(**kw)
-        bark = self.bark_area_per_voxel(**kw)
         vol = voxel_size**3
-        solid_flat, solid_axis = (self.solid_wood_voxels(**kw) if solid_wood
-                                  else (np.zeros(0, np.int64), np.zeros((0, 3))))
+        solid_flat, solid_axis, solid_owner = (self._solid_cells(origin, voxel_size, shape) if solid_wood
+                                               else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64)))
+        bark_tris = self.triangle_coords(Material.BARK)
+        # a cylinder with a solid core is that core where it has one: its bark in the voxels around
+        # the core would stop a beam a second time (the cells whose centres lie inside already
+        # cover the cylinder's cross-section); thinner cylinders, and stretches of a cylinder away
+        # from its core, stay turbid bark
+        cored = _bark_owner(bark_tris, self.cylinders)
+        cored = np.isin(cored, np.unique(solid_owner)) & (cored >= 0)
+        near_core = _dilate(solid_flat, shape)
+        bark_all = area_per_voxel(bark_tris, **kw)
+        bark_core = area_per_voxel(bark_tris[cored], **kw) if cored.any() else np.zeros_like(bark_all)
+        bark = bark_all - np.where(near_core, bark_core, 0.0)
+        bark[bark < 1e-9 * max(bark_all.max(initial=0.0), 1e-300)] = 0.0
         occupied = (leaf > 0) | (bark > 0)
         occupied.reshape(-1)[solid_flat] = True
         ijk = np.argwhere(occupied)
@@ -300,8 +324,15 @@ class SyntheticTree:
         wood[solid] = 1.0 - 1e-6
         wood_axis = wood_beta = None
         if wood_model == "directional":
-            flat, area, mom = normal_moments_per_voxel(self.triangle_coords(Material.BARK), **kw)
-            axis, beta = bark_direction(area, mom)
+            flat, area, mom = normal_moments_per_voxel(bark_tris, **kw)
+            t_area, t_mom = area.copy(), mom.copy()  # the turbid bark: less the cores' bark beside them
+            if cored.any():
+                cf, ca, cm = normal_moments_per_voxel(bark_tris[cored], **kw)
+                cf_rows = np.searchsorted(flat, cf)  # every cell of the cores' bark is a cell of all bark
+                drop = near_core.reshape(-1)[cf]
+                t_area[cf_rows[drop]] -= ca[drop]
+                t_mom[cf_rows[drop]] -= cm[drop]
+            axis, beta = bark_direction(np.maximum(t_area, 0.0), t_mom)
             keys = np.ravel_multi_index(ijk.T, shape)
             pos = np.searchsorted(flat, keys)
             found = pos < len(flat)
@@ -310,12 +341,20 @@ class SyntheticTree:
             wood_beta = np.zeros(len(ijk))
             wood_axis[found] = axis[pos[found]]
             wood_beta[found] = beta[pos[found]]
-            # inside a solid trunk the wood stops a beam from any direction: isotropic (beta 0), the
-            # cylinder's axis kept for the record (with beta 1 a beam along the axis would pass)
+            # inside a solid trunk the wood stops a beam from any direction, and what it hits is the
+            # cylinder's side or an end cap (Scene.wood_solid; a turbid beta 1 would let a beam along
+            # the axis pass, a turbid beta 0 turns the surface into random facets)
             wood_axis[solid] = solid_axis
             wood_beta[solid] = 0.0
+            wood_solid = np.zeros(len(ijk), bool)
+            wood_solid[solid] = True
+            wood_cap = np.zeros(len(ijk))
+            wood_cap[solid] = _cap_share(solid_flat, solid_axis, flat, area, mom, shape)
+        else:
+            wood_solid = wood_cap = None
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
                      wood_kind="probability", wood_axis=wood_axis, wood_beta=wood_beta,
+                     wood_solid=wood_solid, wood_cap=wood_cap,
                      leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
                      crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,
                      meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size,
@@ -402,6 +441,65 @@ class SyntheticTree:
             o3d.io.write_triangle_mesh(str(tmp[path]), mesh, write_ascii=False)
             tmp[meta].write_text(json_text(self.truth_summary(), indent=1))
         return path, meta
+
+
+def _bark_owner(tris, cylinders, tol: float = 1e-6) -> np.ndarray:
+    """Row in ``cylinders`` whose rims hold all three corners of each bark triangle (-1: none).
+
+    Every triangle of :func:`tlsvox.truth._mesh.cylinders_mesh`, side or cap fan,
+    has its corners on the end rings, at distance ``r`` from the axis segment.
+    """
+    owner = np.full(len(tris), -1, np.int64)
+    if not len(cylinders) or not len(tris):
+        return owner
+    a, b, r = cylinders[:, :3], cylinders[:, 3:6], cylinders[:, 6]
+    tol = tol * max(1.0, float(np.abs(cylinders[:, :6]).max()))
+    for start in range(0, len(tris), 1024):
+        t = np.asarray(tris[start:start + 1024], dtype=np.float64)  # (n, 3, 3) against (C,): (n, 3, C)
+        off = np.abs(segment_distance(t[:, :, None, :], a[None, None], b[None, None]) - r).max(axis=1)
+        ok = off < tol
+        owner[start:start + len(t)] = np.where(ok.any(axis=1), ok.argmax(axis=1), -1)
+    return owner
+
+
+def _dilate(cells, shape) -> np.ndarray:
+    """Dense (nx, ny, nz) bool mask of ``cells`` (flat indices) and their 26 neighbours."""
+    mask = np.zeros(tuple(shape), bool)
+    if not len(cells):
+        return mask
+    ijk = np.stack(np.unravel_index(cells, tuple(shape)), axis=1)
+    for off in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
+        nb = ijk + off
+        nb = nb[np.all((nb >= 0) & (nb < np.asarray(shape)), axis=1)]
+        mask[tuple(nb.T)] = True
+    return mask
+
+
+def _cap_share(cells, axis, flat, area, moment, shape) -> np.ndarray:
+    """Share of the bark around each of ``cells`` on end caps of a cylinder about ``axis``.
+
+    The bark of the cell and its 26 neighbours (``flat``, ``area``, ``moment``
+    from :func:`tlsvox.truth.meshtruth.normal_moments_per_voxel`): ``a^T M a / A``,
+    the area-weighted mean of ``(n . a)^2``, which is 1 on an end cap and 0 on
+    the side.  A cell with no bark around it (deep inside a thick trunk) gets 0.
+    """
+    shape = np.asarray(shape, dtype=np.int64)
+    ijk = np.stack(np.unravel_index(cells, tuple(shape)), axis=1)
+    tot_a = np.zeros(len(cells))
+    tot_m = np.zeros((len(cells), 3, 3))
+    for off in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
+        nb = ijk + off
+        inside = np.all((nb >= 0) & (nb < shape), axis=1)
+        keys = np.ravel_multi_index(nb[inside].T, tuple(shape))
+        pos = np.minimum(np.searchsorted(flat, keys), max(len(flat) - 1, 0))
+        hit = np.zeros(len(cells), bool)
+        if len(flat):
+            hit[inside] = flat[pos] == keys
+        rows = pos[hit[inside]]
+        tot_a[hit] += area[rows]
+        tot_m[hit] += moment[rows]
+    share = np.einsum("ki,kij,kj->k", axis, tot_m, axis) / np.maximum(tot_a, 1e-300)
+    return np.clip(np.where(tot_a > 0, share, 0.0), 0.0, 1.0)
 
 
 def _branches(p: TreeParams, rng: np.random.Generator):

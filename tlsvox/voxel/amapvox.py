@@ -16,7 +16,8 @@ one row per voxel of the whole grid::
 it could not be estimated.  Corners are the grid box's corners in metres.
 Columns this package writes: ``PadBVTotal``, ``wood``, ``occluded`` (0/1),
 ``lad_std``, and for a scene with directional bark (``Scene.wood_directional``)
-``wood_beta`` and the bark axis ``wood_axis_x wood_axis_y wood_axis_z``; the
+``wood_beta`` and the bark axis ``wood_axis_x wood_axis_y wood_axis_z``, and for
+one with solid wood ``wood_solid`` (0/1) and ``wood_cap``; the
 ``#voxlidar:`` line keeps the leaf angle model, ground, wood kind, crown
 centre and the materials' optics.  On import, unknown columns are ignored, a
 missing ``occluded`` column is taken from ``NaN`` PAD values, and ``#res`` may
@@ -50,6 +51,7 @@ __all__ = ["read_vox", "write_vox"]
 COLUMNS = ("PadBVTotal", "wood", "occluded", "lad_std")
 #: written only for a scene with directional bark
 WOOD_DIR_COLUMNS = ("wood_beta", "wood_axis_x", "wood_axis_y", "wood_axis_z")
+SOLID_COLUMNS = ("wood_solid", "wood_cap")
 
 
 #: grids above this many voxels are refused by :func:`write_vox` (the format lists every voxel, as text)
@@ -93,6 +95,9 @@ def write_vox(scene: Scene, path: "str | os.PathLike", *, max_pad: float | None 
         axis = scene.dense("wood_axis")
         cols += [beta.ravel()] + [axis[..., c].ravel() for c in range(3)]
         names, fmt = names + WOOD_DIR_COLUMNS, fmt + ["%.9g"] * 4
+    if np.any(scene.wood_solid):
+        cols += [scene.dense("wood_solid").ravel().astype(int), scene.dense("wood_cap").ravel()]
+        names, fmt = names + SOLID_COLUMNS, fmt + ["%d", "%.9g"]
     header = [
         "VOXEL SPACE",
         f"#min_corner: {lo[0]:.6f} {lo[1]:.6f} {lo[2]:.6f}",
@@ -212,6 +217,9 @@ def read_vox(path: "str | os.PathLike", *, pad_column: str = "PadBVTotal") -> Sc
     if all(c in col for c in WOOD_DIR_COLUMNS):
         kw["wood_beta"] = col["wood_beta"][keep]
         kw["wood_axis"] = np.column_stack([col[c][keep] for c in WOOD_DIR_COLUMNS[1:]])
+    if all(c in col for c in SOLID_COLUMNS):
+        kw["wood_solid"] = col["wood_solid"][keep].astype(bool)
+        kw["wood_cap"] = col["wood_cap"][keep]
     return Scene(origin=lo, voxel_size=res, shape=tuple(shape), ijk=ijk[keep], lad=lad[keep],
                  wood=wood[keep], occluded=occluded[keep],
                  lad_std=None if std is None else np.nan_to_num(std[keep]), meta={"source": str(path)}, **kw)

@@ -145,14 +145,15 @@ def test_solid_wood_voxels_are_the_centres_inside_the_cylinders():
     h = 0.1
     origin, shape = tree.truth_grid(h)
     flat, _ = tree.solid_wood_voxels(origin=origin, voxel_size=h, shape=shape)
-    # brute force over every voxel centre of the grid: distance to each cylinder's segment below its radius
+    # brute force over every voxel centre of the grid: between the end planes of a cylinder
+    # (flat ends, as the mesh's caps) and nearer its axis than its radius
     ijk = np.argwhere(np.ones(shape, dtype=bool))
     c = origin + (ijk + 0.5) * h
     inside = np.zeros(len(c), dtype=bool)
     for a, b, r in zip(tree.cylinders[:, :3], tree.cylinders[:, 3:6], tree.cylinders[:, 6]):
         ab = b - a
-        t = np.clip((c - a) @ ab / (ab @ ab), 0.0, 1.0)
-        inside |= np.linalg.norm(a + t[:, None] * ab - c, axis=1) < r
+        t = (c - a) @ ab / (ab @ ab)
+        inside |= (t >= 0) & (t <= 1) & (np.linalg.norm(a + t[:, None] * ab - c, axis=1) < r)
     assert flat.tolist() == sorted(np.ravel_multi_index(ijk[inside].T, shape).tolist())
     assert len(flat) > 20  # the 0.3 m trunk holds whole 0.1 m voxels
     solid = np.stack(np.unravel_index(flat, shape), axis=1)
@@ -225,3 +226,43 @@ def test_solid_wood_fills_the_trunk():
     i, j, k = np.floor((np.array([0.0, 0.0, 0.5]) - origin) / h).astype(int)
     row = np.flatnonzero((solid.ijk == [i, j, k]).all(axis=1))
     assert row.size == 1 and solid.wood[row[0]] > 0.99 and solid.wood_axis[row[0], 2] > 0.99
+
+
+def cylinder_tree(cyl):
+    """A SyntheticTree of capped bark cylinders (C, 7) over a ground square, nothing else."""
+    from tlsvox.truth._mesh import cylinders_mesh
+    from tlsvox.truth.synthetic import SyntheticTree
+
+    cyl = np.asarray(cyl, dtype=float)
+    v, t = cylinders_mesh(cyl, caps=True)
+    gv = np.array([[-9.0, -9.0, 0.0], [9.0, -9.0, 0.0], [9.0, 9.0, 0.0], [-9.0, 9.0, 0.0]])
+    return SyntheticTree(vertices=np.concatenate([v, gv]),
+                         triangles=np.concatenate([t, np.array([[0, 1, 2], [0, 2, 3]]) + len(v)]),
+                         material=np.r_[np.full(len(t), Material.BARK), np.full(2, Material.GROUND)].astype(np.uint8),
+                         cylinders=cyl, ground_z=0.0)
+
+
+def test_solid_core_carries_its_surface_and_replaces_the_bark_beside_it():
+    """A 0.3 m trunk at 0.1 m voxels: its core is solid wood about +z, the cap share
+    ``a^T M a / A`` of the bark around each cell is 1 at the top cap's cells (cap only) and
+    0 half way up (side only); the core stands for the cylinder, so the bark in the cells
+    around it is no turbid wood.  A 0.03 m branch has no core and keeps all its bark."""
+    h = 0.1
+    tree = cylinder_tree([[0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.3], [1.5, 0.0, 0.5, 1.5, 0.0, 1.5, 0.03]])
+    scene = tree.truth_scene(h)
+    solid = scene.wood_solid
+    assert solid.sum() > 100 and np.allclose(scene.wood_axis[solid], [0, 0, 1])
+    assert np.all(scene.wood[solid] == pytest.approx(1 - 1e-6))
+    z = scene.origin[2] + (scene.ijk[:, 2] + 0.5) * h
+    mid = solid & (np.abs(z - 1.0) < 0.3)
+    assert np.all(scene.wood_cap[mid] < 1e-12)
+    top = solid & (z > 1.9) & (np.hypot(*(scene.origin[:2] + (scene.ijk[:, :2] + 0.5) * h).T) < 0.1)
+    assert top.any() and np.all(scene.wood_cap[top] > 0.5)
+    x = scene.origin[0] + (scene.ijk[:, 0] + 0.5) * h
+    assert np.all(scene.wood[~solid & (x < 1.0)] == 0.0)  # the trunk's bark: its core alone
+    thin = ~solid & (x > 1.0)
+    assert not np.any(solid & (x > 1.0))
+    sigma = -np.log1p(-scene.wood[thin]) / h  # direction-averaged bark area / 4V
+    branch_area = 2 * np.pi * 0.03 * 1.0 + 2 * np.pi * 0.03**2
+    octagon = 8 * np.sin(np.pi / 8) / np.pi  # the mesh's 8-sided perimeter against the circle's
+    assert np.sum(4 * sigma * h**3) == pytest.approx(branch_area * octagon, rel=0.05)
