@@ -253,7 +253,7 @@ class SyntheticTree:
         return flat.astype(np.int64), axes[own], own.astype(np.int64)
 
     def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional",
-                    solid_wood: bool = True):
+                    solid_wood: bool = True, core_bark: bool = False):
         """The voxel scene of the mesh's exact leaf area and wood (the turbid-medium twin).
 
         LAD = leaf area in the voxel / voxel volume.  Wood becomes a crossing
@@ -280,7 +280,8 @@ class SyntheticTree:
         (axis in ``wood_axis``, cap share ``wood_cap`` from the bark normals around
         the voxel), and the cylinder's own bark in the voxels beside its core is
         dropped (the core already covers its cross-section; docs/method.md,
-        solid wood).  Without it a trunk wider than a
+        solid wood); ``core_bark=True`` keeps it, as until 2026-11-23 (to
+        measure the term).  Without it a trunk wider than a
         voxel is a shell of bark voxels around empty ones, which a turbid
         medium lets beams through (docs/method.md, directional wood).  The
         mesh's cylinders are closed at both ends (``TreeParams.capped_wood``) to
@@ -309,7 +310,7 @@ class SyntheticTree:
         # cover the cylinder's cross-section); thinner cylinders, and stretches of a cylinder away
         # from its core, stay turbid bark
         cored = _bark_owner(bark_tris, self.cylinders)
-        cored = np.isin(cored, np.unique(solid_owner)) & (cored >= 0)
+        cored = np.isin(cored, np.unique(solid_owner)) & (cored >= 0) & (not core_bark)
         near_core = _dilate(solid_flat, shape)
         bark_all = area_per_voxel(bark_tris, **kw)
         bark_core = area_per_voxel(bark_tris[cored], **kw) if cored.any() else np.zeros_like(bark_all)
@@ -358,7 +359,8 @@ class SyntheticTree:
                      leaf_angle=self.leaf_angle, leaf_azimuth=self.leaf_azimuth,
                      crown_center=np.asarray(self.crown_center)[:2], ground_z=self.ground_z,
                      meta={"source": "mesh truth", "seed": self.seed, "voxel_size": voxel_size,
-                           "wood_model": wood_model, "solid_wood": bool(solid_wood)})
+                           "wood_model": wood_model, "solid_wood": bool(solid_wood),
+                           "core_bark": bool(core_bark)})
 
     def bounds(self, *, vegetation_only: bool = True) -> np.ndarray:
         """(2, 3) lower/upper corner of the leaves and bark (or everything)."""
