@@ -311,11 +311,26 @@ class SyntheticTree:
         # from its core, stay turbid bark
         cored = _bark_owner(bark_tris, self.cylinders)
         cored = np.isin(cored, np.unique(solid_owner)) & (cored >= 0) & (not core_bark)
-        near_core = _dilate(solid_flat, shape)
-        bark_all = area_per_voxel(bark_tris, **kw)
-        bark_core = area_per_voxel(bark_tris[cored], **kw) if cored.any() else np.zeros_like(bark_all)
-        bark = bark_all - np.where(near_core, bark_core, 0.0)
-        bark[bark < 1e-9 * max(bark_all.max(initial=0.0), 1e-300)] = 0.0
+        near_core = _dilate(solid_flat, shape).reshape(-1)
+        # area and normal moments per voxel of the other bark and of the cored cylinders' bark
+        # (disjoint sets: together, what one pass over all the bark would give)
+        fo, ao, mo = normal_moments_per_voxel(bark_tris[~cored], **kw)
+        fc, ac, mc = normal_moments_per_voxel(bark_tris[cored], **kw)
+        flat = np.union1d(fo, fc)
+        area, mom = np.zeros(len(flat)), np.zeros((len(flat), 3, 3))  # all the bark (the cap shares)
+        ro, rc = np.searchsorted(flat, fo), np.searchsorted(flat, fc)
+        area[ro] += ao
+        mom[ro] += mo
+        area[rc] += ac
+        mom[rc] += mc
+        t_area, t_mom = area.copy(), mom.copy()  # the turbid bark: less the cores' bark beside them
+        drop = near_core[fc]
+        t_area[rc[drop]] -= ac[drop]
+        t_mom[rc[drop]] -= mc[drop]
+        t_area[t_area < 1e-9 * max(area.max(initial=0.0), 1e-300)] = 0.0
+        bark = np.zeros(int(np.prod(shape)))
+        bark[flat] = t_area
+        bark = bark.reshape(shape)
         occupied = (leaf > 0) | (bark > 0)
         occupied.reshape(-1)[solid_flat] = True
         ijk = np.argwhere(occupied)
@@ -325,15 +340,7 @@ class SyntheticTree:
         wood[solid] = 1.0 - 1e-6
         wood_axis = wood_beta = None
         if wood_model == "directional":
-            flat, area, mom = normal_moments_per_voxel(bark_tris, **kw)
-            t_area, t_mom = area.copy(), mom.copy()  # the turbid bark: less the cores' bark beside them
-            if cored.any():
-                cf, ca, cm = normal_moments_per_voxel(bark_tris[cored], **kw)
-                cf_rows = np.searchsorted(flat, cf)  # every cell of the cores' bark is a cell of all bark
-                drop = near_core.reshape(-1)[cf]
-                t_area[cf_rows[drop]] -= ca[drop]
-                t_mom[cf_rows[drop]] -= cm[drop]
-            axis, beta = bark_direction(np.maximum(t_area, 0.0), t_mom)
+            axis, beta = bark_direction(t_area, t_mom)
             keys = np.ravel_multi_index(ijk.T, shape)
             pos = np.searchsorted(flat, keys)
             found = pos < len(flat)
