@@ -158,6 +158,7 @@ def test_sparse_layer_fill_recovers_the_box(box_scans):  # noqa: F811
 
 
 def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
+    from tlsvox.voxel.plan import SMALL_BYTES
     from tlsvox.voxel.pulses import beams_from_scan
 
     grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)  # the box and much air around it
@@ -166,7 +167,7 @@ def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
     plan = memory_plan(grid, beams, tracer)
     assert plan.layout is Layout.DENSE and plan.sparse < plan.dense
     assert "hold echoes" in plan.describe()
-    roomy = plan.beams + plan.sparse + 1024
+    roomy = plan.beams + plan.echoes + SMALL_BYTES + plan.sparse + 1024  # the sparse run fits, the dense not
     assert memory_plan(grid, beams, tracer, max_bytes=roomy).layout is Layout.SPARSE
     with pytest.raises(InputError, match=r"dense layout needs .* but only .* is available; use layout='sparse'"):
         memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
