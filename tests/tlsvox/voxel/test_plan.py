@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tlsvox.voxel.grid import VoxelGrid
-from tlsvox.voxel.plan import Layout, beams_bytes, build_bytes, memory_plan
+from tlsvox.voxel.plan import ALLOCATOR_SHARE, Layout, beams_bytes, build_bytes, memory_plan, with_allocator
 from tlsvox.voxel.pulses import beams_from_scan
 from tlsvox.voxel.trace import Beams
 from tlsvox.voxel.voxlad import voxelize
@@ -44,12 +44,13 @@ def cpu_tracer():
 @pytest.mark.parametrize("voxel_size, air, phase", [(0.2, 0.0, "build"), (0.1, 3.0, "run")])
 def test_plan_bounds_the_measured_peak(big_box_scans, cpu_tracer, voxel_size, air, phase):
     """A plain run (default options but the ground): the plan's need is at least the peak of the
-    arrays voxelize makes (tracemalloc, from its start) and at most FACTOR times it.  Tight bounds
-    at 20 cm: making and joining the beams is the peak; 3 m of air at 10 cm: the dense sums are."""
+    arrays voxelize makes (tracemalloc, from its start) and at most FACTOR times it (measured 1.27
+    and 1.21).  Tight bounds at 20 cm: making and joining the beams is the peak; 3 m of air at
+    10 cm: the dense sums are."""
     bounds = np.array([BOX_LO - air, BOX_HI + air])
     kw = dict(voxel_size=voxel_size, ground=None, bounds=bounds, tracer=cpu_tracer, progress=False)
     plan = voxelize(big_box_scans, plan_only=True, **kw)
-    assert plan.layout is Layout.DENSE and plan.need == max(plan.build, plan.run)
+    assert plan.layout is Layout.DENSE and plan.need == with_allocator(max(plan.build, plan.run))
     assert (plan.build > plan.run) == (phase == "build"), plan.describe()
     voxelize(big_box_scans, **kw)  # the imports and the kernel build, outside the measured run
     tracemalloc.start()
@@ -60,6 +61,11 @@ def test_plan_bounds_the_measured_peak(big_box_scans, cpu_tracer, voxel_size, ai
     finally:
         tracemalloc.stop()
     assert peak <= plan.need <= FACTOR * peak, (peak / 2**20, plan.describe())
+    # the arrays alone make the peak within 1 % (measured 0.006 % under in the dense run): the
+    # allocator's share is on top of a full count, not in place of a missing term
+    arrays = max(plan.build, plan.run)
+    assert 0.99 * peak <= arrays, (peak / 2**20, plan.describe())
+    assert plan.need == pytest.approx((1 + ALLOCATOR_SHARE) * arrays, abs=1)
 
 
 def test_build_counts_each_scan_and_the_join(big_box_scans, cpu_tracer):
@@ -72,6 +78,6 @@ def test_build_counts_each_scan_and_the_join(big_box_scans, cpu_tracer):
     assert build_bytes(parts[0]) > beams_bytes(parts[0])
     grid = VoxelGrid.from_bounds(BOX_LO, BOX_HI, voxel_size=0.5)
     plan = memory_plan(grid, joined, cpu_tracer)
-    assert plan.build == build_bytes(joined) and plan.need == plan.build
+    assert plan.build == build_bytes(joined) and plan.need == with_allocator(plan.build)
     assert "making the beams" in plan.describe()
 
