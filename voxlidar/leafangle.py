@@ -42,6 +42,8 @@ __all__ = ["LeafAngle", "LeafAngleKind", "LeafAzimuth", "ross_kernel", "sample_l
 
 HALF_PI = 0.5 * np.pi
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(96)
+#: zenith angles per block of G's quadrature (its arrays: about 10 of 8 x 96 x _G_BLOCK bytes)
+_G_BLOCK = 256
 
 
 def _beta(a: float, b: float):
@@ -259,19 +261,24 @@ class LeafAngle:
             out = ross_kernel(th, 0.0)
         elif self.kind is LeafAngleKind.VERTICAL:
             out = ross_kernel(th, HALF_PI)
-        else:
-            kink = HALF_PI - th  # (m,)
-            x01 = 0.5 * (_GL_X + 1.0)  # (q,)
-            lo = kink[:, None] * x01[None, :]
-            hi = kink[:, None] + (HALF_PI - kink)[:, None] * x01[None, :]
-            w_lo = 0.5 * kink[:, None] * _GL_W[None, :]
-            w_hi = 0.5 * (HALF_PI - kink)[:, None] * _GL_W[None, :]
-            thc = th[:, None]
-            out = np.sum(w_lo * self.pdf(lo) * ross_kernel(thc, lo), axis=1) + np.sum(
-                w_hi * self.pdf(hi) * ross_kernel(thc, hi), axis=1
-            )
+        else:  # in blocks of angles: the quadrature's (m, q) arrays stay a few MiB whatever m is
+            out = np.concatenate([self._G_quadrature(th[i:i + _G_BLOCK]) for i in range(0, len(th), _G_BLOCK)]
+                                 or [np.zeros(0)])
         out = out.reshape(np.shape(theta))
         return float(out) if scalar else out
+
+    def _G_quadrature(self, th):
+        """G at zenith angles ``th`` in [0, pi/2] by Gauss-Legendre quadrature split at the kink."""
+        kink = HALF_PI - th  # (m,)
+        x01 = 0.5 * (_GL_X + 1.0)  # (q,)
+        lo = kink[:, None] * x01[None, :]
+        hi = kink[:, None] + (HALF_PI - kink)[:, None] * x01[None, :]
+        w_lo = 0.5 * kink[:, None] * _GL_W[None, :]
+        w_hi = 0.5 * (HALF_PI - kink)[:, None] * _GL_W[None, :]
+        thc = th[:, None]
+        return np.sum(w_lo * self.pdf(lo) * ross_kernel(thc, lo), axis=1) + np.sum(
+            w_hi * self.pdf(hi) * ross_kernel(thc, hi), axis=1
+        )
 
     def to_dict(self) -> dict:
         """Plain-data form for files (``name`` plus parameters)."""

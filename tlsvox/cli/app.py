@@ -5,7 +5,7 @@ Sub-commands build the synthetic truth world (tree, scan), look at files
 
 Examples:
   tlsvox tree -o out/oak.ply --seed 1
-  tlsvox scan out/oak.json --position 0 -20 1.7 --yaw 37 -o out/scan1.laz
+  tlsvox scan out/oak.json --position 0,-20,1.7 --yaw 37 -o out/scan1.laz
   tlsvox view out/scan1.laz --color reflectance --screenshot out/scan1.png
 """
 
@@ -17,7 +17,7 @@ import os
 import sys
 from pathlib import Path
 
-from voxlidar.cli import Parser, number, run, with_debug
+from voxlidar.cli import Parser, number, numbers, run, with_debug
 from voxlidar.errors import InputError
 from voxlidar.safeio import check_figure_path, check_outputs
 
@@ -25,6 +25,19 @@ from tlsvox.cli import georegister, register, voxelize
 from tlsvox.errors import TlsvoxError
 from voxlidar.versions import show_versions
 
+
+
+class _Position(argparse.Action):
+    """``--position X,Y,Z`` as the other comma-separated flags (:func:`voxlidar.cli.numbers`), or three
+    numbers apart (the older form)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        xyz = numbers(3, what="X,Y,Z in metres", example="0,-20,1.7")
+        try:
+            value = xyz(values[0] if len(values) == 1 else ",".join(values) if len(values) == 3 else "")
+        except argparse.ArgumentTypeError:
+            parser.error(f"argument {option_string}: must be {xyz.__name__}; got {' '.join(values)!r}")
+        setattr(namespace, self.dest, value)
 
 
 #: picture formats of ``tlsvox view --screenshot`` (Open3D renders a bitmap)
@@ -120,6 +133,9 @@ def _scene_items(path: Path, color: str):
         raise InputError(f"{path}: no voxel has {'wood' if color == 'wood' else 'leaves'} to show")
     title = (f"{path.name}: {int(sel.sum()):,} voxels of {scene.voxel_size * 100:g} cm, "
              f"leaf area {scene.total_leaf_area():,.1f} m²")
+    directional = int(np.count_nonzero(scene.wood_beta[sel] > 0)) if color == "wood" else 0
+    if directional:  # the colour is the amount; the bark's axis (wood_axis) would need glyphs
+        title += f"; the bark directions of {directional:,} voxels (wood_axis) are not drawn"
     return [voxel_mesh(c[sel], scene.voxel_size, cols)], c[sel], (title, bar)
 
 
@@ -232,7 +248,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("tree", help="tree metadata JSON (or its PLY) written by `tlsvox tree`")
     p.add_argument("-o", "--output", required=True, help="output .las or .laz")
     p.add_argument("--preset", default="riegl-vz400", help="scanner preset name or TOML path")
-    p.add_argument("--position", type=number(), nargs=3, default=(0.0, -20.0, 1.7), metavar=("X", "Y", "Z"))
+    p.add_argument("--position", nargs="+", action=_Position, default=(0.0, -20.0, 1.7), metavar="X,Y,Z",
+                   help="scanner position, metres (default 0,-20,1.7); a negative X takes '=': "
+                        "--position=-5,0,1.7; three numbers apart (--position 0 -20 1.7) are read too")
     p.add_argument("--yaw", type=number(), default=0.0, help="scanner yaw, degrees")
     p.add_argument("--pitch", type=number(lo=-90, hi=90), default=0.0, help="scanner pitch (tilt), degrees")
     p.add_argument("--roll", type=number(lo=-90, hi=90), default=0.0, help="scanner roll (tilt), degrees")

@@ -27,7 +27,7 @@ from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import Bricks
 from tlsvox.voxel.grid import VoxelGrid
 
-__all__ = ["Beams", "EchoKind", "echo_positions", "echo_rows", "echo_voxels"]
+__all__ = ["Beams", "EchoKind", "echo_positions", "echo_rows", "echo_voxels", "voxels_along"]
 
 
 class EchoKind(enum.IntEnum):
@@ -213,10 +213,26 @@ def echo_voxels(grid: VoxelGrid, beams: Beams) -> np.ndarray:
     An echo on a voxel face may be counted by the kernel on either side, so
     the voxels just before and just after it along its beam are both taken.
     """
+    sel = np.isin(beams.echo_kind, np.array([EchoKind.LEAF, EchoKind.WOOD], dtype=np.uint8))
+    b = np.repeat(np.arange(len(beams)), np.diff(beams.echo_start))[sel]
+    return voxels_along(grid, beams.origin[b], beams.direction[b], beams.echo_range[sel])
+
+
+def voxels_along(grid: VoxelGrid, origin, direction, ranges) -> np.ndarray:
+    """(K, 3) the distinct voxels of ``grid`` holding the points ``origin + direction * ranges``.
+
+    Each point counts in the voxels just before and just after it along its
+    ray (one on a voxel face may be counted by the tracer on either side), as
+    in :func:`echo_voxels`.
+    """
     eps = 1e-6 * grid.voxel_size
-    ijk = np.vstack([grid.index_of(echo_positions(beams, nudge=s)) for s in (-eps, eps)])
-    ijk = ijk[grid.contains_index(ijk)]
-    return grid.unflat(np.unique(grid.flat(ijk)))
+    o, d = np.asarray(origin, dtype=np.float64), np.asarray(direction, dtype=np.float64)
+    r = np.asarray(ranges, dtype=np.float64)[:, None]
+    flat = []
+    for s in (-eps, eps):
+        ijk = grid.index_of(o + d * (r + s))
+        flat.append(grid.flat(ijk[grid.contains_index(ijk)]))
+    return grid.unflat(np.unique(np.concatenate(flat)))
 
 
 def echo_rows(grid: VoxelGrid, beams: Beams) -> Bricks:

@@ -84,6 +84,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tlsvox.errors import InputError
+from tlsvox.voxel.beams import Beams, EchoKind
+from tlsvox.voxel.grid import ray_box
 from voxlidar.choices import Choice
 
 __all__ = ["DetectionModel", "Undetected", "missed_share", "projection_tables", "unrecorded_echoes"]
@@ -163,25 +165,34 @@ class DetectionModel:
                  leaf_length: float = 0.05, leaf_width: float = 0.025) -> "DetectionModel":
         """The model of the instrument that made ``scan`` (its preset in ``scan.meta``), with overrides.
 
-        Raises :class:`InputError` when the scan does not state its detection
-        threshold and none is given.
+        What the scan's preset does not state (all of it, when the scan
+        states none) comes from the RIEGL VZ-400 preset
+        (:meth:`tlsvox.truth.scanner.ScannerPreset.riegl_vz400`), but the
+        detection threshold: raises :class:`InputError` when the scan does not
+        state it and none is given.
         """
+        from tlsvox.truth.scanner import ScannerPreset
         from tlsvox.voxel.weights import NominalReflectance
 
-        preset = dict(scan.meta.get("preset") or {})
-        thr = threshold_db if threshold_db is not None else preset.get("min_reflectance_db")
+        stated = dict(scan.meta.get("preset") or {})
+        thr = threshold_db if threshold_db is not None else stated.get("min_reflectance_db")
         if thr is None:
             raise InputError(f"undetected='model': scan {scan.name!r} does not state its detection threshold; "
                              "give detection_threshold_db= (CLI --detection-threshold-db), e.g. -20 for the "
                              "RIEGL VZ-400, or use undetected='ignore'")
+        vz400 = ScannerPreset.riegl_vz400()
+        known = {k: v for k, v in stated.items() if k in asdict(vz400)}
+        preset = ScannerPreset(**{**asdict(vz400), **known})
         nominal = NominalReflectance.for_scan(scan, leaf_reflectance, None)
-        src = "the scan's preset" if preset else "defaults (RIEGL VZ-400: the scan states no preset)"
-        return cls(threshold_db=float(thr), n_subrays=int(preset.get("n_subrays", 7)),
-                   exit_radius=0.5 * float(preset.get("beam_exit_diameter_m", 0.007)),
-                   half_divergence=0.5e-3 * float(preset.get("divergence_mrad", 0.35)),
-                   noise_db=float(preset.get("reflectance_noise_db", 0.0)),
+        missing = [k for k in ("n_subrays", "beam_exit_diameter_m", "divergence_mrad", "reflectance_noise_db",
+                               "range_resolution_m") if k not in known]
+        src = ("the scan's preset" if not missing else
+               "the RIEGL VZ-400 preset (the scan states none)" if not known else
+               f"the scan's preset, with {', '.join(missing)} of the RIEGL VZ-400")
+        return cls(threshold_db=float(thr), n_subrays=preset.n_subrays, exit_radius=preset.beam_radius_exit,
+                   half_divergence=preset.half_divergence, noise_db=preset.reflectance_noise_db,
                    leaf_reflectance=float(nominal.leaf), leaf_length=float(leaf_length),
-                   leaf_width=float(leaf_width), range_resolution=float(preset.get("range_resolution_m", 0.5)),
+                   leaf_width=float(leaf_width), range_resolution=preset.range_resolution_m,
                    source=f"{src}; leaf reflectance {nominal.leaf:g} ({nominal.source})")
 
     def beam_radius(self, range_m):
@@ -307,7 +318,11 @@ def projection_tables(model: DetectionModel, leaf_angle, *, ranges, outward: boo
         H over beam zenith [0, pi] x c in [-1, 1] (or one column) x beam radius.
     g_any : (n_theta, n_c, n_w) float64
         The same average of ``|n.d| spread`` (:func:`missed_share`): the
-        projection for "any part of the beam meets a leaf", >= G.
+        projection for "any part of the beam meets a leaf", >= G.  The walk
+        (:func:`unrecorded_echoes`) needs only ``h``; ``g_any`` gives the
+        marginal lost share thinned by merging, which the tests compare with
+        the scanner (the module docstring; about half of this function's
+        0.1 s per call).
     w : (n_w,) float64
         The beam radii of the last axis, metres.
     """
@@ -401,9 +416,9 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
         New beams: the tails lessened, the given-back echoes added (LEAF).
     info : dict
         ``given_back`` (beam weight given back as leaf echoes), ``tail``
-        (the tails' weight before), ``pulses`` (pulses that gave some back).
+        (the tails' weight before), ``pulses`` (pulses that gave some back),
+        ``added`` (the given-back echoes: pulse indices into ``beams`` and ranges).
     """
-    from tlsvox.voxel.trace import Beams, EchoKind, _slab
 
     h = float(grid.voxel_size)
     ds = h if step is None else float(step)
@@ -412,12 +427,13 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
                                               np.minimum(np.asarray(box[1], float), hi))
     origin = np.asarray(beams.origin, dtype=np.float64)
     d = beams.direction
-    t0, t1 = _slab(origin, d, b_lo, b_hi)
+    t0, t1 = ray_box(origin, d, b_lo, b_hi)
     t1 = np.minimum(t1, beams.max_range)
     t0 = np.maximum(t0, 0.0)
     todo = np.flatnonzero((beams.tail > 1e-9) & (t1 > t0))
+    none = (np.zeros(0, np.int64), np.zeros(0))
     if not len(todo):
-        return beams, {"given_back": 0.0, "tail": float(beams.tail.sum()), "pulses": 0}
+        return beams, {"given_back": 0.0, "tail": float(beams.tail.sum()), "pulses": 0, "added": none}
     htab, _, w_nodes = projection_tables(model, leaf_angle, ranges=(float(t0[todo].min()), float(t1[todo].max())),
                                       outward=outward is not None)
     theta_all = beams.zenith()
@@ -521,11 +537,13 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
             given[sel[keep]] = amount[keep]
         start = stop
     tail_before = float(beams.tail.sum())
-    info = {"given_back": float(given.sum()), "tail": tail_before, "pulses": int(np.count_nonzero(given))}
+    info = {"given_back": float(given.sum()), "tail": tail_before, "pulses": int(np.count_nonzero(given)),
+            "added": none}
     if not new_r:
         return beams, info
     add_r = np.concatenate(new_r)
     add_b = np.concatenate(new_b)
+    info["added"] = (add_b, add_r)
     add_w = given[add_b] / echoes_per_tail
     old_b = np.repeat(np.arange(len(beams)), np.diff(beams.echo_start))
     all_b = np.concatenate([old_b, add_b])

@@ -30,7 +30,7 @@ import numpy as np
 
 from tlsvox.errors import InputError
 
-__all__ = ["VoxelGrid", "available_memory_bytes", "format_bytes", "memory_limit"]
+__all__ = ["VoxelGrid", "available_memory_bytes", "format_bytes", "memory_limit", "ray_box"]
 
 
 def available_memory_bytes() -> int:
@@ -65,6 +65,41 @@ def format_bytes(n: float) -> str:
             return f"{n:.1f} {unit}" if unit != "B" else f"{int(n)} B"
         n /= 1024
     return f"{n:.1f} TiB"  # pragma: no cover
+
+
+def ray_box(origin, direction, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    """Where rays enter and leave axis-aligned boxes (the slab test).
+
+    Parameters
+    ----------
+    origin, direction : (..., 3) float
+        Rays (``direction`` need not be unit length: distances are in its units).
+    lower, upper : (..., 3) float
+        Boxes; broadcast against the rays (one ray against many boxes, or many rays against one).
+
+    Returns
+    -------
+    t_in, t_out : (...,) float
+        Entry and exit along each ray (``t_in > t_out`` where it misses; may be
+        negative: the box lies behind, or holds, the origin).  A ray parallel to
+        a slab lies in it when ``lower <= origin < upper`` on that axis.
+
+    Examples
+    --------
+    >>> t_in, t_out = ray_box([[-1.0, 0.5, 0.5]], [[1.0, 0.0, 0.0]], [0, 0, 0], [2, 1, 1])
+    >>> float(t_in[0]), float(t_out[0])
+    (1.0, 3.0)
+    """
+    o, d = np.asarray(origin, dtype=np.float64), np.asarray(direction, dtype=np.float64)
+    lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        ta = (lo - o) * inv
+        tb = (hi - o) * inv
+    inside = (o >= lo) & (o < hi)
+    tmin = np.where(d == 0, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb))
+    tmax = np.where(d == 0, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb))
+    return tmin.max(axis=-1), tmax.min(axis=-1)
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,21 @@ sparse layout, :mod:`tlsvox.voxel.bricks`); :func:`memory_plan` counts both
 for a set of beams, picks one (``layout="auto"``), and says how to make a grid
 fit when neither does.  :func:`undetected_bytes` adds what the detection
 correction (``undetected="model"``, :mod:`tlsvox.voxel.detection`) holds.
+
+A run peaks in one of two phases, and the plan's ``need`` is the larger:
+
+- *making the beams* (``build``): each scan's conversion
+  (:func:`~tlsvox.voxel.pulses.beams_from_scan`) holds working arrays of
+  about its own beams' size again, beside the scans done before; several
+  scans are then joined (their beams and the joined copy side by side); and
+  the voxels holding echoes are found (:func:`~tlsvox.voxel.beams.echo_voxels`);
+- *tracing and estimating* (``run``): the beams, the layout's sums, and what
+  ``undetected`` and ``fill`` add.
+
+With several scans of a few hundred thousand voxels the first phase is the
+larger (the synthetic oak's two scans at 20 cm: about 0.9 GiB against
+0.45 GiB, docs/voxelize.md).  The scans themselves (loaded before
+:func:`~tlsvox.voxel.voxlad.voxelize` starts) are not counted.
 """
 
 from __future__ import annotations
@@ -19,12 +34,14 @@ from tlsvox.voxel.bricks import Bricks
 from tlsvox.voxel.detection import Undetected
 from tlsvox.voxel.estimators import FillMode
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
-from tlsvox.voxel.trace import Beams, Tracer, echo_voxels
+from tlsvox.voxel.stats import NF
+from tlsvox.voxel.trace import Beams, EchoKind, Tracer, echo_voxels
 from voxlidar.choices import Choice
 
-__all__ = ["DENSE_AUTO_MAX", "NEIGHBOURHOOD_BYTES", "Layout", "MemoryPlan", "memory_plan", "undetected_bytes"]
+__all__ = ["DENSE_AUTO_MAX", "NEIGHBOURHOOD_BYTES", "Layout", "MemoryPlan", "beams_bytes", "build_bytes", "memory_plan",
+           "row_bytes", "ALLOCATOR_SHARE", "undetected_bytes", "with_allocator"]
 
-#: estimator work arrays, bytes per voxel (dense) or row (sparse), on top of the tracer's
+#: estimator work arrays, bytes per voxel (dense) or row (sparse), beside the traced sums
 _ESTIMATE_BYTES = 24 * 8
 #: ``layout="auto"`` traces densely up to this many bytes (small grids: every voxel's own sums)
 DENSE_AUTO_MAX = 1024**3
@@ -51,11 +68,21 @@ class MemoryPlan:
     layout: Layout  #: the layout chosen
     undetected: int = 0  #: bytes of the ``undetected="model"`` correction on top (0 without it)
     fill: int = 0  #: bytes of ``fill="neighbourhood"``'s temporaries on top (0 for the other fills)
+    build: int = 0  #: peak bytes while the beams are made, joined and their echoes' voxels found
+    echoes: int = 0  #: echoes of the beams (voxelize keeps each scan echo's class, 1 byte, through the run)
+
+    @property
+    def run(self) -> int:
+        """Bytes while tracing and estimating: the beams (with the echo classes voxelize keeps, 1 byte
+        per echo), the layout's sums, and what the options add."""
+        return (self.beams + self.echoes + (self.dense if self.layout is Layout.DENSE else self.sparse)
+                + self.undetected + self.fill)
 
     @property
     def need(self) -> int:
-        return (self.beams + (self.dense if self.layout is Layout.DENSE else self.sparse) + self.undetected
-                + self.fill)
+        """The run's peak: the larger of making the beams (``build``) and tracing and estimating (``run``),
+        and ``ALLOCATOR_SHARE`` of it on top for what the memory allocator keeps."""
+        return with_allocator(max(self.build, self.run))
 
     def sizes(self) -> str:
         """The grid and what each layout costs."""
@@ -68,7 +95,9 @@ class MemoryPlan:
 
     def describe(self) -> str:
         return (f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
-                f"{format_bytes(self.limit)} available")
+                f"{format_bytes(self.limit)} available (arrays: making the beams {format_bytes(self.build)}, "
+                f"tracing and estimating {format_bytes(self.run)}; and {ALLOCATOR_SHARE:.0%} on top for the "
+                "allocator)")
 
 
 def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
@@ -85,32 +114,102 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
     limit = memory_limit(max_bytes)
     n_rows = len(echo_voxels(grid, beams) if voxels is None else voxels)
     n_bricks = int(np.prod(Bricks.shape_of(grid)))
-    per_row = tracer.bytes_per_voxel() + _ESTIMATE_BYTES
+    per_row = row_bytes(tracer)
     dense = grid.n_voxels * per_row
     sparse = n_rows * per_row + n_bricks * (tracer.bytes_per_brick() + 8) + Bricks.bytes_for(n_rows, n_bricks)
-    beam_bytes = sum(np.asarray(getattr(beams, k)).nbytes for k in
-                     ("origin", "direction", "echo_start", "echo_range", "echo_weight", "echo_kind", "tail",
-                      "max_range", "g"))
+    beam_bytes = beams_bytes(beams)
+    held = beam_bytes + beams.n_echoes  # the run's bytes beside the layout and the options
     model = Undetected.parse(undetected, "undetected") is Undetected.MODEL
     if layout is Layout.AUTO:
         extra = undetected_bytes(grid, beams, beam_bytes, Layout.DENSE, n_rows) if model else 0
-        layout = Layout.DENSE if dense <= min(DENSE_AUTO_MAX, limit - beam_bytes - extra) else Layout.SPARSE
+        fits = dense <= DENSE_AUTO_MAX and with_allocator(held + extra + dense) <= limit
+        layout = Layout.DENSE if fits else Layout.SPARSE
     extra = undetected_bytes(grid, beams, beam_bytes, layout, n_rows) if model else 0
     neighbourhood = FillMode.parse(fill, "fill") is FillMode.NEIGHBOURHOOD and layout is Layout.DENSE
     plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra,
-                      grid.n_voxels * NEIGHBOURHOOD_BYTES if neighbourhood else 0)
-    if check and plan.need > limit:
-        sparse_need = sparse + beam_bytes + (undetected_bytes(grid, beams, beam_bytes, Layout.SPARSE, n_rows)
-                                             if model else 0)
+                      grid.n_voxels * NEIGHBOURHOOD_BYTES if neighbourhood else 0, build_bytes(beams), beams.n_echoes)
+    # the check runs once the beams are made (voxelize): what lies ahead is the trace and the estimate
+    ahead = with_allocator(plan.run)
+    if check and ahead > limit:
+        sparse_need = with_allocator(sparse + held + (undetected_bytes(grid, beams, beam_bytes, Layout.SPARSE, n_rows)
+                                                      if model else 0))
         fix = ("layout='sparse' (CLI --layout sparse; with fill='layer'), "
                if layout is Layout.DENSE and sparse_need <= limit else "")
-        if model and plan.need - plan.undetected <= limit:
+        if model and with_allocator(plan.run - plan.undetected) <= limit:
             fix += "undetected='ignore', "
-        factor = (plan.need / max(limit, 1)) ** (1 / 3)
-        raise InputError(f"{plan.sizes()}; the {layout.value} layout needs {format_bytes(plan.need)} but only "
+        factor = (ahead / max(limit, 1)) ** (1 / 3)
+        raise InputError(f"{plan.sizes()}; the {layout.value} layout needs {format_bytes(ahead)} but only "
                          f"{format_bytes(limit)} is available; use {fix}a voxel_size of at least "
                          f"{grid.voxel_size * factor:.3g} m, or a smaller region (bounds=...)")
     return plan
+
+
+#: share of the arrays' peak the process takes on top: the memory allocator keeps freed memory for reuse (the
+#: synthetic oak's two scans: peak RSS 1.18 and 1.13 times the arrays' peak measured with tracemalloc, at 20 cm
+#: and at 10 cm dense), and the interpreter's small objects
+ALLOCATOR_SHARE = 0.2
+
+
+def with_allocator(nbytes: float) -> int:
+    """``nbytes`` of arrays and what the allocator takes beside them (``ALLOCATOR_SHARE``)."""
+    return int(np.ceil((1.0 + ALLOCATOR_SHARE) * nbytes))
+
+_BEAM_FIELDS = ("origin", "direction", "echo_start", "echo_range", "echo_weight", "echo_kind", "tail", "max_range",
+                "g", "scan_index")
+#: :func:`~tlsvox.voxel.pulses.beams_from_scan`: bytes per pulse it holds beyond the beams it returns (the
+#: directions before the pose, the echo counts, weight sums and last ranges, 72; the direction norms and the
+#: G lookup's temporaries, about 32; 128 measured with tracemalloc on the synthetic oak's scans) ...
+_CONVERT_PULSE_BYTES = 136
+#: ... and per echo (the ranges, the noise mask, the sort order; 25)
+_CONVERT_ECHO_BYTES = 32
+#: :meth:`~tlsvox.voxel.beams.Beams.concat`: bytes per pulse beyond the parts and the joined beams (the echo
+#: offsets, 8; the direction norm check, 32; 48 measured)
+_JOIN_PULSE_BYTES = 56
+#: :func:`~tlsvox.voxel.beams.echo_voxels`: bytes per leaf or wood echo (its pulse index, origin, direction and
+#: range, 64; per nudge along the beam the position and the voxel-index temporaries, about 120; the in-grid
+#: flat indices, 16; 217 measured on scans of leaf echoes only)
+_FIND_ECHO_BYTES = 232
+
+
+def row_bytes(tracer: Tracer) -> int:
+    """Bytes per voxel (dense) or row (sparse) at the larger of the trace (the tracer's accumulators and
+    its result) and the estimate (the result and the estimators' work arrays): the accumulators are
+    freed before the estimate starts."""
+    return max(tracer.bytes_per_voxel(), NF * 8 + _ESTIMATE_BYTES)
+
+
+def beams_bytes(beams: Beams) -> int:
+    """Bytes of the arrays of ``beams``."""
+    return int(sum(np.asarray(getattr(beams, k)).nbytes for k in _BEAM_FIELDS if getattr(beams, k) is not None))
+
+
+def build_bytes(beams: Beams) -> int:
+    """Peak bytes while :func:`~tlsvox.voxel.voxlad.voxelize` makes ``beams`` (an estimate with a margin).
+
+    The scans are the runs of ``beams.scan_index`` (one scan without it; two
+    scans of the same index in a row count as one, which over-counts).  Each
+    scan's conversion holds the beams of the scans before it, its own beams
+    and its working arrays; several scans are then joined (the parts and the
+    joined copy side by side); last, the voxels holding leaf and wood echoes
+    are found beside the beams.
+    """
+    n, n_echoes = len(beams), beams.n_echoes
+    total = beams_bytes(beams)
+    per_echo = sum(np.asarray(getattr(beams, k)).itemsize for k in ("echo_range", "echo_weight", "echo_kind"))
+    per_pulse = (total - n_echoes * per_echo) / max(n, 1)
+    si = beams.scan_index
+    edges = [0, *([] if si is None or n == 0 else (np.flatnonzero(si[1:] != si[:-1]) + 1).tolist()), n]
+    done, peak = 0.0, 0.0
+    for b0, b1 in zip(edges[:-1], edges[1:]):
+        echoes = int(beams.echo_start[b1] - beams.echo_start[b0])
+        own = (b1 - b0) * per_pulse + echoes * per_echo
+        peak = max(peak, done + own + (b1 - b0) * _CONVERT_PULSE_BYTES + echoes * _CONVERT_ECHO_BYTES)
+        done += own
+    if len(edges) > 2:  # joined: the parts and the joined copy
+        peak = max(peak, 2 * total + n * _JOIN_PULSE_BYTES)
+    leaf_wood = int(np.count_nonzero(np.isin(beams.echo_kind, (EchoKind.LEAF, EchoKind.WOOD))))
+    # the voxels holding echoes, found beside the beams (and a mask over all echoes)
+    return int(max(peak, total + leaf_wood * _FIND_ECHO_BYTES + n_echoes))
 
 
 #: ``fill="neighbourhood"`` (:func:`~tlsvox.voxel.estimators.fill_neighbourhood`): bytes per voxel of its

@@ -60,7 +60,7 @@ from tlsvox.voxel.beams import Beams, EchoKind, echo_rows, echo_voxels
 from tlsvox.voxel.bricks import BRICK, BRICK_FIELDS, Bricks
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 from tlsvox.voxel.stats import FIELDS, NF, VoxelStats
-from tlsvox.voxel.trace_reference import _slab, trace_reference  # noqa: F401 (_slab: tlsvox.voxel.detection)
+from tlsvox.voxel.trace_reference import trace_reference
 
 __all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "echo_rows", "echo_voxels", "trace", "trace_reference"]
 

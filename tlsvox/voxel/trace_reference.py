@@ -8,7 +8,7 @@ grids only.
 Examples
 --------
 >>> from tlsvox.voxel.beams import Beams
->>> from tlsvox.voxel.grid import VoxelGrid
+>>> from tlsvox.voxel.grid import VoxelGrid, ray_box
 >>> grid = VoxelGrid((0, 0, 0), 1.0, (3, 1, 1))
 >>> beams = Beams.from_rays([[-1, 0.5, 0.5]], [[1, 0, 0]], hit_range=[2.5])
 >>> trace_reference(grid, beams).field("path_w")[:, 0, 0].round(6).tolist()
@@ -23,21 +23,10 @@ import numpy as np
 
 from tlsvox.errors import InputError
 from tlsvox.voxel.beams import Beams, EchoKind
-from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.grid import VoxelGrid, ray_box
 from tlsvox.voxel.stats import NF, VoxelStats
 
 __all__ = ["trace_reference"]
-
-
-def _slab(o, d, lo, hi):
-    """Per-voxel entry/exit (vectorised slab test) of one ray against boxes."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        ta = (lo - o) * inv
-        tb = (hi - o) * inv
-    tmin = np.where(d == 0, np.where((o >= lo) & (o < hi), -np.inf, np.inf), np.minimum(ta, tb))
-    tmax = np.where(d == 0, np.where((o >= lo) & (o < hi), np.inf, -np.inf), np.maximum(ta, tb))
-    return tmin.max(axis=1), tmax.min(axis=1)
 
 
 def trace_reference(grid: VoxelGrid, beams: Beams) -> VoxelStats:
@@ -64,7 +53,7 @@ def trace_reference(grid: VoxelGrid, beams: Beams) -> VoxelStats:
         s0, s1 = beams.echo_start[b], beams.echo_start[b + 1]
         rng_, wts, kinds = beams.echo_range[s0:s1], beams.echo_weight[s0:s1], beams.echo_kind[s0:s1]
         w0 = beams.tail[b] + wts.sum()
-        tin, tout = _slab(o, d, lo, hi)
+        tin, tout = ray_box(o, d, lo, hi)
         tin = np.maximum(tin, 0.0)
         end = np.inf
         if beams.tail[b] > 0:

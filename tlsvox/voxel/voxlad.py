@@ -40,12 +40,13 @@ from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from
 from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
 from tlsvox.voxel.bricks import BRICK, Bricks
+from tlsvox.voxel.beams import voxels_along
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
 from tlsvox.voxel.detection import DetectionModel, Undetected, unrecorded_echoes
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
 from tlsvox.voxel.plan import (_ESTIMATE_BYTES, DENSE_AUTO_MAX, Layout, MemoryPlan,  # noqa: F401
-                               memory_plan, undetected_bytes)
+                               memory_plan, row_bytes, undetected_bytes)
 from tlsvox.voxel.quality import (LAD_PLAUSIBLE_MAX, LINE_FIT_MIN, OCCLUDED_SHARE_MAX,  # noqa: F401
                                   quality_warnings, score_lad)
 
@@ -257,16 +258,15 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         plane = ground
     elif isinstance(ground, str):
         if ground.lower() == "ransac":
-            pts = np.vstack([w[k != EchoKind.IGNORE] for w, k in zip(world, kinds)])
-            plane = fit_ground(pts)
+            plane = fit_ground(np.vstack([w[k != EchoKind.IGNORE] for w, k in zip(world, kinds)]))
         elif ground.lower() != "none":
             raise InputError(f"ground={ground!r} must be 'ransac', 'none', a height in metres or a GroundPlane")
     elif ground is not None:
         plane = GroundPlane.horizontal(float(ground))
     if plane is not None:
         for w, k in zip(world, kinds):
-            near = ground_mask(w, plane, tolerance=ground_tolerance) & (k == EchoKind.LEAF)
-            k[near] = EchoKind.OTHER
+            k[ground_mask(w, plane, tolerance=ground_tolerance) & (k == EchoKind.LEAF)] = EchoKind.OTHER
+        del w
     timings["prepare"] = time.perf_counter() - t0
 
     # grid (and the memory it needs, checked before anything large is made)
@@ -285,6 +285,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                              "across): one voxel would hold it all and its LAD would mean nothing; use a voxel size "
                              "well below the crown size (the paper: 0.02-0.5 m)")
         grid = VoxelGrid.from_bounds(lo, hi, voxel_size=voxel_size, margin=margin)
+        del veg, pts  # copies of the echoes: not held through the run (memory_plan counts on it)
     else:
         b = np.asarray(bounds, dtype=np.float64)
         if b.shape != (2, 3):
@@ -297,13 +298,26 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                              f"{veg.max(axis=0).round(2).tolist() if len(veg) else '-'}); check the frame and the "
                              "numbers")
         grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin, snap=bool(snap))
+        del veg, inside
     layout = Layout.parse(layout, "layout")
     if layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:  # known before the beams are built
         raise InputError("fill='neighbourhood' needs the dense layout, but layout='sparse' was given; use "
                          "fill='layer' (per brick layer in the sparse layout), or layout='dense' where memory allows")
+    outward = None
+    if azimuth is LeafAzimuth.OUTWARD:  # G per voxel, from the beam's angle to the leaves' outward direction
+        if crown_center is None:
+            leaves = np.vstack([w[k == EchoKind.LEAF, :2] for w, k in zip(world, kinds)])
+            # the middle of the leaves' extent: the scans see the near side of the crown best, so the
+            # echoes' mean lies off the axis towards the scanners
+            crown_center = (0.5 * (np.percentile(leaves, 0.1, axis=0) + np.percentile(leaves, 99.9, axis=0))
+                            if len(leaves) else 0.5 * (grid.lower + grid.upper)[:2])
+            del leaves
+        outward = (outward_g_table(la), np.asarray(crown_center, dtype=np.float64).reshape(2))
+
+    del world  # the echoes' world positions: not held through the beams and the trace
     tracer = tracer or Tracer()
     if layout is Layout.DENSE and not plan_only:  # before the beams, when the answer is already known
-        grid.check_memory(tracer.bytes_per_voxel() + _ESTIMATE_BYTES, max_bytes=max_bytes,
+        grid.check_memory(row_bytes(tracer), max_bytes=max_bytes,
                           what="tracing and estimation")
 
     # beams
@@ -315,12 +329,13 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
 
         it = tqdm(it, desc="pulses", unit="scan", leave=False)
     for s, p, k in it:
-        b, info = beams_from_scan(s, kinds=k, pose=p, leaf_angle=la, max_range=max_range,
-                                  angular_grid=angular_grid, socs_rotation=socs_rotation,
-                                  echo_weights=weights, leaf_reflectance=leaf_reflectance,
-                                  wood_reflectance=wood_reflectance)
-        parts.append(b)
+        part, info = beams_from_scan(s, kinds=k, pose=p, leaf_angle=la, max_range=max_range,
+                                     angular_grid=angular_grid, socs_rotation=socs_rotation,
+                                     echo_weights=weights, leaf_reflectance=leaf_reflectance,
+                                     wood_reflectance=wood_reflectance)
+        parts.append(part)
         infos.append(info)
+    del part  # else the last scan's beams stay held beside the joined ones
     beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
     if detection is None:
         del parts  # the per-scan copies
@@ -337,17 +352,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                          "use fill='layer' (per brick layer in the sparse layout), a larger voxel_size, or "
                          "layout='dense' where memory allows")
     rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
+    # the sparse rounds of the detection model list the recorded echoes' voxels again, and the given-back ones
+    recorded = grid.flat(voxels) if detection is not None and rows is not None else None
     del voxels
-
-    outward = None
-    if azimuth is LeafAzimuth.OUTWARD:  # G per voxel, from the beam's angle to the leaves' outward direction
-        if crown_center is None:
-            leaves = np.vstack([w[k == EchoKind.LEAF] for w, k in zip(world, kinds)])
-            # the middle of the leaves' extent: the scans see the near side of the crown best, so the
-            # echoes' mean lies off the axis towards the scanners
-            crown_center = (0.5 * (np.percentile(leaves[:, :2], 0.1, axis=0) + np.percentile(leaves[:, :2], 99.9, axis=0))
-                            if len(leaves) else 0.5 * (grid.lower + grid.upper)[:2])
-        outward = (outward_g_table(la), np.asarray(crown_center, dtype=np.float64).reshape(2))
 
     t2 = time.perf_counter()
     stats = tracer.trace(grid, beams, rows=rows, outward=outward, progress=progress,
@@ -364,15 +371,19 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         for _ in range(int(undetected_iterations)):
             lookup, box = _lad_lookup(grid, lad, stats)
             stats = beams = None  # the last round's sums and beams: not needed again (memory_plan counts on it)
-            fixed, given = [], 0.0
+            fixed, given, added = [], 0.0, []
             for part, model in zip(parts, detection):
                 b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box)
                 fixed.append(b)
                 given += info["given_back"]
+                if recorded is not None:
+                    pulse, ranges = info["added"]
+                    added.append(grid.flat(voxels_along(grid, part.origin[pulse], part.direction[pulse], ranges)))
             del lookup
             beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
             del fixed
-            rows = Bricks.from_ijk(grid, echo_voxels(grid, beams)) if plan.layout is Layout.SPARSE else None
+            if recorded is not None:  # what echo_voxels(grid, beams) gives, from the given-back echoes alone
+                rows = Bricks.from_ijk(grid, grid.unflat(np.union1d(recorded, np.concatenate(added))))
             stats = tracer.trace(grid, beams, rows=rows, outward=outward, progress=progress,
                                  max_bytes=None if max_bytes is None else max_bytes - plan.beams)
             # a voxel reached only by what the model leaves of pulse tails is not seen: count beams by weight

@@ -29,7 +29,7 @@ def test_tree_scan_view(tmp_path, capsys):
     meta = json.loads((tmp_path / "oak.json").read_text())
     assert meta["leaf_area_m2"] == pytest.approx(3.0)
     las = tmp_path / "s.laz"
-    assert main(["scan", str(tmp_path / "oak.json"), "-o", str(las), "--position", "0", "-8", "1.7",
+    assert main(["scan", str(tmp_path / "oak.json"), "-o", str(las), "--position", "0,-8,1.7",
                  "--yaw", "20", "--step", "0.2", "--quiet"]) == 0
     scan = Scan.read(las)
     assert len(scan) > 1000 and scan.pose_true is not None
@@ -71,3 +71,44 @@ def test_view_a_voxel_scene_headless(tmp_path, monkeypatch, capsys):
                  str(tmp_path / "wood.png")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no voxel has wood" in err[0] and not (tmp_path / "wood.png").exists()
+
+
+def test_wood_view_says_it_leaves_out_the_bark_directions(tmp_path):
+    """--color wood colours the amount of wood; a scene whose bark has directions says in the title
+    that they are not drawn (and one without says nothing of them)."""
+    import dataclasses
+
+    from clsim.validation.testscenes import homogeneous_layer
+    from tlsvox.cli.app import _scene_items
+
+    layer = homogeneous_layer(width=2.0, voxel_size=0.5)
+    m = layer.n_voxels
+    beta = np.where(np.arange(m) % 2 == 0, 1.0, 0.0)
+    woody = dataclasses.replace(layer, wood=np.full(m, 0.5), wood_kind="probability",
+                                wood_axis=np.tile([1.0, 0.0, 0.0], (m, 1)), wood_beta=beta)
+    woody.save(tmp_path / "woody.npz")
+    _, _, (title, bar) = _scene_items(tmp_path / "woody.npz", "wood")
+    assert f"the bark directions of {int(beta.sum()):,} voxels (wood_axis) are not drawn" in title
+    assert bar[-1] == "wood probability"
+    dataclasses.replace(woody, wood_beta=np.zeros(m)).save(tmp_path / "plain.npz")
+    assert "directions" not in _scene_items(tmp_path / "plain.npz", "wood")[2][0]
+
+
+@pytest.mark.parametrize("given, expected", [
+    ([], (0.0, -20.0, 1.7)), (["--position", "3,-8,1.5"], (3.0, -8.0, 1.5)),
+    (["--position=-5,0,1.7"], (-5.0, 0.0, 1.7)), (["--position", "0", "-8", "1.7"], (0.0, -8.0, 1.7))])
+def test_scan_position_takes_commas_and_the_older_three_numbers(given, expected):
+    from tlsvox.cli.app import build_parser
+
+    assert build_parser().parse_args(["scan", "t.json", "-o", "s.laz", *given]).position == expected
+
+
+@pytest.mark.parametrize("given", [["1,2"], ["1", "2"], ["1,2", "3"], ["0,0,1,4"], ["nan", "0", "1.7"]])
+def test_scan_position_refuses_other_counts_in_one_line(given, capsys):
+    from tlsvox.cli.app import build_parser
+
+    with pytest.raises(SystemExit) as stop:
+        build_parser().parse_args(["scan", "t.json", "-o", "s.laz", "--position", *given])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.count("\n") == 1
+    assert "--position: must be X,Y,Z in metres" in err and repr(" ".join(given)) in err

@@ -158,6 +158,7 @@ def test_sparse_layer_fill_recovers_the_box(box_scans):  # noqa: F811
 
 
 def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
+    from tlsvox.voxel.plan import with_allocator
     from tlsvox.voxel.pulses import beams_from_scan
 
     grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)  # the box and much air around it
@@ -166,7 +167,7 @@ def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
     plan = memory_plan(grid, beams, tracer)
     assert plan.layout is Layout.DENSE and plan.sparse < plan.dense
     assert "hold echoes" in plan.describe()
-    roomy = plan.beams + plan.sparse + 1024
+    roomy = with_allocator(plan.beams + plan.echoes + plan.sparse) + 1024  # the sparse run fits, the dense not
     assert memory_plan(grid, beams, tracer, max_bytes=roomy).layout is Layout.SPARSE
     with pytest.raises(InputError, match=r"dense layout needs .* but only .* is available; use layout='sparse'"):
         memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
@@ -190,7 +191,7 @@ def test_memory_plan_counts_the_detection_model(box_scans, tracer):  # noqa: F81
     # at least the two extra copies of the beams and the added echoes' ranges and weights
     with_tail = int(np.count_nonzero(beams.tail > 1e-9))
     assert model.undetected >= 2 * plain.beams + with_tail * ECHOES_PER_TAIL * 16 + grid.n_voxels * 8
-    assert model.need == plain.need + model.undetected
+    assert model.run == plain.run + model.undetected
     assert "undetected='model'" in model.describe() and "undetected" not in plain.describe()
     with pytest.raises(InputError, match="dense layout needs"):
         memory_plan(grid, beams, tracer, layout="dense", undetected="model", max_bytes=plain.need + 1024)
@@ -209,7 +210,7 @@ def test_memory_plan_counts_the_neighbourhood_fill(box_scans, tracer, rng):  # n
     beams = Beams.concat([beams_from_scan(s)[0] for s in box_scans])
     plain = memory_plan(grid, beams, tracer, layout="dense")
     filled = memory_plan(grid, beams, tracer, layout="dense", fill="neighbourhood")
-    assert filled.fill == grid.n_voxels * NEIGHBOURHOOD_BYTES and filled.need == plain.need + filled.fill
+    assert filled.fill == grid.n_voxels * NEIGHBOURHOOD_BYTES and filled.run == plain.run + filled.fill
     assert "fill='neighbourhood'" in filled.describe()
     assert memory_plan(grid, beams, tracer, layout="sparse", fill="neighbourhood").fill == 0  # refused later
     shape = (60, 60, 60)

@@ -1,5 +1,6 @@
 """The detection-threshold model (tlsvox.voxel.detection) against analytic limits and synthetic truth."""
 
+import dataclasses
 
 import numpy as np
 import pytest
@@ -57,11 +58,36 @@ def test_bad_detection_inputs_say_what_to_do():
     with pytest.raises(InputError, match="undetected"):
         Undetected.parse("maybe", "undetected")
 
-    class Bare:
-        meta = {}
-        name = "bare"
     with pytest.raises(InputError, match="detection_threshold_db"):
-        DetectionModel.for_scan(Bare())
+        DetectionModel.for_scan(_Bare({}))
+
+
+class _Bare:
+    """What DetectionModel.for_scan reads of a scan."""
+
+    name = "bare"
+
+    def __init__(self, meta):
+        self.meta = meta
+
+
+def test_for_scan_takes_what_the_scan_does_not_state_from_the_vz400_preset():
+    """No preset: every instrument number is the VZ-400 preset's (the threshold must be given); a
+    partial preset: its own numbers, the rest the VZ-400's, and the source says which."""
+    from tlsvox.truth.scanner import ScannerPreset
+
+    vz = ScannerPreset.riegl_vz400()
+    bare = DetectionModel.for_scan(_Bare({}), threshold_db=-20.0)
+    assert (bare.n_subrays, bare.exit_radius, bare.half_divergence, bare.noise_db, bare.range_resolution) == (
+        vz.n_subrays, vz.beam_radius_exit, vz.half_divergence, vz.reflectance_noise_db, vz.range_resolution_m)
+    assert "VZ-400 preset (the scan states none)" in bare.source
+    part = DetectionModel.for_scan(_Bare({"preset": {"min_reflectance_db": -25.0, "divergence_mrad": 0.5,
+                                                     "n_subrays": 19}}))
+    assert part.threshold_db == -25.0 and part.n_subrays == 19
+    assert part.half_divergence == pytest.approx(2.5e-4) and part.exit_radius == vz.beam_radius_exit
+    assert "with beam_exit_diameter_m, reflectance_noise_db, range_resolution_m of the RIEGL VZ-400" in part.source
+    full = DetectionModel.for_scan(_Bare({"preset": dataclasses.asdict(vz)}))
+    assert full.source.startswith("the scan's preset;") and full.threshold_db == vz.min_reflectance_db
 
 
 # ---- against synthetic truth: leaves scanned with the floor at -60 dB, so every weak echo is there
@@ -114,6 +140,13 @@ def test_missed_share_matches_the_scanner(slab_scan, lad, angle, size):
 # the fixture ``bench`` (benchmarks/bench_echo_weights.py) is in conftest.py
 
 
+@pytest.fixture(scope="module")
+def box_scans_02(bench):
+    """The leaf box and its scans at a 0.2 degree step, simulated once for the tests that share them."""
+    box = bench.leaf_box()
+    return box, bench.scan_box(box, 7, 0.2)
+
+
 def test_model_removes_the_detection_floor_bias_on_the_leaf_box(bench):
     """With echoes under -20 dB lost the share rule reads the box 2.7 % low (test_weights);
     the model gives the unrecorded interception back (measured -1.2 %; the scan that records
@@ -126,13 +159,12 @@ def test_model_removes_the_detection_floor_bias_on_the_leaf_box(bench):
     assert abs(model["mean"] - model["true"]) < 3 * model["se"] + 0.005 * model["true"], (ignore, model)
 
 
-def test_the_rule_is_stated_and_the_sparse_layout_gives_back_alike(bench):
+def test_the_rule_is_stated_and_the_sparse_layout_gives_back_alike(bench, box_scans_02):
     """meta["undetected"] says what was done; the sparse layout (brick-layer fill of occluded
     voxels) gives back within 10 % of the dense one (voxel-layer fill there) on the leaf box."""
     from tlsvox import voxelize
 
-    box = bench.leaf_box()
-    scans = bench.scan_box(box, 7, 0.2)
+    _, scans = box_scans_02
     plain = voxelize(scans, voxel_size=0.5, leaf_angle="spherical", ground=None, bounds=bench.BOUNDS,
                      progress=False)
     assert plain.scene.meta["undetected"] == {"rule": "ignore", "detection_threshold_db": [-20.0, -20.0]}
@@ -148,7 +180,7 @@ def test_the_rule_is_stated_and_the_sparse_layout_gives_back_alike(bench):
     assert given["sparse"] == pytest.approx(given["dense"], rel=0.1)
 
 
-def test_sparse_layout_weighs_its_bricks_and_matches_the_dense_model(bench):
+def test_sparse_layout_weighs_its_bricks_and_matches_the_dense_model(bench, box_scans_02):
     """undetected='model' in both layouts, with occlusion (n_min 60 at 20 cm) and air around the box.
 
     The voxels holding echoes (rows) are flagged as in the dense layout but where the weight
@@ -161,8 +193,7 @@ def test_sparse_layout_weighs_its_bricks_and_matches_the_dense_model(bench):
     from tlsvox import voxelize
     from tlsvox.voxel.estimators import safe_divide
 
-    box = bench.leaf_box()
-    scans = bench.scan_box(box, 7, 0.2)
+    _, scans = box_scans_02
     bounds = bench.BOUNDS + np.array([[-1.2, -1.2, -0.6], [1.2, 1.2, 0.6]])
     n_min = 60
     out = {}
@@ -224,3 +255,32 @@ def test_a_beam_without_divergence_has_one_radius_node():
     theta = np.linspace(0.1, 3.0, 7)
     hv = detection._interp_h(h, w, theta, np.zeros_like(theta), np.full(theta.size, 0.0035))
     assert np.all(np.isfinite(hv)) and np.all(hv >= 0)
+
+
+def test_added_echoes_are_returned_with_their_voxels():
+    """info["added"] lists the given-back echoes (pulse, range): with the recorded echoes' voxels
+    they make the corrected beams' echo voxels, which the sparse rounds of voxelize rely on."""
+    from tlsvox.voxel.beams import Beams, EchoKind, echo_voxels, voxels_along
+    from tlsvox.voxel.detection import unrecorded_echoes
+    from tlsvox.voxel.grid import VoxelGrid
+    from voxlidar.leafangle import LeafAngle
+
+    rng = np.random.default_rng(5)
+    grid = VoxelGrid((0.0, 0.0, 0.0), 0.5, (12, 12, 12))
+    n = 400
+    origin = np.column_stack([np.full(n, -5.0), rng.uniform(0.5, 5.5, n), rng.uniform(0.5, 5.5, n)])
+    d = np.column_stack([np.ones(n), rng.normal(0, 0.05, (n, 2))])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hits = rng.random(n) < 0.5
+    rays = Beams.from_rays(origin, d, hit_range=np.where(hits, rng.uniform(6.0, 10.0, n), np.inf))
+    beams = Beams(rays.origin, rays.direction, rays.echo_start, rays.echo_range, 0.6 * rays.echo_weight,
+                  rays.echo_kind, np.where(hits, 0.4, 1.0), np.full(n, 20.0))
+    model = DetectionModel(**VZ400)
+    new, info = unrecorded_echoes(beams, grid, lambda flat: np.full(np.shape(flat), 1.0), model,
+                                  LeafAngle("uniform"))
+    pulse, ranges = info["added"]
+    assert len(ranges) == new.n_echoes - beams.n_echoes > 0 and info["pulses"] == len(np.unique(pulse))
+    assert np.all(new.echo_kind[np.isin(new.echo_range, ranges)] == EchoKind.LEAF)
+    both = np.union1d(grid.flat(echo_voxels(grid, beams)),
+                      grid.flat(voxels_along(grid, beams.origin[pulse], beams.direction[pulse], ranges)))
+    assert np.array_equal(both, grid.flat(echo_voxels(grid, new)))
