@@ -6,7 +6,8 @@
  * -DK) and a fitted (-DFIT_BASELINE=1) or held baseline.  Parameters are laid
  * out [a_1..a_K, m_1..m_K, s_1..s_K, b] (samples); the Jacobian is never
  * stored: each block of 8 samples (a float8) adds its rows to the normal matrix
- * J^T J and to J^T r, skipping the echoes more than REACH sigma away.
+ * J^T J and to J^T r in one regular pass over every entry, the echoes more than
+ * REACH sigma away adding exact zeros (their exponentials are not taken).
  *
  * Portability: the kernel is built without -cl-fast-relaxed-math and relies on
  * no infinity: a trial step whose residual sum overflows (or is NaN) fails the
@@ -96,11 +97,12 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         const float x0 = (float)i0;
         const float8 t = (float8)(x0) + lane;
         float8 e[K], z[K];
-        int near[K];
         float8 model = (float8)(q[3 * K]);
         for (int k = 0; k < K; ++k) {
-            near[k] = x0 >= lo[k] && x0 <= hi[k];
-            if (near[k]) {
+            /* an echo out of reach adds exact zeros (its exponential is not taken) */
+            z[k] = (float8)(0.0f);
+            e[k] = (float8)(0.0f);
+            if (x0 >= lo[k] && x0 <= hi[k]) {
                 z[k] = (t - q[K + k]) * inv_s[k];
                 e[k] = exp(-0.5f * z[k] * z[k]);
                 model += q[k] * e[k];
@@ -114,7 +116,6 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         const float8 kf = select((float8)(0.0f), (float8)(1.0f), keep);
         float8 d[NF];
         for (int k = 0; k < K; ++k) {
-            if (!near[k]) continue;
             d[k] = e[k] * kf;
             d[K + k] = d[k] * a_s[k] * z[k];
             d[2 * K + k] = d[K + k] * z[k];
@@ -122,14 +123,12 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
 #if FIT_BASELINE
         d[3 * K] = kf;
 #endif
-        /* only the rows and columns of the echoes in reach (and the baseline) */
+        /* every entry, in one regular pass (the rows of echoes out of reach add exact
+         * zeros: a branch per entry costs more than the multiply-add it saves) */
+        int idx = 0;
         for (int p = 0; p < NF; ++p) {
-            if (p < 3 * K && !near[p % K]) continue;
             gv[p] += d[p] * r;
-            for (int c = p; c < NF; ++c) {
-                if (c < 3 * K && !near[c % K]) continue;
-                hv[HIDX(p, c)] += d[p] * d[c];
-            }
+            for (int c = p; c < NF; ++c) hv[idx++] += d[p] * d[c];
         }
     }
     if (want) unpack_sums(gv, hv, NF, g, h);
