@@ -99,11 +99,13 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         const float8 t = (float8)(x0) + lane;
         float8 e[K], z[K];
         float8 model = (float8)(q[3 * K]);
+        int reached = 0;
         for (int k = 0; k < K; ++k) {
             /* an echo out of reach adds exact zeros (its exponential is not taken) */
             z[k] = (float8)(0.0f);
             e[k] = (float8)(0.0f);
             if (x0 >= lo[k] && x0 <= hi[k]) {
+                reached = 1;
                 z[k] = (t - q[K + k]) * inv_s[k];
                 e[k] = exp(-0.5f * z[k] * z[k]);
                 model += q[k] * e[k];
@@ -115,6 +117,14 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         cost += r * r;
         if (!want) continue;
         const float8 kf = select((float8)(0.0f), (float8)(1.0f), keep);
+        if (!reached) {
+            /* baseline alone: the echoes' rows and columns would add exact zeros */
+#if FIT_BASELINE
+            gv[NF - 1] += kf * r;
+            hv[NF * (NF + 1) / 2 - 1] += kf;
+#endif
+            continue;
+        }
         float8 d[NF];
         for (int k = 0; k < K; ++k) {
             d[k] = e[k] * kf;
