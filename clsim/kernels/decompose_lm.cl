@@ -318,7 +318,10 @@ CLSIM_INLINE void std_errors(const float *h, const float rss, const int n_eff,
         se_real v = (se_real)1.0 / d[p];
         for (int j = p + 1; j < NF; ++j) v += a[LIDX(j, p)] * a[LIDX(j, p)] / d[j];
         v *= sc[p] * sc[p] * s2;
-        se[p] = v > (se_real)0.0 ? (float)sqrt(v) : 0.0f;
+        /* (a variance beyond float range, of a parameter the data do not pin down:
+         * BIG, a finite "no bound", as the host's float64 figure was finite) */
+        const se_real root = v > (se_real)0.0 ? sqrt(v) : (se_real)0.0;
+        se[p] = root < (se_real)BIG ? (float)root : BIG;
     }
 }
 
