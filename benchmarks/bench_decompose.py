@@ -478,9 +478,9 @@ def first_call(neon, device=None) -> tuple[float, float]:
 def batched_rates(neon, scale, repeats, device=None) -> dict:
     """Waveforms/s of repeated ``decompose_batch`` calls (context and programs kept):
     per set, every run (each repeat runs each set once, in turn)."""
-    rates = {"neon": [], "scale": [], "scale NumPy": [], "neon8": []}
+    rates = {"neon": [], "scale": [], "scale NumPy": [], "neon8": [], "neon40": []}
     sets = (("neon", neon, device), ("scale", scale, device), ("scale NumPy", scale, "numpy"),
-            ("neon8", neon * 8, device))
+            ("neon8", neon * 8, device), ("neon40", neon * 40, device))
     for _ in range(repeats):
         for key, waves, dev in sets:
             if scale is None and key.startswith("scale"):
@@ -590,8 +590,8 @@ def main(argv=None) -> int:
     scale = list(weak_set(5, args.scale, rng))
     neon8_n = 8 * len(neon)
     at_scale = batched_rates(neon, scale, args.repeats, args.device)
-    scale_rate, scale_np_rate, neon8_rate = (float(np.median(at_scale[k])) for k in
-                                             ("scale", "scale NumPy", "neon8"))
+    scale_rate, scale_np_rate, neon8_rate, neon40_rate = (
+        float(np.median(at_scale[k])) for k in ("scale", "scale NumPy", "neon8", "neon40"))
     scale_lo, scale_hi = min(at_scale["scale"]), max(at_scale["scale"])
     load1 = os.getloadavg()
     peer = score_peer(peer_path)
@@ -637,7 +637,8 @@ def main(argv=None) -> int:
         f"{args.scale:,} synthetic waveforms (150 samples, a strong and a 5-sigma echo): "
         f"**{scale_rate:,.0f} waveforms/s** (runs {scale_lo:,.0f} to {scale_hi:,.0f}; NumPy "
         f"fits: {scale_np_rate:,.0f}); on the 500 NEON waveforms repeated 8 times "
-        f"({neon8_n:,}, chunks of 2,000): {neon8_rate:,.0f} waveforms/s; the 500 NEON "
+        f"({neon8_n:,}, chunks of 2,000): {neon8_rate:,.0f} waveforms/s, repeated 40 times "
+        f"({5 * neon8_n:,}): {neon40_rate:,.0f} waveforms/s; the 500 NEON "
         f"waveforms alone, in the same loop: {np.median(at_scale['neon']):,.0f} waveforms/s.",
         "",
         "Every timing is of a repeated call in one process, as a user decomposing a file's "

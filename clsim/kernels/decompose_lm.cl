@@ -6,7 +6,8 @@
  * -DK) and a fitted (-DFIT_BASELINE=1) or held baseline.  Parameters are laid
  * out [a_1..a_K, m_1..m_K, s_1..s_K, b] (samples); the Jacobian is never
  * stored: each block of 8 samples (a float8) adds its rows to the normal matrix
- * J^T J and to J^T r, skipping the echoes more than REACH sigma away.
+ * J^T J and to J^T r in one regular pass over every entry, the echoes more than
+ * REACH sigma away adding exact zeros (their exponentials are not taken).
  *
  * Portability: the kernel is built without -cl-fast-relaxed-math and relies on
  * no infinity: a trial step whose residual sum overflows (or is NaN) fails the
@@ -14,6 +15,16 @@
  * diagonal in J^T J is frozen instead of dividing by it.
  */
 #include "common.cl"
+
+/* The standard errors' inverse in double where the device has it (the NumPy path
+ * inverts in float64), else in float32 on the matrix scaled to a unit diagonal
+ * (-DCLSIM_SE_FLOAT asks for that on any device: the tests check it). */
+#if defined(cl_khr_fp64) && !defined(CLSIM_SE_FLOAT)
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double se_real;
+#else
+typedef float se_real;
+#endif
 
 #ifndef K
 #error "build with -DK=<echoes per waveform>"
@@ -87,11 +98,14 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         const float x0 = (float)i0;
         const float8 t = (float8)(x0) + lane;
         float8 e[K], z[K];
-        int near[K];
         float8 model = (float8)(q[3 * K]);
+        int reached = 0;
         for (int k = 0; k < K; ++k) {
-            near[k] = x0 >= lo[k] && x0 <= hi[k];
-            if (near[k]) {
+            /* an echo out of reach adds exact zeros (its exponential is not taken) */
+            z[k] = (float8)(0.0f);
+            e[k] = (float8)(0.0f);
+            if (x0 >= lo[k] && x0 <= hi[k]) {
+                reached = 1;
                 z[k] = (t - q[K + k]) * inv_s[k];
                 e[k] = exp(-0.5f * z[k] * z[k]);
                 model += q[k] * e[k];
@@ -103,9 +117,16 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         cost += r * r;
         if (!want) continue;
         const float8 kf = select((float8)(0.0f), (float8)(1.0f), keep);
+        if (!reached) {
+            /* baseline alone: the echoes' rows and columns would add exact zeros */
+#if FIT_BASELINE
+            gv[NF - 1] += kf * r;
+            hv[NF * (NF + 1) / 2 - 1] += kf;
+#endif
+            continue;
+        }
         float8 d[NF];
         for (int k = 0; k < K; ++k) {
-            if (!near[k]) continue;
             d[k] = e[k] * kf;
             d[K + k] = d[k] * a_s[k] * z[k];
             d[2 * K + k] = d[K + k] * z[k];
@@ -113,14 +134,12 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
 #if FIT_BASELINE
         d[3 * K] = kf;
 #endif
-        /* only the rows and columns of the echoes in reach (and the baseline) */
+        /* every entry, in one regular pass (the rows of echoes out of reach add exact
+         * zeros: a branch per entry costs more than the multiply-add it saves) */
+        int idx = 0;
         for (int p = 0; p < NF; ++p) {
-            if (p < 3 * K && !near[p % K]) continue;
             gv[p] += d[p] * r;
-            for (int c = p; c < NF; ++c) {
-                if (c < 3 * K && !near[c % K]) continue;
-                hv[HIDX(p, c)] += d[p] * d[c];
-            }
+            for (int c = p; c < NF; ++c) hv[idx++] += d[p] * d[c];
         }
     }
     if (want) unpack_sums(gv, hv, NF, g, h);
@@ -236,18 +255,75 @@ CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float 
 }
 
 /* What a work-item returns, one row of OUT (floats): the fit (NP), the residual
- * sum of squares, the samples that count, the iterations, J^T J at the fit
- * (NF x NF, for the standard errors, inverted in float64 on the host), the
- * samples minus the model at the fit (n; zero where a sample does not count or
- * is censored) with M zeros on either side (the filters' reach), and that residual
- * through the host's two filters for its search of further echoes (n each): the
- * matched filter and the Gaussian of sigma 1 sample.  One row (OUT_RES + 2 M + 3 n
- * floats), so one copy back per launch. */
+ * sum of squares, the samples that count, the iterations, the standard errors (NP;
+ * -1: none), and when the host searches for further echoes (RESID) the samples
+ * minus the model at the fit (n; zero where a sample does not count or is censored)
+ * with M zeros on either side (the filters' reach), and that residual through the
+ * host's two filters (n each): the matched filter and the Gaussian of sigma 1
+ * sample.  One row (OUT_RES, + 2 M + 3 n with RESID), so one copy back per launch. */
 #define OUT_RSS NP
 #define OUT_NEFF (NP + 1)
 #define OUT_ITER (NP + 2)
-#define OUT_H (NP + 3)
-#define OUT_RES (NP + 3 + NF * NF)
+#define OUT_SE (NP + 3)
+#define OUT_RES (2 * NP + 3)
+/* Index of (i, j), j <= i, in a packed lower triangle. */
+#define LIDX(i, j) ((i) * ((i) + 1) / 2 + (j))
+
+/* Standard errors sqrt(diag((J^T J)^-1) RSS / (n - NF)) from h = J^T J (NF x NF) into
+ * se (NP; -1 where there is none: a diagonal not positive, no degree of freedom
+ * left, a zero pivot; the baseline's when it is held): the twin of
+ * _batch_fit.standard_errors, with its ridge of 1e-12 of the largest diagonal.  The
+ * matrix is scaled to a unit diagonal and factorised L D L^T (no square root, so a
+ * matrix made slightly indefinite by rounding still gives an answer, as the host's
+ * LU inverse did); diag(A^-1)_p = sum_j (L^-1)_jp^2 / D_j. */
+CLSIM_INLINE void std_errors(const float *h, const float rss, const int n_eff,
+                             global float *se)
+{
+    for (int p = 0; p < NP; ++p) se[p] = -1.0f;
+    float dmax = 0.0f;
+    int ok = n_eff > NF;
+    for (int p = 0; p < NF; ++p) {
+        ok &= h[p * NF + p] > 0.0f;
+        dmax = fast_max(dmax, h[p * NF + p]);
+    }
+    if (!ok) return;
+    const se_real ridge = (se_real)1.0e-12 * (se_real)dmax;
+    se_real a[NF * (NF + 1) / 2], d[NF], sc[NF];
+    for (int p = 0; p < NF; ++p) sc[p] = (se_real)1.0 / sqrt((se_real)h[p * NF + p] + ridge);
+    for (int i = 0; i < NF; ++i) {
+        for (int j = 0; j < i; ++j) a[LIDX(i, j)] = (se_real)h[i * NF + j] * sc[i] * sc[j];
+        a[LIDX(i, i)] = ((se_real)h[i * NF + i] + ridge) * sc[i] * sc[i];
+    }
+    /* L D L^T in place (L unit lower, below the diagonal; D apart) */
+    for (int j = 0; j < NF; ++j) {
+        se_real dj = a[LIDX(j, j)];
+        for (int k = 0; k < j; ++k) dj -= a[LIDX(j, k)] * a[LIDX(j, k)] * d[k];
+        if (dj == (se_real)0.0) return;
+        d[j] = dj;
+        for (int i = j + 1; i < NF; ++i) {
+            se_real v = a[LIDX(i, j)];
+            for (int k = 0; k < j; ++k) v -= a[LIDX(i, k)] * a[LIDX(j, k)] * d[k];
+            a[LIDX(i, j)] = v / dj;
+        }
+    }
+    /* L^-1 in place, column by column (column j reads L's columns beyond j only) */
+    for (int j = 0; j < NF; ++j)
+        for (int i = j + 1; i < NF; ++i) {
+            se_real v = a[LIDX(i, j)];
+            for (int k = j + 1; k < i; ++k) v += a[LIDX(i, k)] * a[LIDX(k, j)];
+            a[LIDX(i, j)] = -v;
+        }
+    const se_real s2 = (se_real)rss / (se_real)(n_eff - NF);
+    for (int p = 0; p < NF; ++p) {
+        se_real v = (se_real)1.0 / d[p];
+        for (int j = p + 1; j < NF; ++j) v += a[LIDX(j, p)] * a[LIDX(j, p)] / d[j];
+        v *= sc[p] * sc[p] * s2;
+        /* (a variance beyond float range, of a parameter the data do not pin down:
+         * BIG, a finite "no bound", as the host's float64 figure was finite) */
+        const se_real root = v > (se_real)0.0 ? sqrt(v) : (se_real)0.0;
+        se[p] = root < (se_real)BIG ? (float)root : BIG;
+    }
+}
 
 /* x (zero outside [b0, b1), and zero-padded far enough beyond [0, n)) correlated
  * with the weights w[0..size), lag 0 at centre, at samples [b0, b1) into out, eight
@@ -268,7 +344,7 @@ CLSIM_INLINE void correlate(global const float *x, const int b0, const int b1, c
 
 /* One launch: waveform `row[r0 + w]` of the uploaded samples for each work-item w,
  * from the start values at Q + q0 (G x NP), its row of results at OUT + o0 + w x
- * (OUT_RES + 2 M + 3 n): the launches of one round of fits (one per number of
+ * (OUT_RES, + 2 M + 3 n with RESID): the launches of one round of fits (one per number of
  * echoes) share the row, start and result buffers.  FW: the matched filter's
  * weights (np_, lag 0 at pc), then the 9 of the Gaussian of sigma 1 (lag 0 at 4);
  * M at least max(pc, np_ - 1 - pc, 4) + 8. */
@@ -277,7 +353,7 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
                    global const float *noise, global const float *Q, global float *OUT,
                    const int G, const int max_iter, const float tol, const int linear,
                    global const float *FW, const int np_, const int pc, const int M,
-                   const int r0, const long q0, const long o0)
+                   const int resid, const int r0, const long q0, const long o0)
 {
     const int w = get_global_id(0);
     if (w >= G) return;
@@ -285,7 +361,7 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
     global const float *qin = Q + q0 + (size_t)w * NP;
     global const float *y = Y + (size_t)row[w] * n;
     global const uchar *fl = FL + (size_t)row[w] * n;
-    global float *out = OUT + o0 + (size_t)w * (OUT_RES + 2 * M + 3 * n);
+    global float *out = OUT + o0 + (size_t)w * (OUT_RES + (resid ? 2 * M + 3 * n : 0));
     float q[NP], qt[NP], step[NF], rhs[NF], sc[NF];
     float h[NF * NF], ht[NF * NF], c[NF * NF], g[NF], gt[NF];
     for (int p = 0; p < NP; ++p) q[p] = qin[p];
@@ -361,10 +437,15 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         }
         if (done) break;
     }
-    /* J^T J at the solution: the host turns it into standard errors */
     int n_eff = 0;
     for (int i = b0; i < b1; ++i) n_eff += (fl[i] & USE) && !(fl[i] & CENS);
-    for (int p = 0; p < NF * NF; ++p) out[OUT_H + p] = h[p];
+    /* J^T J at the solution into standard errors */
+    std_errors(h, cost, n_eff, out + OUT_SE);
+    for (int p = 0; p < NP; ++p) out[p] = q[p];
+    out[OUT_RSS] = cost;
+    out[OUT_NEFF] = (float)n_eff;
+    out[OUT_ITER] = (float)it;
+    if (!resid) return;
     /* the residual at the fit, for the host's search for further echoes */
     global float *res = out + OUT_RES + M;
     for (int i = -M; i < 0; ++i) res[i] = 0.0f;
@@ -391,8 +472,4 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
     }
     correlate(res, b0, b1, n, FW, np_, pc, res + n + M);
     correlate(res, b0, b1, n, FW + np_, 9, 4, res + 2 * n + M);
-    for (int p = 0; p < NP; ++p) out[p] = q[p];
-    out[OUT_RSS] = cost;
-    out[OUT_NEFF] = (float)n_eff;
-    out[OUT_ITER] = (float)it;
 }

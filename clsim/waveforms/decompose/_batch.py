@@ -222,10 +222,10 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     st.noise = sigma
     if det is not None:
         bound = det.fitter()
-        bound.set_pulse(pl)
+        bound.set_pulse(pl, residuals=add_components)
         st.fit = _bound_fit(bound)
     else:
-        st.fit = _group_fitter(device, y, use, cens, sigma, pl)
+        st.fit = _group_fitter(device, y, use, cens, sigma, pl, add_components)
     start = (st.a.copy(), st.m.copy(), st.s.copy(), st.on.copy(), st.b.copy())
     # fit (amplitudes and baseline first by linear least squares), prune, add
     _refit(st, rows[st.k() > 0], y, use, cens, linear=True)
@@ -239,14 +239,14 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, devi
     return st, sigma
 
 
-def _group_fitter(device, y, use, cens, noise, pulse):
+def _group_fitter(device, y, use, cens, noise, pulse, residuals=True):
     """``fit(groups, fit_baseline, linear) -> [GroupFit]`` for groups ``(rows, a, m,
     s, b)`` of a chunk's rows, each group its own number of echoes: one round on the
     OpenCL device (its samples uploaded once; :meth:`._batch_cl.BoundFitter.fit_groups`),
     else :func:`fit_group` per group."""
     if device is not None:
         bound = device.bind(y, use, cens, noise)
-        bound.set_pulse(pulse)
+        bound.set_pulse(pulse, residuals=residuals)
         return _bound_fit(bound)
 
     def fit(groups, fb, linear):

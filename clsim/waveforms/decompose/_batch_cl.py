@@ -6,13 +6,14 @@ NumPy path, in float32, with the normal matrix summed over blocks of 8 samples
 instead of a stored Jacobian (an echo is left out of the blocks beyond 8 of its
 sigmas, where its exponential is under 1.3e-14); the step's linear system is
 scaled to a unit diagonal before its float32 Cholesky factorisation (Marquardt
-1963). The standard errors come from ``J^T J`` inverted in float64 on the host
-(:func:`._batch_fit.standard_errors`, as on the NumPy path). A chunk's samples
+1963). The standard errors come from ``J^T J`` at the fit, inverted in the kernel
+(in double where the device has it, as :func:`._batch_fit.standard_errors` does on
+the NumPy path; the same figures to float32 rounding). A chunk's samples
 are uploaded once (:meth:`DeviceFitter.bind`); a round of fits
 (:meth:`BoundFitter.fit_groups`: groups of waveforms, each with its own number of
 echoes) is then one upload of all their row indices and start values, one launch
-per group and one result buffer, which returns the fits, ``J^T J``, the residuals
-and, for the search of further echoes, the residuals through the matched filter
+per group and one result buffer, which returns the fits, their standard errors
+and, for the search of further echoes, the residuals and the residuals through the matched filter
 and the Gaussian of sigma 1 sample (:meth:`BoundFitter.set_pulse`; float32 sums of the same weights
 as :func:`._matched.filter_output` and ``gaussian_filter1d``).
 
@@ -35,7 +36,7 @@ from importlib import resources
 
 import numpy as np
 
-from clsim.waveforms.decompose._batch_fit import _TOL, GroupFit, standard_errors
+from clsim.waveforms.decompose._batch_fit import _TOL, GroupFit
 
 #: Flag bits of a sample in the kernel: it counts; it is censored (clipped).
 _USE, _CENS = 1, 2
@@ -83,15 +84,19 @@ class DeviceFitter:
     ----------
     info : voxlidar.devices.DeviceInfo
         A device that builds the ``decompose`` kernel set.
+    se_float : bool
+        Invert for the standard errors in float32 even where the device has
+        double (as on devices without it; for the tests).
     """
 
-    def __init__(self, info):
+    def __init__(self, info, *, se_float: bool = False):
         import pyopencl as cl
 
         from voxlidar.devices import open_queue
 
         self._cl = cl
         self.info = info
+        self.se_float = bool(se_float)
         self.context, self.queue = open_queue(info)
         self._kernels = {}
         self.build_seconds = 0.0
@@ -107,6 +112,8 @@ class DeviceFitter:
         # chunks run in threads (decompose_batch): a kernel object's arguments and its
         # launch must not interleave with another thread's, nor two builds
         self.lock = threading.RLock()
+        # the residual filters' weights on the device, by pulse (the last few kept)
+        self._filters: dict = {}
 
     @property
     def detector(self):
@@ -133,16 +140,40 @@ class DeviceFitter:
 
             src, inc = _source()
             t0 = time.perf_counter()
-            prg = build_program(self.context, src, [inc] + build_options(self.info, *key))
+            opts = build_options(self.info, *key) + (["-DCLSIM_SE_FLOAT"] if self.se_float else [])
+            prg = build_program(self.context, src, [inc] + opts)
             self.build_seconds += time.perf_counter() - t0
             kern = self._cl.Kernel(prg, "lm_fit")
             # the scalar arguments' types, declared once (set_args is then 30x faster)
             kern.set_scalar_arg_dtypes([None, None, np.int32, None, None, None, None, None,
                                         np.int32, np.int32, np.float32, np.int32, None,
-                                        np.int32, np.int32, np.int32, np.int32, np.int64,
-                                        np.int64])
+                                        np.int32, np.int32, np.int32, np.int32, np.int32,
+                                        np.int64, np.int64])
             self._kernels[key] = kern
         return self._kernels[key]
+
+    def filter_buffer(self, pulse):
+        """The residual filters of the fits (:meth:`BoundFitter.set_pulse`) on the
+        device: (buffer, matched-filter size, its lag-0 index, the residual's zero
+        padding), made once per pulse: the matched filter of ``pulse`` (None: a unit
+        weight), then the 9 weights of the Gaussian of sigma 1 sample."""
+        from clsim.waveforms.decompose._detect_cl import _SMOOTH
+
+        p, pc = (np.ones(1), 0) if pulse is None else (pulse.weights, int(pulse.centre))
+        key = (pc, p.tobytes())
+        with self.lock:
+            got = self._filters.get(key)
+            if got is None:
+                cl = self._cl
+                w = np.concatenate([p, _SMOOTH[:9]]).astype(np.float32)
+                # the residual's zero padding on either side: the filters' reach and a block
+                pad = max(pc, p.size - 1 - pc, 4) + 8
+                got = (cl.Buffer(self.context, cl.mem_flags.READ_ONLY
+                                 | cl.mem_flags.COPY_HOST_PTR, hostbuf=w), p.size, pc, pad)
+                if len(self._filters) >= 8:
+                    self._filters.pop(next(iter(self._filters)))
+                self._filters[key] = got
+        return got
 
     def bind(self, y, use, cens, noise) -> "BoundFitter":
         """Upload a chunk: samples (N, n), the samples that count and the censored
@@ -189,20 +220,13 @@ class BoundFitter:
         self.noise = up(np.asarray(noise, dtype=np.float32))
         self.set_pulse(None)
 
-    def set_pulse(self, pulse):
+    def set_pulse(self, pulse, residuals: bool = True):
         """The matched filter of the residuals the fits return: ``pulse``
-        (:class:`._matched.Pulse`) or None (a unit weight: the residual itself)."""
-        from clsim.waveforms.decompose._detect_cl import _SMOOTH
-
-        cl = self.fitter._cl
-        p, pc = (np.ones(1), 0) if pulse is None else (pulse.shape / float(np.sum(
-            pulse.shape ** 2)), pulse.centre)
-        w = np.concatenate([p, _SMOOTH[:9]]).astype(np.float32)
-        # the residual's zero padding on either side: the filters' reach and a block
-        self.pad = max(int(pc), p.size - 1 - int(pc), 4) + 8
-        self.filters = (cl.Buffer(self.fitter.context, cl.mem_flags.READ_ONLY
-                                  | cl.mem_flags.COPY_HOST_PTR, hostbuf=w), p.size, int(pc),
-                        self.pad)
+        (:class:`._matched.Pulse`) or None (a unit weight: the residual itself);
+        ``residuals=False``: the fits return no residual (no search follows them)."""
+        self.resid = bool(residuals)
+        self.filters = self.fitter.filter_buffer(pulse)
+        self.pad = self.filters[3]
 
     def fit(self, rows, a, m, s, b, *, fit_baseline=True, linear=False, max_iter=40,
             tol=_TOL) -> GroupFit:
@@ -217,8 +241,8 @@ class BoundFitter:
                    tol=_TOL) -> list:
         """Fit several groups ``[(rows, a, m, s, b), ...]`` (each its own number of
         echoes K) as :meth:`fit` does, in one round: one upload of all their rows
-        and start values, one launch per group, one copy back, one wait, and the
-        standard errors of every group in one call. Returns their
+        and start values, one launch per group and one copy back per group.
+        Returns their
         :class:`GroupFit`, in order."""
         cl = self.fitter._cl
         queue = self.fitter.queue
@@ -227,16 +251,17 @@ class BoundFitter:
         plan, q_parts, q_off, o_off, host = [], [], 0, 0, {}
         for i, (rows, a, m, s, b) in enumerate(groups):
             g, k = a.shape
-            npar, nf = 3 * k + 1, 3 * k + (1 if fb else 0)
+            npar = 3 * k + 1
             if (k, fb) in self.fitter.too_large:
                 host[i] = self._host_fit(rows, a, m, s, b, fb, linear, max_iter, tol)
                 continue
             q = np.empty((g, npar), dtype=np.float32)
             q[:, :k], q[:, k:2 * k], q[:, 2 * k:3 * k], q[:, -1] = a, m, s, b
-            # one row per waveform: fit, rss, n_eff, iterations, J^T J, residual, its
-            # matched filter and smoothing (the kernel's OUT)
-            stride = npar + 3 + nf * nf + 2 * pad + 3 * n
-            plan.append((i, rows, g, k, npar, nf, stride, q_off, o_off))
+            # one row per waveform: fit, rss, n_eff, iterations, standard errors and
+            # (for a search) the residual, its matched filter and smoothing (the
+            # kernel's OUT)
+            stride = 2 * npar + 3 + (2 * pad + 3 * n if self.resid else 0)
+            plan.append((i, rows, g, k, npar, stride, q_off, o_off))
             q_parts.append(q.reshape(-1))
             q_off += q.size
             o_off += g * stride
@@ -252,11 +277,11 @@ class BoundFitter:
             d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             launched = []
             with self.fitter.lock:
-                for j, (i, rows, g, k, npar, nf, stride, qo, oo) in enumerate(plan):
+                for j, (i, rows, g, k, npar, stride, qo, oo) in enumerate(plan):
                     kern = self.fitter.kernel(k, fb)
                     kern.set_args(self.y, self.flags, n, d_row, self.span, self.noise, d_q,
                                   d_out, g, max_iter, tol, int(bool(linear) and fb),
-                                  *self.filters, int(r0[j]), qo, oo)
+                                  *self.filters, int(self.resid), int(r0[j]), qo, oo)
                     try:
                         cl.enqueue_nd_range_kernel(queue, kern, (g,), self.fitter.local_size)
                     except cl.Error as err:  # more private memory than a work-item gets
@@ -273,18 +298,19 @@ class BoundFitter:
                         is_blocking=False)))
             ns = self.n_samples
             for j, done in launched:
-                i, rows, g, k, npar, nf, stride, qo, oo = plan[j]
+                i, rows, g, k, npar, stride, qo, oo = plan[j]
                 done.wait()
                 o = out[oo:oo + g * stride].reshape(g, stride)
-                base = npar + 3 + nf * nf
+                base = 2 * npar + 3
                 fit = o[:, :npar].astype(float)
                 rss = o[:, npar].astype(float)
                 n_eff = o[:, npar + 1].astype(int)
-                # (in float64 on the host, as on the NumPy path)
-                se = standard_errors(o[:, npar + 3:base].reshape(g, nf, nf).astype(float), rss,
-                                     n_eff, k)
-                r = o[:, base + pad:base + pad + ns]
-                flt = o[:, base + 2 * pad + n:].reshape(g, 2, n)[:, :, :ns]
+                se = o[:, npar + 3:base].astype(float)
+                se[se < 0.0] = np.nan
+                r = flt = None
+                if self.resid:
+                    r = o[:, base + pad:base + pad + ns]
+                    flt = o[:, base + 2 * pad + n:].reshape(g, 2, n)[:, :, :ns]
                 results[i] = GroupFit(fit[:, :k], fit[:, k:2 * k], fit[:, 2 * k:3 * k],
                                       fit[:, -1], rss, se, n_eff, o[:, npar + 2].astype(int),
                                       r, flt)

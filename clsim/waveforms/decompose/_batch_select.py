@@ -130,6 +130,16 @@ def _broken(a, m, s, n):
                 | (m < -s) | (m > n[:, None] - 1 + s))
 
 
+def _well_formed(a, m, s, n):
+    """Echoes (R, K) a waveform can keep alone: positive and finite height, sigma
+    between the resolvable limit and the record's length ``n`` (R,), peak within one
+    sigma of the record (NaN anywhere: not well formed)."""
+    n = n[:, None]
+    with np.errstate(invalid="ignore"):
+        return (np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES) & (s <= n) & (m >= -s)
+                & (m <= n - 1 + s))
+
+
 def _prune(st, y, use, cens, u, sigma, lengths, rounds=5):
     """Drop weak, unresolvable or misplaced echoes and refit, until none is left to drop.
     A fit that stopped because an echo collapsed or left the record (the fits stop
@@ -149,11 +159,8 @@ def _prune(st, y, use, cens, u, sigma, lengths, rounds=5):
         keep = st.on[rows] & ~bad[rows]
         none = ~keep.any(axis=1)
         if none.any():
-            a, m, s = st.a[rows], st.m[rows], st.s[rows]
-            n = lengths[rows][:, None]
-            usable = (st.on[rows] & np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES)
-                      & (s <= n) & (m >= -s) & (m <= n - 1 + s))
-            best = np.argmax(np.where(usable, a, -np.inf), axis=1)
+            usable = st.on[rows] & _well_formed(st.a[rows], st.m[rows], st.s[rows], lengths[rows])
+            best = np.argmax(np.where(usable, st.a[rows], -np.inf), axis=1)
             fix = np.flatnonzero(none & usable.any(axis=1))
             keep[fix, best[fix]] = True
             locked[rows[fix]] = True
@@ -176,9 +183,7 @@ def _rescue(st, start, y, use, cens, lengths):
     res = _fit_rows(st.fit, rows, a0[rows, best][:, None], m0[rows, best][:, None],
                     s0[rows, best][:, None], b0[rows], linear=True)
     a, m, s = res[0][:, 0], res[1][:, 0], res[2][:, 0]
-    n = lengths[rows]
-    ok = (np.isfinite(a) & (a > 0) & (s >= _MIN_SIGMA_SAMPLES) & (s <= n) & (m >= -s)
-          & (m <= n - 1 + s))
+    ok = _well_formed(a[:, None], m[:, None], s[:, None], lengths[rows])[:, 0]
     rows, best, ii = rows[ok], best[ok], ii[ok]
     st.on[rows] = False
     st.on[rows, best] = True

@@ -168,7 +168,7 @@ class BoundDetection:
         ctx = self.det.fitter.context
         mf = cl.mem_flags
         p = pulse.shape
-        flt = np.concatenate([p / float(np.sum(p * p)), _SMOOTH]).astype(np.float32)
+        flt = np.concatenate([pulse.weights, _SMOOTH]).astype(np.float32)
         st = np.ascontiguousarray(np.column_stack([self.stats[:, 0], self.stats[:, 1],
                                                    level]), dtype=np.float32)
         d_flt = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=flt)

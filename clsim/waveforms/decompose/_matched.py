@@ -73,6 +73,13 @@ class Pulse:
         """``||p||_2``: an echo of amplitude A stands ``A ||p|| / sigma`` high."""
         return float(np.sqrt(np.sum(self.shape ** 2)))
 
+    @property
+    def weights(self) -> np.ndarray:
+        """The matched filter's correlation weights, ``p / ||p||^2`` (lag 0 at
+        ``centre``): its output is in amplitude units (:func:`filter_output` and the
+        device kernels use these)."""
+        return self.shape / float(np.sum(self.shape * self.shape))
+
     @classmethod
     def gaussian(cls, sigma: float) -> "Pulse":
         half = int(np.ceil(4.0 * sigma))
@@ -165,7 +172,7 @@ def filter_output(y: np.ndarray, pulse: Pulse) -> np.ndarray:
     p = pulse.shape
     # correlate1d centres the weights on index len // 2; shift so lag 0 is the pulse peak
     origin = pulse.centre - p.size // 2
-    return correlate1d(y, p / float(np.sum(p * p)), axis=-1, mode="constant", cval=0.0,
+    return correlate1d(y, pulse.weights, axis=-1, mode="constant", cval=0.0,
                        origin=origin)
 
 

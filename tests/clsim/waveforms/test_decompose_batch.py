@@ -191,6 +191,34 @@ def test_device_fits_match_numpy(cl_device_for_fits):
     assert abs(got.n_iter.mean() - ref.n_iter.mean()) < 0.5, (got.n_iter.mean(), ref.n_iter.mean())
 
 
+def test_device_standard_errors_float32_inverse(cl_device_for_fits):
+    """The standard errors inverted in float32 (devices without double) agree with the
+    double inverse of the same fits within 1e-4 relative (the matrix is scaled to a
+    unit diagonal first); with the baseline held its error is NaN."""
+    from clsim.waveforms.decompose._batch_cl import DeviceFitter
+
+    rng = np.random.default_rng(12)
+    t = np.arange(120.0)
+    y = 15.0 + gaussian_sum(t, [90.0, 30.0, 25.0], [30.0, 60.0, 66.0], [2.5, 3.0, 2.5])
+    y = y + rng.normal(0.0, 2.0, (200, t.size))
+    use = np.ones(y.shape, bool)
+    noise = np.full(200, 2.0)
+    start = (np.tile([80.0, 25.0, 20.0], (200, 1)), np.tile([30.4, 59.5, 66.5], (200, 1)),
+             np.tile([2.2, 3.3, 2.2], (200, 1)), np.full(200, 14.0))
+    info = device_fitter(cl_device_for_fits).info
+    got = {}
+    for se_float in (False, True):
+        bound = DeviceFitter(info, se_float=se_float).bind(y, use, None, noise)
+        got[se_float] = (bound.fit(np.arange(200), *start),
+                         bound.fit(np.arange(200), *start, fit_baseline=False))
+    for held in (0, 1):
+        dbl, flt = got[False][held], got[True][held]
+        np.testing.assert_array_equal(dbl.a, flt.a)
+        assert np.all(np.isfinite(dbl.se[:, :9])) and np.all(dbl.se[:, :9] > 0)
+        np.testing.assert_allclose(flt.se, dbl.se, rtol=1e-4)
+    assert np.all(np.isnan(got[True][1].se[:, 9])) and np.all(np.isfinite(got[True][0].se[:, 9]))
+
+
 def test_device_residual_and_its_filters(cl_device_for_fits):
     """The device fits return the residual at the fit (zero where a sample does not
     count) and that residual through the matched filter and the Gaussian of sigma 1,
