@@ -157,18 +157,43 @@ CLSIM_INLINE float3 wood_normal(const scene_t *S, size_t row, float3 d, int cyl,
     return cosine_dir(-d, u1, u2);
 }
 
+/* The normal of a leaf hit from d (uniform leaf azimuths): drawn from p(nl) |nl . d| / G(d),
+ * with b.z, b.w the first proposal's uniforms and b.y * ys its acceptance uniform (b.y
+ * rescaled: uniform given the leaf).  Spherical leaf angles (P->leaf_avg): p(nl) is uniform
+ * on the upper hemisphere and G = 1/2, so the density is |nl . d| / pi, the cosine law about
+ * -d folded onto the upper hemisphere (nl and -nl have the same |nl . d|); drawn directly,
+ * and the fold is left out because the caller uses only the side facing -d
+ * (incident_side).  Other distributions: rejection, fresh blocks per proposal. */
+CLSIM_INLINE float3 leaf_normal_seen(const scene_t *S, float3 d, float4 b, float3 x, float ys, rng_t *rng)
+{
+    if (S->P->leaf_avg)
+        return cosine_dir(-d, b.z, b.w);
+    float u = b.y * ys;
+    float3 nl = scene_leaf_normal(S, b, x);
+    for (int i = 0; CLSIM_PROF_LEAF && i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
+        b = rng_next(rng);
+        u = b.y;
+        nl = scene_leaf_normal(S, b, x);
+    }
+    return nl;
+}
+
 /* The paper's interception probability of one step ds through LAD u with leaf normal nl. */
 CLSIM_INLINE float paper_leaf_prob(float u, float3 nl, float3 d, float ds)
 {
     return fast_min(1.0f, u * fast_abs(fast_dot(nl, d)) * ds);
 }
 
-/* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]. */
-CLSIM_INLINE float g_of(__global const float *gtab, float mu)
+/* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]; spherical leaf
+ * angles (P->leaf_avg) G = 1/2 without the table (which holds 0.5f there at every entry). */
+CLSIM_INLINE float g_of(const scene_t *S, float mu)
 {
 #if !CLSIM_PROF_G
     return 0.5f;
 #endif
+    if (S->P->leaf_avg)
+        return 0.5f;
+    __global const float *gtab = S->gtab;
     const float s = fast_min(fast_abs(mu), 1.0f) * (float)(NG - 1);
     const int i = min((int)s, NG - 2);
     const float f = s - (float)i;
@@ -323,7 +348,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
     /* With uniform leaf azimuths the leaves' extinction is exactly LAD G(d): that is the
      * majorant (no null collisions); outward azimuths keep LAD, thinned by |nl . d|. */
     const int tight = CLSIM_TIGHT && !P->outward;
-    const float gl = tight ? g_of(S->gtab, d.z) : 1.0f;
+    const float gl = tight ? g_of(S, d.z) : 1.0f;
     tracker_t k;
     if (tracker_init(&k, o, d, tg, neg_log_unit(b.x), gl, P)) {
         float tc;
@@ -340,16 +365,8 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                     return EV_WOOD;
                 }
             } else if (tight) {
-                /* a leaf: its normal from p(nl) |nl . d| / G(d) by rejection; the first
-                 * acceptance uniform is b.y rescaled (uniform given the leaf) */
-                float u = b.y * sig / sl;
-                float3 nl = scene_leaf_normal(S, b, x);
-                for (int i = 0; CLSIM_PROF_LEAF && i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
-                    b = rng_next(rng);
-                    u = b.y;
-                    nl = scene_leaf_normal(S, b, x);
-                }
-                *n = nl;
+                /* a leaf: its normal from p(nl) |nl . d| / G(d) */
+                *n = leaf_normal_seen(S, d, b, x, sig / sl, rng);
                 *t = tc;
                 walker_stop(&k.w, tc, steps);
                 return EV_LEAF;
@@ -417,7 +434,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
     if (!P->outward) {
         if (!walker_init(&w, o, d, 0.0f, r, P))
             return T;
-        const float gd = g_of(S->gtab, d.z);
+        const float gd = g_of(S, d.z);
         float od = 0.0f;
         while (walker_next(&w, P, S->index, S->boxes, S->pool, &ta, &tb, &e, steps)) {
             const float sig = e.x * gd + wood_sigma(S, w.row, e.y, d);
