@@ -28,7 +28,7 @@ typedef struct {
     float ox, oy, oz;     /* origin */
     float dx, dy, dz;     /* unit direction */
     float ix, iy, iz;     /* 1/direction (CLSIM_FAR where 0) */
-    float h;              /* voxel size */
+    float h, ih;          /* voxel size and its reciprocal */
     float tmx, tmy, tmz;  /* far plane of the current voxel per axis (in a voxel brick) */
     float btx, bty, btz;  /* far plane of the current brick per axis */
     float t, t_end;
@@ -88,6 +88,7 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
     w->iy = iy;
     w->iz = iz;
     w->h = h;
+    w->ih = 1.0f / h;
     w->t = t0;
     w->t_end = t1;
     w->nx = P->shape[0];
@@ -96,8 +97,7 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
     w->nbx = P->bshape[0];
     w->nby = P->bshape[1];
     w->nbz = P->bshape[2];
-    const float ih = 1.0f / h;
-    const int3 v = clamp_index(convert_int3((o + d * t0) * ih), w->nx, w->ny, w->nz); /* as local_voxel */
+    const int3 v = clamp_index(convert_int3((o + d * t0) * w->ih), w->nx, w->ny, w->nz); /* as local_voxel */
     w->vx = v.x;
     w->vy = v.y;
     w->vz = v.z;
@@ -158,7 +158,7 @@ CLSIM_INLINE float3 walker_point(const walker_t *w, float t)
 CLSIM_INLINE int3 local_voxel(const walker_t *w, float t, int3 base)
 {
     /* truncation, not floor: the two differ only below 0, which the clamp maps to 0 alike */
-    const int3 g = clamp_index(convert_int3(walker_point(w, t) * (1.0f / w->h)), w->nx, w->ny, w->nz);
+    const int3 g = clamp_index(convert_int3(walker_point(w, t) * w->ih), w->nx, w->ny, w->nz);
     return clamp(g - base, 0, BRICK - 1);
 }
 

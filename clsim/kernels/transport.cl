@@ -644,20 +644,32 @@ CLSIM_INLINE void photon(const scene_t *S, __global ulong *hist, __global ulong 
     acc[ST_SHADOW] += shadow;
 }
 
-/* Work item gid simulates photons pid0 + gid, pid0 + gid + stride, ... below pid0 + n.  Its
- * statistics are summed privately and added with one atomic per non-zero statistic when the
- * batch (pid % n_batches) changes or at the end: the host makes stride a multiple of n_batches
- * on CPUs (several photons per work item), so the atomics, which contend between cores there,
- * fall from one set per photon to one per work item.  Integer sums keep runs bit-identical
- * whatever the grouping and order. */
+/* Adds a work item's statistics acc of one batch to stats (one atomic per non-zero
+ * statistic) and clears them. */
+CLSIM_INLINE void flush_stats(__global ulong *stats, uint batch, ulong *acc)
+{
+    for (int j = 0; j < NSTAT; ++j) {
+        if (acc[j])
+            add_u64(stats + batch * NSTAT + j, acc[j]);
+        acc[j] = 0ul;
+    }
+}
+
+/* Work item gid simulates photons pid0 + gid, pid0 + gid + stride, ... below pid0 + n, stride
+ * the launch's global size.  Its statistics are summed privately and added with one atomic
+ * per non-zero statistic when the batch (pid % n_batches) changes or at the end: the host
+ * makes the global size a multiple of n_batches on CPUs (several photons per work item), so
+ * the atomics, which contend between cores there, fall from one set per photon to one per
+ * work item.  Integer sums keep runs bit-identical whatever the grouping and order. */
 __kernel void simulate(__global const params_t *P, __global const int *index,
                        __global const int *boxes, __global const float2 *pool, __global const float *ppf,
                        __global const float *gtab, __global const float4 *wdir, __global ulong *hist, __global ulong *stats, __global float4 *trace,
-                       uint2 key, ulong pid0, uint n, uint stride)
+                       uint2 key, ulong pid0, uint n)
 {
     const uint gid = get_global_id(0);
     if (gid >= n)
         return;
+    const uint stride = (uint)get_global_size(0);
     const scene_t S = {P, index, boxes, pool, ppf, gtab, wdir};
     ulong acc[NSTAT] = {0};
     uint batch = (uint)((pid0 + gid) % (ulong)P->n_batches);
@@ -665,16 +677,10 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
         const ulong pid = pid0 + i;
         const uint b = (uint)(pid % (ulong)P->n_batches);
         if (b != batch) {
-            for (int j = 0; j < NSTAT; ++j) {
-                if (acc[j])
-                    add_u64(stats + batch * NSTAT + j, acc[j]);
-                acc[j] = 0ul;
-            }
+            flush_stats(stats, batch, acc);
             batch = b;
         }
         photon(&S, hist, stats, trace, key, pid, batch, acc);
     }
-    for (int j = 0; j < NSTAT; ++j)
-        if (acc[j])
-            add_u64(stats + batch * NSTAT + j, acc[j]);
+    flush_stats(stats, batch, acc);
 }

@@ -437,7 +437,7 @@ class Simulator:
                 items = self._work_items(n, B)
                 kern(q, (items,), self.local_size, bufs["params"], bufs["index"], bufs["boxes"], bufs["pool"],
                      bufs["ppf"], bufs["gtab"], bufs["wdir"], hist_buf, stats_buf, trace_buf, key,
-                     np.uint64(start), np.uint32(n), np.uint32(items))
+                     np.uint64(start), np.uint32(n))
                 if bar is not None:
                     q.finish()
                     bar.update(n)
