@@ -11,17 +11,6 @@
 #ifndef CLSIM_UNIFORM
 #define CLSIM_UNIFORM 1
 #endif
-/* Runs: a uniform brick's segment goes on through the following bricks whose box fills
- * them with the same value (one segment, one walk step).  Not with bark directions (WOOD_DIR),
- * which differ per voxel row. */
-#if defined(WOOD_DIR) && WOOD_DIR
-#define CLSIM_RUNS 0
-#else
-#define CLSIM_RUNS CLSIM_UNIFORM
-#endif
-/* The box code (boxes[]) of a box filling its brick: lo 0, hi BRICK - 1 per axis. */
-#define FULL_BOX (((BRICK - 1) << (3 * BRICK_SHIFT)) | ((BRICK - 1) << (4 * BRICK_SHIFT)) \
-                  | ((BRICK - 1) << (5 * BRICK_SHIFT)))
 /* Profiling only (benchmarks/bench_walk_profile.py): 0 replaces a voxel step's pool load
  * by the value (1, 0). */
 #ifndef CLSIM_PROF_POOL
@@ -55,9 +44,9 @@ typedef struct {
     int lrow;             /* the voxel's row in it (0 .. B3 - 1) */
     int dlx, dly, dlz;    /* row offset of one step per axis: sx, BRICK sy, BRICK^2 sz */
     size_t row;           /* pool row of the segment walker_next returned last */
-    int useg;             /* that segment crossed uniform bricks: their voxels were counted */
-    int ulx, uly, ulz;    /* from the entry voxel ul of its first brick to the exit voxel ue */
-    int uex, uey, uez;    /* of its last (grid voxels); walker_stop takes back what lies beyond */
+    int useg;             /* that segment crossed a uniform brick: its voxels were counted */
+    int ubx, uby, ubz;    /* to the brick's exit voxel ue (local: 0..BRICK-1) from brick */
+    int uex, uey, uez;    /* origin ub (voxels); walker_stop takes back what lies beyond */
 } walker_t;
 
 CLSIM_INLINE float far_plane_t(int v, int step, float o, float inv, float cell)
@@ -245,21 +234,16 @@ CLSIM_INLINE void clip_box_axis(int s, int li, int lo, int hi, int base, float o
 
 /* The walk stops at distance t_stop inside the segment walker_next returned
  * last (a collision, a cut-off transmittance): a uniform-brick segment
- * counted its voxels to its last brick's exit, so the voxels beyond t_stop
- * are taken back and voxel_steps counts the voxels reached, as the
- * voxel-by-voxel walk does (it counts the voxel where it stops).  The voxel
- * of t_stop is clamped to the segment's voxels (from ul to ue per axis), so
- * rounding never takes back more than the segment counted.  Along a straight
- * line the voxels between two voxels are the planes crossed per axis, across
- * bricks as inside one. */
+ * counted its voxels to the brick's exit, so the voxels beyond t_stop are
+ * taken back and voxel_steps counts the voxels reached, as the
+ * voxel-by-voxel walk does (it counts the voxel where it stops). */
 CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, uint2 *steps)
 {
     if (!w->useg)
         return;
-    const int3 ul = (int3)(w->ulx, w->uly, w->ulz), ue = (int3)(w->uex, w->uey, w->uez);
-    const int3 g = clamp_index(convert_int3(walker_point(w, t_stop) * w->ih), w->nx, w->ny, w->nz);
-    const int3 ls = clamp(g, min(ul, ue), max(ul, ue));
-    steps->x -= voxels_between(ls, ue, w->sx, w->sy, w->sz);
+    const int3 base = (int3)(w->ubx, w->uby, w->ubz);
+    const int3 ls = local_voxel(w, t_stop, base);
+    steps->x -= voxels_between(ls, (int3)(w->uex, w->uey, w->uez), w->sx, w->sy, w->sz);
     w->useg = 0;
 }
 
@@ -269,13 +253,11 @@ CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, uint2 *steps)
  * Empty bricks are crossed in one step.  A uniform brick (boxes[slot] >= 0:
  * its non-empty voxels fill one box with one value; clsim/transport/bricks.py)
  * is crossed as one segment, the ray clipped to the box, with the values of
- * the box's first voxel (CLSIM_UNIFORM); where the segment reaches the
- * brick's exit it runs on through the following bricks that are full boxes
- * of the same value (CLSIM_RUNS).
+ * the box's first voxel (CLSIM_UNIFORM).
  * steps->x counts voxels as the voxel-by-voxel walk does (an empty brick 1,
  * an occupied brick each voxel visited; a uniform brick the voxels the ray
  * crosses in it, less those walker_stop takes back), steps->y the walk's
- * steps (a voxel, an empty brick, a uniform segment). */
+ * steps (a voxel, an empty brick, a uniform brick). */
 CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global const int *index,
                              __global const int *boxes, __global const float2 *pool, float *ta,
                              float *tb, float2 *val, uint2 *steps)
@@ -323,42 +305,17 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                 clip_box_axis(sz, l.z, lo.z, hi.z, base.z, w->oz, w->iz, h, &t0, &t1);
                 if (t1 > t0) {
                     const size_t row = (size_t)slot * B3 + lo.x + BRICK * (lo.y + BRICK * lo.z);
-                    const float2 v = pool[row];
-                    int3 ue = base + le;
-#if CLSIM_RUNS
-                    /* on through full bricks of the same value while the segment ends at an exit */
-                    while (t1 == w->t && w->t < w->t_end && (uint)w->cbx < (uint)w->nbx &&
-                           (uint)w->cby < (uint)w->nby && (uint)w->cbz < (uint)w->nbz) {
-                        const int s2 = index[w->cbx + w->nbx * (w->cby + w->nby * w->cbz)];
-                        if (s2 < 0 || boxes[s2] != FULL_BOX)
-                            break;
-                        const float2 v2 = pool[(size_t)s2 * B3];
-                        if (v2.x != v.x || v2.y != v.y)
-                            break;
-                        const int3 b2 = (int3)(w->cbx, w->cby, w->cbz) << BRICK_SHIFT;
-                        const int3 l2 = clamp((int3)(w->vx, w->vy, w->vz) - b2, 0, m); /* vok */
-                        walker_next_brick(w);
-                        const int3 le2 = local_voxel(w, w->t, b2);
-                        *steps += (uint2)(1u + voxels_between(l2, le2, sx, sy, sz), 0u);
-                        w->vx = b2.x + le2.x + (w->eaxis == 0 ? sx : 0);
-                        w->vy = b2.y + le2.y + (w->eaxis == 1 ? sy : 0);
-                        w->vz = b2.z + le2.z + (w->eaxis == 2 ? sz : 0);
-                        w->vok = 1;
-                        ue = b2 + le2;
-                        t1 = w->t;
-                    }
-#endif
                     *ta = t0;
                     *tb = t1;
-                    *val = v;
+                    *val = pool[row];
                     w->row = row;
                     w->useg = 1;
-                    w->ulx = base.x + l.x;
-                    w->uly = base.y + l.y;
-                    w->ulz = base.z + l.z;
-                    w->uex = ue.x;
-                    w->uey = ue.y;
-                    w->uez = ue.z;
+                    w->ubx = base.x;
+                    w->uby = base.y;
+                    w->ubz = base.z;
+                    w->uex = le.x;
+                    w->uey = le.y;
+                    w->uez = le.z;
                     return 1;
                 }
                 continue;
