@@ -40,8 +40,8 @@
 /* Profiling switches (benchmarks/bench_walk_profile.py; 1 by default, 0 only to time a part
  * by its absence, which changes the results): CLSIM_PROF_NEE (0: the shadow rays are not
  * walked, transmittance 1), CLSIM_PROF_G (0: G(d) is 1/2 without the table),
- * CLSIM_PROF_TALLY (0: no histogram atomics), CLSIM_PROF_LEAF (0: a leaf's normal is the
- * first proposal, no rejection), CLSIM_PROF_PHILOX (philox.cl; 0: a cheap hash). */
+ * CLSIM_PROF_TALLY (0: no histogram atomics), CLSIM_PROF_LEAF (0: a leaf's normal is -d,
+ * not drawn), CLSIM_PROF_PHILOX (philox.cl; 0: a cheap hash). */
 #ifndef CLSIM_PROF_NEE
 #define CLSIM_PROF_NEE 1
 #endif
@@ -166,11 +166,14 @@ CLSIM_INLINE float3 wood_normal(const scene_t *S, size_t row, float3 d, int cyl,
  * (incident_side).  Other distributions: rejection, fresh blocks per proposal. */
 CLSIM_INLINE float3 leaf_normal_seen(const scene_t *S, float3 d, float4 b, float3 x, float ys, rng_t *rng)
 {
+#if !CLSIM_PROF_LEAF
+    return -d;
+#endif
     if (S->P->leaf_avg)
         return cosine_dir(-d, b.z, b.w);
     float u = b.y * ys;
     float3 nl = scene_leaf_normal(S, b, x);
-    for (int i = 0; CLSIM_PROF_LEAF && i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
+    for (int i = 0; i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
         b = rng_next(rng);
         u = b.y;
         nl = scene_leaf_normal(S, b, x);
