@@ -250,8 +250,9 @@ CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, uint2 *steps)
 /* Next voxel segment [*ta, *tb] with non-zero extinction; 0 at the end.
  * Inside a brick of different values a step is one DDA advance and one pool
  * load; the brick index is read only when the walk enters another brick.
- * Empty bricks are crossed in one step.  A uniform brick (boxes[slot] >= 0:
- * its non-empty voxels fill one box with one value; clsim/transport/bricks.py)
+ * Empty bricks are crossed in one step.  A uniform brick (boxes[slot].x >= 0:
+ * its non-empty voxels fill one box with one value, .y and .z; uniform_records
+ * in clsim/transport/bricks.py)
  * is crossed as one segment, the ray clipped to the box, with the values of
  * the box's first voxel (CLSIM_UNIFORM).
  * steps->x counts voxels as the voxel-by-voxel walk does (an empty brick 1,
@@ -259,7 +260,7 @@ CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, uint2 *steps)
  * crosses in it, less those walker_stop takes back), steps->y the walk's
  * steps (a voxel, an empty brick, a uniform brick). */
 CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global const int *index,
-                             __global const int *boxes, __global const float2 *pool, float *ta,
+                             __global const int4 *boxes, __global const float2 *pool, float *ta,
                              float *tb, float2 *val, uint2 *steps)
 {
     const int sx = w->sx, sy = w->sy, sz = w->sz;
@@ -282,7 +283,8 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
             const int3 base = (int3)(w->cbx, w->cby, w->cbz) << BRICK_SHIFT;
             const int3 l = entry_voxel(w, base);
 #if CLSIM_UNIFORM
-            const int box = boxes[slot];
+            const int4 rec = boxes[slot];
+            const int box = rec.x;
             if (box >= 0) {
                 /* one segment through the brick's box, then on to the next brick; the
                  * voxels of the brick the walk crosses (to its exit or t_end) are counted */
@@ -307,7 +309,7 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                     const size_t row = (size_t)slot * B3 + lo.x + BRICK * (lo.y + BRICK * lo.z);
                     *ta = t0;
                     *tb = t1;
-                    *val = pool[row];
+                    *val = (float2)(as_float(rec.y), as_float(rec.z)); /* = pool[row] */
                     w->row = row;
                     w->useg = 1;
                     w->ubx = base.x;

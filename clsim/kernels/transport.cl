@@ -61,7 +61,7 @@
 typedef struct {
     __global const params_t *P;
     __global const int *index;
-    __global const int *boxes;   /* uniform box per pool slot or -1 (scene.cl walker_next) */
+    __global const int4 *boxes;  /* uniform box per pool slot or -1, and its value (scene.cl walker_next) */
     __global const float2 *pool;
     __global const float *ppf;
     __global const float *gtab;
@@ -665,7 +665,7 @@ CLSIM_INLINE void flush_stats(__global ulong *stats, uint batch, ulong *acc)
  * the atomics, which contend between cores there, fall from one set per photon to one per
  * work item.  Integer sums keep runs bit-identical whatever the grouping and order. */
 __kernel void simulate(__global const params_t *P, __global const int *index,
-                       __global const int *boxes, __global const float2 *pool, __global const float *ppf,
+                       __global const int4 *boxes, __global const float2 *pool, __global const float *ppf,
                        __global const float *gtab, __global const float4 *wdir, __global ulong *hist, __global ulong *stats, __global float4 *trace,
                        uint2 key, ulong pid0, uint n)
 {
