@@ -105,7 +105,7 @@ def main(argv=None) -> int:
     load1 = os.getloadavg()[0]
     b, n = res["base"], res["this tree"]
     lines = ["# The transport against its base tree", "",
-             f"Command: `flock /tmp/voxlidar-bench.lock python benchmarks/bench_kernel_ab.py --base ... "
+             f"Command: `flock /tmp/voxlidar-bench.lock python benchmarks/bench_kernel_ab.py --base {args.base} "
              f"--label \"{args.label}\" --photons {args.photons} --repeats {args.repeats}` "
              f"({time.strftime('%Y-%m-%d %H:%M')}, {time.perf_counter() - t0:.0f} s). Device: {n['device']}; "
              f"{os.cpu_count()} logical CPUs. Load average before {load0:.2f}, after {load1:.2f}. "
