@@ -64,6 +64,7 @@ class SceneWalker:
         self.ground = float(sc.ground_z - sc.origin[2]) if sc.ground_z is not None else None
         self.cc = sc.crown_center - sc.origin[:2]
         self.outward = sc.leaf_azimuth == "outward"
+        self.spherical = bool(setup.p["leaf_avg"])  # spherical leaf angles, uniform azimuths
         self.ds = float(setup.p["ds"])
         self.exact = setup.mode is Mode.EXACT
         self.steps = 0
@@ -273,15 +274,15 @@ class SceneWalker:
     def rejection_normals(self, nl, bb, sg, sl, leaf, ic, idx, x, d):
         """Leaf normals at real leaf collisions ``leaf`` from p(n) |n . d| / G(d).
 
-        Spherical leaf angles (``leaf_avg``): the density is |n . d| / pi on the upper
-        hemisphere, the cosine law about -d folded onto it, drawn directly from bb.z, bb.w
-        (unfolded: the caller uses only the side facing -d, as the kernel's
-        ``leaf_normal_seen``).  Otherwise by rejection: the first proposal is ``nl`` with
-        acceptance uniform bb.y sig / sigma_leaf, then fresh blocks (y: acceptance, z, w:
+        Spherical leaf angles (``self.spherical``, the run's ``leaf_avg``): the density is
+        |n . d| / pi on the upper hemisphere, the cosine law about -d folded onto it, drawn
+        directly from bb.z, bb.w (unfolded: the caller uses only the side facing -d, as the
+        kernel's ``leaf_normal_seen``).  Otherwise by rejection: the first proposal is ``nl``
+        with acceptance uniform bb.y sig / sigma_leaf, then fresh blocks (y: acceptance, z, w:
         the normal)."""
         nl = nl.copy()
         j = np.nonzero(leaf)[0]
-        if self.s.p["leaf_avg"]:
+        if self.spherical:
             nl[j] = cosine_dir(-d[ic[j]], bb[j, 2], bb[j, 3])
             return nl
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -296,7 +297,7 @@ class SceneWalker:
         return nl
 
     def g_of(self, mu):
-        if self.s.p["leaf_avg"]:  # spherical leaf angles: G = 1/2 (the kernel's g_of)
+        if self.spherical:  # spherical leaf angles: G = 1/2 (the kernel's g_of)
             return np.full(np.shape(mu), 0.5)
         s = np.minimum(np.abs(mu), 1.0) * (NG - 1)
         i = np.minimum(s.astype(np.int64), NG - 2)
