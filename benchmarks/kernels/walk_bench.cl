@@ -4,7 +4,7 @@
  * (no cut-off).  The build options are the transport kernel's. */
 #include "transport.cl"
 
-__kernel void walk_bench(__global const params_t *P, __global const int *index, __global const int *boxes,
+__kernel void walk_bench(__global const params_t *P, __global const int *index, __global const int4 *boxes,
                          __global const float2 *pool, __global float *od_out, __global ulong *steps_out,
                          uint seed)
 {

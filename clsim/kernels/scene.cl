@@ -28,7 +28,7 @@ typedef struct {
     float ox, oy, oz;     /* origin */
     float dx, dy, dz;     /* unit direction */
     float ix, iy, iz;     /* 1/direction (CLSIM_FAR where 0) */
-    float h;              /* voxel size */
+    float h, ih;          /* voxel size and its reciprocal */
     float tmx, tmy, tmz;  /* far plane of the current voxel per axis (in a voxel brick) */
     float btx, bty, btz;  /* far plane of the current brick per axis */
     float t, t_end;
@@ -88,6 +88,7 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
     w->iy = iy;
     w->iz = iz;
     w->h = h;
+    w->ih = 1.0f / h;
     w->t = t0;
     w->t_end = t1;
     w->nx = P->shape[0];
@@ -96,8 +97,7 @@ CLSIM_INLINE int walker_init(walker_t *w, float3 o, float3 d, float t_start, flo
     w->nbx = P->bshape[0];
     w->nby = P->bshape[1];
     w->nbz = P->bshape[2];
-    const float ih = 1.0f / h;
-    const int3 v = clamp_index(convert_int3((o + d * t0) * ih), w->nx, w->ny, w->nz); /* as local_voxel */
+    const int3 v = clamp_index(convert_int3((o + d * t0) * w->ih), w->nx, w->ny, w->nz); /* as local_voxel */
     w->vx = v.x;
     w->vy = v.y;
     w->vz = v.z;
@@ -158,7 +158,7 @@ CLSIM_INLINE float3 walker_point(const walker_t *w, float t)
 CLSIM_INLINE int3 local_voxel(const walker_t *w, float t, int3 base)
 {
     /* truncation, not floor: the two differ only below 0, which the clamp maps to 0 alike */
-    const int3 g = clamp_index(convert_int3(walker_point(w, t) * (1.0f / w->h)), w->nx, w->ny, w->nz);
+    const int3 g = clamp_index(convert_int3(walker_point(w, t) * w->ih), w->nx, w->ny, w->nz);
     return clamp(g - base, 0, BRICK - 1);
 }
 
@@ -250,8 +250,9 @@ CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, uint2 *steps)
 /* Next voxel segment [*ta, *tb] with non-zero extinction; 0 at the end.
  * Inside a brick of different values a step is one DDA advance and one pool
  * load; the brick index is read only when the walk enters another brick.
- * Empty bricks are crossed in one step.  A uniform brick (boxes[slot] >= 0:
- * its non-empty voxels fill one box with one value; clsim/transport/bricks.py)
+ * Empty bricks are crossed in one step.  A uniform brick (boxes[slot].x >= 0:
+ * its non-empty voxels fill one box with one value, .y and .z; uniform_records
+ * in clsim/transport/bricks.py)
  * is crossed as one segment, the ray clipped to the box, with the values of
  * the box's first voxel (CLSIM_UNIFORM).
  * steps->x counts voxels as the voxel-by-voxel walk does (an empty brick 1,
@@ -259,7 +260,7 @@ CLSIM_INLINE void walker_stop(walker_t *w, float t_stop, uint2 *steps)
  * crosses in it, less those walker_stop takes back), steps->y the walk's
  * steps (a voxel, an empty brick, a uniform brick). */
 CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global const int *index,
-                             __global const int *boxes, __global const float2 *pool, float *ta,
+                             __global const int4 *boxes, __global const float2 *pool, float *ta,
                              float *tb, float2 *val, uint2 *steps)
 {
     const int sx = w->sx, sy = w->sy, sz = w->sz;
@@ -282,7 +283,8 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
             const int3 base = (int3)(w->cbx, w->cby, w->cbz) << BRICK_SHIFT;
             const int3 l = entry_voxel(w, base);
 #if CLSIM_UNIFORM
-            const int box = boxes[slot];
+            const int4 rec = boxes[slot];
+            const int box = rec.x;
             if (box >= 0) {
                 /* one segment through the brick's box, then on to the next brick; the
                  * voxels of the brick the walk crosses (to its exit or t_end) are counted */
@@ -307,7 +309,7 @@ CLSIM_INLINE int walker_next(walker_t *w, __global const params_t *P, __global c
                     const size_t row = (size_t)slot * B3 + lo.x + BRICK * (lo.y + BRICK * lo.z);
                     *ta = t0;
                     *tb = t1;
-                    *val = pool[row];
+                    *val = (float2)(as_float(rec.y), as_float(rec.z)); /* = pool[row] */
                     w->row = row;
                     w->useg = 1;
                     w->ubx = base.x;

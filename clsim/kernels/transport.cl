@@ -40,8 +40,8 @@
 /* Profiling switches (benchmarks/bench_walk_profile.py; 1 by default, 0 only to time a part
  * by its absence, which changes the results): CLSIM_PROF_NEE (0: the shadow rays are not
  * walked, transmittance 1), CLSIM_PROF_G (0: G(d) is 1/2 without the table),
- * CLSIM_PROF_TALLY (0: no histogram atomics), CLSIM_PROF_LEAF (0: a leaf's normal is the
- * first proposal, no rejection), CLSIM_PROF_PHILOX (philox.cl; 0: a cheap hash). */
+ * CLSIM_PROF_TALLY (0: no histogram atomics), CLSIM_PROF_LEAF (0: a leaf's normal is -d,
+ * not drawn), CLSIM_PROF_PHILOX (philox.cl; 0: a cheap hash). */
 #ifndef CLSIM_PROF_NEE
 #define CLSIM_PROF_NEE 1
 #endif
@@ -61,7 +61,7 @@
 typedef struct {
     __global const params_t *P;
     __global const int *index;
-    __global const int *boxes;   /* uniform box per pool slot or -1 (scene.cl walker_next) */
+    __global const int4 *boxes;  /* uniform box per pool slot or -1, and its value (scene.cl walker_next) */
     __global const float2 *pool;
     __global const float *ppf;
     __global const float *gtab;
@@ -171,18 +171,46 @@ CLSIM_INLINE float3 wood_normal(const scene_t *S, size_t row, float3 d, int cyl,
     return cosine_dir(-d, u1, u2);
 }
 
+/* The normal of a leaf hit from d (uniform leaf azimuths): drawn from p(nl) |nl . d| / G(d),
+ * with b.z, b.w the first proposal's uniforms and b.y * ys its acceptance uniform (b.y
+ * rescaled: uniform given the leaf).  Spherical leaf angles (P->leaf_avg): p(nl) is uniform
+ * on the upper hemisphere and G = 1/2, so the density is |nl . d| / pi, the cosine law about
+ * -d folded onto the upper hemisphere (nl and -nl have the same |nl . d|); drawn directly,
+ * and the fold is left out because the caller uses only the side facing -d
+ * (incident_side).  Other distributions: rejection, fresh blocks per proposal. */
+CLSIM_INLINE float3 leaf_normal_seen(const scene_t *S, float3 d, float4 b, float3 x, float ys, rng_t *rng)
+{
+#if !CLSIM_PROF_LEAF
+    return -d;
+#endif
+    if (S->P->leaf_avg)
+        return cosine_dir(-d, b.z, b.w);
+    float u = b.y * ys;
+    float3 nl = scene_leaf_normal(S, b, x);
+    for (int i = 0; i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
+        b = rng_next(rng);
+        u = b.y;
+        nl = scene_leaf_normal(S, b, x);
+    }
+    return nl;
+}
+
 /* The paper's interception probability of one step ds through LAD u with leaf normal nl. */
 CLSIM_INLINE float paper_leaf_prob(float u, float3 nl, float3 d, float ds)
 {
     return fast_min(1.0f, u * fast_abs(fast_dot(nl, d)) * ds);
 }
 
-/* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]. */
-CLSIM_INLINE float g_of(__global const float *gtab, float mu)
+/* G(|cos theta|) by linear interpolation in a table of NG values on [0, 1]; spherical leaf
+ * angles (P->leaf_avg) G = 1/2 without the table (which holds 0.5f there at every entry). */
+CLSIM_INLINE float g_of(const scene_t *S, float mu)
 {
 #if !CLSIM_PROF_G
     return 0.5f;
 #endif
+    if (S->P->leaf_avg)
+        return 0.5f;
+    __global const float *gtab = S->gtab;
     const float s = fast_min(fast_abs(mu), 1.0f) * (float)(NG - 1);
     const int i = min((int)s, NG - 2);
     const float f = s - (float)i;
@@ -337,7 +365,7 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
     /* With uniform leaf azimuths the leaves' extinction is exactly LAD G(d): that is the
      * majorant (no null collisions); outward azimuths keep LAD, thinned by |nl . d|. */
     const int tight = CLSIM_TIGHT && !P->outward;
-    const float gl = tight ? g_of(S->gtab, d.z) : 1.0f;
+    const float gl = tight ? g_of(S, d.z) : 1.0f;
     tracker_t k;
     if (tracker_init(&k, o, d, tg, neg_log_unit(b.x), gl, P)) {
         float tc;
@@ -354,16 +382,8 @@ CLSIM_INLINE int flight(const scene_t *S, float3 o, float3 d, rng_t *rng, float 
                     return EV_WOOD;
                 }
             } else if (tight) {
-                /* a leaf: its normal from p(nl) |nl . d| / G(d) by rejection; the first
-                 * acceptance uniform is b.y rescaled (uniform given the leaf) */
-                float u = b.y * sig / sl;
-                float3 nl = scene_leaf_normal(S, b, x);
-                for (int i = 0; CLSIM_PROF_LEAF && i < LEAF_TRIES && u >= fast_abs(fast_dot(nl, d)); ++i) {
-                    b = rng_next(rng);
-                    u = b.y;
-                    nl = scene_leaf_normal(S, b, x);
-                }
-                *n = nl;
+                /* a leaf: its normal from p(nl) |nl . d| / G(d) */
+                *n = leaf_normal_seen(S, d, b, x, sig / sl, rng);
                 *t = tc;
                 walker_stop(&k.w, tc, steps);
                 return EV_LEAF;
@@ -431,7 +451,7 @@ CLSIM_INLINE float transmittance(const scene_t *S, float3 o, float3 d, float r, 
     if (!P->outward) {
         if (!walker_init(&w, o, d, 0.0f, r, P))
             return T;
-        const float gd = g_of(S->gtab, d.z);
+        const float gd = g_of(S, d.z);
         float od = 0.0f;
         while (walker_next(&w, P, S->index, S->boxes, S->pool, &ta, &tb, &e, steps)) {
             const float sig = e.x * gd + wood_sigma(S, w.row, e.y, d);
@@ -641,20 +661,32 @@ CLSIM_INLINE void photon(const scene_t *S, __global ulong *hist, __global ulong 
     acc[ST_SHADOW] += shadow;
 }
 
-/* Work item gid simulates photons pid0 + gid, pid0 + gid + stride, ... below pid0 + n.  Its
- * statistics are summed privately and added with one atomic per non-zero statistic when the
- * batch (pid % n_batches) changes or at the end: the host makes stride a multiple of n_batches
- * on CPUs (several photons per work item), so the atomics, which contend between cores there,
- * fall from one set per photon to one per work item.  Integer sums keep runs bit-identical
- * whatever the grouping and order. */
+/* Adds a work item's statistics acc of one batch to stats (one atomic per non-zero
+ * statistic) and clears them. */
+CLSIM_INLINE void flush_stats(__global ulong *stats, uint batch, ulong *acc)
+{
+    for (int j = 0; j < NSTAT; ++j) {
+        if (acc[j])
+            add_u64(stats + batch * NSTAT + j, acc[j]);
+        acc[j] = 0ul;
+    }
+}
+
+/* Work item gid simulates photons pid0 + gid, pid0 + gid + stride, ... below pid0 + n, stride
+ * the launch's global size.  Its statistics are summed privately and added with one atomic
+ * per non-zero statistic when the batch (pid % n_batches) changes or at the end: the host
+ * makes the global size a multiple of n_batches on CPUs (several photons per work item), so
+ * the atomics, which contend between cores there, fall from one set per photon to one per
+ * work item.  Integer sums keep runs bit-identical whatever the grouping and order. */
 __kernel void simulate(__global const params_t *P, __global const int *index,
-                       __global const int *boxes, __global const float2 *pool, __global const float *ppf,
+                       __global const int4 *boxes, __global const float2 *pool, __global const float *ppf,
                        __global const float *gtab, __global const float4 *wdir, __global ulong *hist, __global ulong *stats, __global float4 *trace,
-                       uint2 key, ulong pid0, uint n, uint stride)
+                       uint2 key, ulong pid0, uint n)
 {
     const uint gid = get_global_id(0);
     if (gid >= n)
         return;
+    const uint stride = (uint)get_global_size(0);
     const scene_t S = {P, index, boxes, pool, ppf, gtab, wdir};
     ulong acc[NSTAT] = {0};
     uint batch = (uint)((pid0 + gid) % (ulong)P->n_batches);
@@ -662,16 +694,10 @@ __kernel void simulate(__global const params_t *P, __global const int *index,
         const ulong pid = pid0 + i;
         const uint b = (uint)(pid % (ulong)P->n_batches);
         if (b != batch) {
-            for (int j = 0; j < NSTAT; ++j) {
-                if (acc[j])
-                    add_u64(stats + batch * NSTAT + j, acc[j]);
-                acc[j] = 0ul;
-            }
+            flush_stats(stats, batch, acc);
             batch = b;
         }
         photon(&S, hist, stats, trace, key, pid, batch, acc);
     }
-    for (int j = 0; j < NSTAT; ++j)
-        if (acc[j])
-            add_u64(stats + batch * NSTAT + j, acc[j]);
+    flush_stats(stats, batch, acc);
 }

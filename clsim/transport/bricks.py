@@ -51,7 +51,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from voxlidar.scene import Scene
 
-__all__ = ["BrickGrid", "build_bricks", "bricks_key", "extinction", "uniform_boxes", "wood_direction", "BRICK", "WOOD_P_MAX"]
+__all__ = ["BrickGrid", "build_bricks", "bricks_key", "extinction", "uniform_boxes", "uniform_records", "wood_direction",
+           "BRICK", "WOOD_P_MAX"]
 
 BRICK = 8
 WOOD_P_MAX = 1.0 - 1e-6
@@ -243,3 +244,30 @@ def uniform_boxes(pool: np.ndarray, wdir: np.ndarray | None = None, *, brick: in
                   | hi[:, 2] << 5 * s)
         out[a:z] = np.where(ok, packed, -1).astype(np.int32)
     return out
+
+
+def uniform_records(pool: np.ndarray, boxes: np.ndarray, *, brick: int = BRICK) -> np.ndarray:
+    """Per pool slot the kernel's record ``(box, LAD bits, sigma_wood bits, 0)`` (int32).
+
+    ``box`` is :func:`uniform_boxes`'s; for a uniform brick the box's value follows as the
+    bits of its two float32s (0 otherwise), so that the walker reads the box and its value
+    in one 16-byte load from a small array instead of a pool row, one per 4 KiB slot.
+
+    Examples
+    --------
+    >>> from clsim.validation.testscenes import homogeneous_layer
+    >>> g = build_bricks(homogeneous_layer(width=2.0, thickness=1.0, base_height=0.5, voxel_size=0.25))
+    >>> r = uniform_records(g.pool, g.boxes)
+    >>> r[:, 1:3].copy().view(np.float32).tolist(), bool(r[0, 0] == g.boxes[0])
+    ([[1.0, 0.0]], True)
+    """
+    s = brick.bit_length() - 1
+    b = np.asarray(boxes, dtype=np.int32)
+    rec = np.zeros((len(b), 4), dtype=np.int32)
+    rec[:, 0] = b
+    u = np.nonzero(b >= 0)[0]
+    m = brick - 1
+    lo = [(b[u] >> (k * s)) & m for k in range(3)]
+    rows = u * brick**3 + lo[0] + brick * (lo[1] + brick * lo[2])
+    rec[u, 1:3] = np.ascontiguousarray(pool[rows], dtype=np.float32).view(np.int32)
+    return rec

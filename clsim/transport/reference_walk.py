@@ -16,7 +16,7 @@ from voxlidar.scene import Scene
 
 from clsim.errors import InputError
 from clsim.transport.bricks import extinction, wood_direction
-from clsim.transport.reference_geometry import row_dot, wood_majorant, wood_normal, wood_parts
+from clsim.transport.reference_geometry import cosine_dir, row_dot, wood_majorant, wood_normal, wood_parts
 from clsim.transport.rng import uniforms
 from clsim.transport.setup import NG, NTAB, Mode, RunSetup
 
@@ -64,6 +64,7 @@ class SceneWalker:
         self.ground = float(sc.ground_z - sc.origin[2]) if sc.ground_z is not None else None
         self.cc = sc.crown_center - sc.origin[:2]
         self.outward = sc.leaf_azimuth == "outward"
+        self.spherical = bool(setup.p["leaf_avg"])  # spherical leaf angles, uniform azimuths
         self.ds = float(setup.p["ds"])
         self.exact = setup.mode is Mode.EXACT
         self.steps = 0
@@ -122,8 +123,8 @@ class SceneWalker:
         """Exact: delta tracking (flight) or ratio tracking (shadow).  Paper: fixed steps.
 
         With uniform leaf azimuths a flight's majorant is the extinction LAD G(d) + sigma_wood
-        and a leaf's normal is drawn after the collision, from p(n) |n . d| / G(d) by
-        rejection.  ``u_first`` replaces the first uniform of the free path (lattice points
+        and a leaf's normal is drawn after the collision, from p(n) |n . d| / G(d)
+        (:meth:`rejection_normals`).  ``u_first`` replaces the first uniform of the free path (lattice points
         of first flights).  Returns (event, t, normal) for flights, T for shadow rays."""
         if shadow and self.exact and not self.outward:
             return self.optical_depth_transmittance(o, d, t_lim)
@@ -271,11 +272,19 @@ class SceneWalker:
         return ev, tev, nrm
 
     def rejection_normals(self, nl, bb, sg, sl, leaf, ic, idx, x, d):
-        """Leaf normals at real leaf collisions ``leaf`` from p(n) |n . d| / G(d): the first
-        proposal is ``nl`` with acceptance uniform bb.y sig / sigma_leaf, then fresh blocks
-        (y: acceptance, z, w: the normal)."""
+        """Leaf normals at real leaf collisions ``leaf`` from p(n) |n . d| / G(d).
+
+        Spherical leaf angles (``self.spherical``, the run's ``leaf_avg``): the density is
+        |n . d| / pi on the upper hemisphere, the cosine law about -d folded onto it, drawn
+        directly from bb.z, bb.w (unfolded: the caller uses only the side facing -d, as the
+        kernel's ``leaf_normal_seen``).  Otherwise by rejection: the first proposal is ``nl``
+        with acceptance uniform bb.y sig / sigma_leaf, then fresh blocks (y: acceptance, z, w:
+        the normal)."""
         nl = nl.copy()
         j = np.nonzero(leaf)[0]
+        if self.spherical:
+            nl[j] = cosine_dir(-d[ic[j]], bb[j, 2], bb[j, 3])
+            return nl
         with np.errstate(divide="ignore", invalid="ignore"):
             u = bb[j, 1] * sg[j] / sl[j]
         pend = j[u >= np.abs(row_dot(nl[j], d[ic[j]]))]
@@ -288,6 +297,8 @@ class SceneWalker:
         return nl
 
     def g_of(self, mu):
+        if self.spherical:  # spherical leaf angles: G = 1/2 (the kernel's g_of)
+            return np.full(np.shape(mu), 0.5)
         s = np.minimum(np.abs(mu), 1.0) * (NG - 1)
         i = np.minimum(s.astype(np.int64), NG - 2)
         f = s - i

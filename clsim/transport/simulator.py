@@ -21,7 +21,7 @@ from voxlidar.scene import Scene
 from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe, device_report,
                               open_queue, short_reason)
 from voxlidar.errors import DeviceError as AnyDeviceError
-from clsim.transport.bricks import BRICK, BrickGrid, bricks_key, build_bricks
+from clsim.transport.bricks import BRICK, BrickGrid, bricks_key, build_bricks, uniform_records
 from clsim.errors import DeviceError, InputError
 from clsim.transport.rng import split_seed
 from clsim.sensor import Sensor
@@ -362,7 +362,8 @@ class Simulator:
             bufs = dict(
                 index=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g.index),
                 boxes=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                                hostbuf=g.boxes if len(g.boxes) else np.full(1, -1, np.int32)),
+                                hostbuf=uniform_records(g.pool, g.boxes, brick=g.brick) if len(g.boxes)
+                                else np.array([[-1, 0, 0, 0]], np.int32)),
                 pool=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(pool)),
                 ppf=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.ppf.astype(np.float32)),
                 gtab=cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=setup.gtab.astype(np.float32)),
@@ -437,7 +438,7 @@ class Simulator:
                 items = self._work_items(n, B)
                 kern(q, (items,), self.local_size, bufs["params"], bufs["index"], bufs["boxes"], bufs["pool"],
                      bufs["ppf"], bufs["gtab"], bufs["wdir"], hist_buf, stats_buf, trace_buf, key,
-                     np.uint64(start), np.uint32(n), np.uint32(items))
+                     np.uint64(start), np.uint32(n))
                 if bar is not None:
                     q.finish()
                     bar.update(n)
