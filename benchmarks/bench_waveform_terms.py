@@ -113,7 +113,7 @@ def main(argv=None):
              + f" Device: {sim.device_name}.", "",
              f"Default oak, sensor `ahab-chiroptera-i`, the four budget pulses; mesh reference against the "
              f"exact-LAD twin at {args.voxel * 100:g} cm (and the TLS pipeline's scene at the same size: two "
-             "simulated VZ-400 scans, registered, classified, voxelised), {args.photons:,} photons each, "
+             f"simulated VZ-400 scans, registered, classified, voxelised), {args.photons:,} photons each, "
              "3 orders. r: Pearson "
              "correlation of the waveforms; E: received energy, twin / mesh (total, from vegetation, from the "
              "ground; ± one standard error from the 16 batches).", "",

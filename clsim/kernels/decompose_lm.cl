@@ -318,6 +318,8 @@ CLSIM_INLINE void std_errors(const float *h, const float rss, const int n_eff,
         se_real v = (se_real)1.0 / d[p];
         for (int j = p + 1; j < NF; ++j) v += a[LIDX(j, p)] * a[LIDX(j, p)] / d[j];
         v *= sc[p] * sc[p] * s2;
+        if (v != v)  /* NaN (an inf or NaN in h): left at -1, NaN on the host, as NumPy's */
+            continue;
         /* (a variance beyond float range, of a parameter the data do not pin down:
          * BIG, a finite "no bound", as the host's float64 figure was finite) */
         const se_real root = v > (se_real)0.0 ? sqrt(v) : (se_real)0.0;

@@ -29,7 +29,8 @@ typedef struct {
     int n_batches;
     int n_trace;
     int hotspot;        /* 1: single-scattering returns retrace their free incoming path (T = 1) */
-    int leaf_avg;       /* 1: spherical leaf angles, uniform azimuths (next-event weight averaged) */
+    int leaf_avg;       /* 1: spherical leaf angles, uniform azimuths: the next-event weight averaged,
+                         * the leaf normal drawn directly, G = 1/2 */
     uint qmc;           /* random shift of the lattice of first free paths, from the seed */
 } params_t;
 

@@ -27,19 +27,6 @@ from voxlidar.versions import show_versions
 
 
 
-class _Position(argparse.Action):
-    """``--position X,Y,Z`` as the other comma-separated flags (:func:`voxlidar.cli.numbers`), or three
-    numbers apart (the older form)."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        xyz = numbers(3, what="X,Y,Z in metres", example="0,-20,1.7")
-        try:
-            value = xyz(values[0] if len(values) == 1 else ",".join(values) if len(values) == 3 else "")
-        except argparse.ArgumentTypeError:
-            parser.error(f"argument {option_string}: must be {xyz.__name__}; got {' '.join(values)!r}")
-        setattr(namespace, self.dest, value)
-
-
 #: picture formats of ``tlsvox view --screenshot`` (Open3D renders a bitmap)
 SCREENSHOT_FORMATS = ("png", "jpg", "jpeg")
 #: what ``tlsvox view`` reads: scans, and the point clouds and meshes Open3D reads
@@ -133,7 +120,8 @@ def _scene_items(path: Path, color: str):
         raise InputError(f"{path}: no voxel has {'wood' if color == 'wood' else 'leaves'} to show")
     title = (f"{path.name}: {int(sel.sum()):,} voxels of {scene.voxel_size * 100:g} cm, "
              f"leaf area {scene.total_leaf_area():,.1f} m²")
-    directional = int(np.count_nonzero(scene.wood_beta[sel] > 0)) if color == "wood" else 0
+    directional = (int(np.count_nonzero((scene.wood_beta[sel] > 0) | scene.wood_solid[sel])) if color == "wood"
+                   else 0)
     if directional:  # the colour is the amount; the bark's axis (wood_axis) would need glyphs
         title += f"; the bark directions of {directional:,} voxels (wood_axis) are not drawn"
     return [voxel_mesh(c[sel], scene.voxel_size, cols)], c[sel], (title, bar)
@@ -248,9 +236,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("tree", help="tree metadata JSON (or its PLY) written by `tlsvox tree`")
     p.add_argument("-o", "--output", required=True, help="output .las or .laz")
     p.add_argument("--preset", default="riegl-vz400", help="scanner preset name or TOML path")
-    p.add_argument("--position", nargs="+", action=_Position, default=(0.0, -20.0, 1.7), metavar="X,Y,Z",
+    p.add_argument("--position", type=numbers(3, what="X,Y,Z in metres", example="0,-20,1.7"),
+                   default=(0.0, -20.0, 1.7), metavar="X,Y,Z",
                    help="scanner position, metres (default 0,-20,1.7); a negative X takes '=': "
-                        "--position=-5,0,1.7; three numbers apart (--position 0 -20 1.7) are read too")
+                        "--position=-5,0,1.7")
     p.add_argument("--yaw", type=number(), default=0.0, help="scanner yaw, degrees")
     p.add_argument("--pitch", type=number(lo=-90, hi=90), default=0.0, help="scanner pitch (tilt), degrees")
     p.add_argument("--roll", type=number(lo=-90, hi=90), default=0.0, help="scanner roll (tilt), degrees")

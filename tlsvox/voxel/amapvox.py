@@ -206,6 +206,8 @@ def read_vox(path: "str | os.PathLike", *, pad_column: str = "PadBVTotal") -> Sc
     wood = col.get("wood", np.zeros(len(lad)))
     std = col.get("lad_std")
     keep = (lad > 0) | occluded | (wood > 0)
+    if "wood_solid" in col:  # a solid voxel is wood whatever its turbid amount
+        keep |= col["wood_solid"] > 0
     meta = header.get("meta", {})
     kw = {}
     if meta:

@@ -206,6 +206,8 @@ def test_device_standard_errors_float32_inverse(cl_device_for_fits):
     start = (np.tile([80.0, 25.0, 20.0], (200, 1)), np.tile([30.4, 59.5, 66.5], (200, 1)),
              np.tile([2.2, 3.3, 2.2], (200, 1)), np.full(200, 14.0))
     info = device_fitter(cl_device_for_fits).info
+    if "cl_khr_fp64" not in info.device.extensions:
+        pytest.skip(f"{info.device.name} has no double: both builds would be float32")
     got = {}
     for se_float in (False, True):
         bound = DeviceFitter(info, se_float=se_float).bind(y, use, None, noise)

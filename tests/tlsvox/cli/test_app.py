@@ -96,19 +96,27 @@ def test_wood_view_says_it_leaves_out_the_bark_directions(tmp_path):
 
 @pytest.mark.parametrize("given, expected", [
     ([], (0.0, -20.0, 1.7)), (["--position", "3,-8,1.5"], (3.0, -8.0, 1.5)),
-    (["--position=-5,0,1.7"], (-5.0, 0.0, 1.7)), (["--position", "0", "-8", "1.7"], (0.0, -8.0, 1.7))])
-def test_scan_position_takes_commas_and_the_older_three_numbers(given, expected):
+    (["--position=-5,0,1.7"], (-5.0, 0.0, 1.7))])
+def test_scan_position_takes_commas(given, expected):
     from tlsvox.cli.app import build_parser
 
     assert build_parser().parse_args(["scan", "t.json", "-o", "s.laz", *given]).position == expected
 
 
-@pytest.mark.parametrize("given", [["1,2"], ["1", "2"], ["1,2", "3"], ["0,0,1,4"], ["nan", "0", "1.7"]])
+def test_scan_position_before_the_tree_file():
+    """One token: ``--position`` does not swallow the positional TREE that follows it."""
+    from tlsvox.cli.app import build_parser
+
+    args = build_parser().parse_args(["scan", "--position", "0,-20,1.7", "t.json", "-o", "s.laz"])
+    assert args.position == (0.0, -20.0, 1.7) and args.tree == "t.json"
+
+
+@pytest.mark.parametrize("given", ["1,2", "1", "0,0,1,4", "nan,0,1.7", "1,2,x"])
 def test_scan_position_refuses_other_counts_in_one_line(given, capsys):
     from tlsvox.cli.app import build_parser
 
     with pytest.raises(SystemExit) as stop:
-        build_parser().parse_args(["scan", "t.json", "-o", "s.laz", "--position", *given])
+        build_parser().parse_args(["scan", "t.json", "-o", "s.laz", "--position", given])
     err = capsys.readouterr().err
     assert stop.value.code == 2 and err.count("\n") == 1
-    assert "--position: must be X,Y,Z in metres" in err and repr(" ".join(given)) in err
+    assert "--position: must be X,Y,Z in metres" in err and repr(given) in err
