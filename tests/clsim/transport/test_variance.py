@@ -130,9 +130,12 @@ def test_batch_errors_cover_the_spread_over_seeds(sim):
 
 def test_leaf_avg_weight_in_the_kernel_matches_the_oracle(sim):
     """The kernel's float32 leaf_avg_f (acos under fast math) against the float64 oracle:
-    the same photons give the same single-scattering energies within 5e-5 (float32 and the
-    runtimes' fast-math acos: 1.2e-5 on PoCL 3.0, 4e-7 on PoCL 3.1; far below the Monte
-    Carlo error of any run, while a wrong formula misses by per cent).  A few tallies land
+    the same photons give the same single-scattering energies within 1e-3.  The bound is
+    the OpenCL C specification's, not a runtime's: under -cl-fast-relaxed-math acos may be
+    off by 4096 ulp (4.9e-4 relative in float32).  Measured: 4e-7 on PoCL 3.1, 1.2e-5 on
+    PoCL 3.0, 1.6e-4 on Intel's CPU runtime 2026.2 (the same at 3,000 and 30,000 photons,
+    so a systematic rounding, not a photon taking another path).  All far below the Monte
+    Carlo error of any run, while a wrong formula misses by per cent.  A few tallies land
     in the neighbouring 0.25 ns bin where float32 and float64 round a bin edge apart, so
     energies, not bins, are compared."""
     from clsim.transport.reference import ReferenceSimulator
@@ -143,4 +146,4 @@ def test_leaf_avg_weight_in_the_kernel_matches_the_oracle(sim):
     b = ReferenceSimulator().run(scene, SENSOR, **kw)
     for kind in ("vegetation", "ground"):
         ea, eb = a.energy(kind=kind)[0], b.energy(kind=kind)[0]
-        assert abs(ea / eb - 1) < 5e-5, (kind, ea, eb)
+        assert abs(ea / eb - 1) < 1e-3, (kind, ea, eb)
