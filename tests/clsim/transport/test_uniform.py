@@ -106,6 +106,16 @@ def test_mixed_scene_has_every_kind_of_brick():
     assert {tuple(unpack(x)) for x in b[b >= 0]} == {(0, 0, 4, 7, 7, 7), (0, 0, 0, 7, 7, 3)}
 
 
+_WALKS = {}
+
+
+def _voxel_walk(sim):
+    """The voxel-by-voxel walk on ``sim``'s device, its program built once per device."""
+    if sim.info.key not in _WALKS:
+        _WALKS[sim.info.key] = Simulator(device=sim.info, features={"uniform": False})
+    return _WALKS[sim.info.key]
+
+
 @pytest.mark.parametrize("off_nadir", [0.0, 35.0])
 def test_segments_match_the_voxel_walk_and_the_oracle(off_nadir, sim):
     scene = mixed_scene()
@@ -113,7 +123,7 @@ def test_segments_match_the_voxel_walk_and_the_oracle(off_nadir, sim):
     kw = dict(max_order=3, target=(-1.9, -1.9))  # the beam enters the LAD-2.5 corner beside plain bricks
     n = 100_000
     a = sim.run(scene, sensor, photons=n, seed=71, **kw)
-    walk = Simulator(device=sim.info, features={"uniform": False})
+    walk = _voxel_walk(sim)
     b = walk.run(scene, sensor, photons=n, seed=71, **kw)
     # the segment replaces steps: fewer walk steps, the same voxels; without it one step per voxel
     assert a.stat("walk_steps")[0] < 0.9 * b.stat("walk_steps")[0]
@@ -171,7 +181,7 @@ def test_uniform_segments_count_the_voxels_the_walk_reaches(scene_kind, sim):
         scene = testscenes.set_optics(testscenes.homogeneous_layer(width=4.0, voxel_size=0.1,
                                                                    leaf_azimuth="outward"), 1064)
         kw = dict(max_order=3)
-    walk = Simulator(device=sim.info, features={"uniform": False})
+    walk = _voxel_walk(sim)
     sensor = SENSOR.replace(off_nadir_deg=25.0)
     for detect in ("nee", "analog"):
         a = sim.run(scene, sensor, photons=20_000, seed=12, detect=detect, **kw)
