@@ -338,6 +338,13 @@ class PlotScene(SharedBricks):
                 wood = -np.expm1(-0.5 * wood * h)
             self.notes.append(f"tree {name!r}: wood {scene.wood_kind} converted to {self.wood_kind}")
         keep = (scene.lad > 0) | (wood > 0)
+        dropped = [what for what, on in (
+            (f"{int(np.count_nonzero(scene.wood_solid[keep])):,} solid wood voxels",
+             np.any(scene.wood_solid[keep])),
+            ("its bark directions (wood_axis, wood_beta)", np.any(scene.wood_beta[keep] > 0))) if on]
+        if dropped:                                     # the plot holds one turbid wood value per voxel
+            self.notes.append(f"tree {name!r}: {' and '.join(dropped)} simulated as turbid, randomly oriented "
+                              "wood (a plot keeps one wood value per voxel; simulate the tree alone to keep them)")
         trunk = np.asarray(scene.crown_center if trunk_xy is None else trunk_xy, dtype=np.float64).reshape(-1)
         if trunk.shape != (2,) or not np.all(np.isfinite(trunk)):
             raise InputError(f"trunk_xy must be 2 finite numbers (metres), got {trunk_xy!r}")

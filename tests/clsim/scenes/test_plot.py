@@ -347,3 +347,21 @@ def test_clsim_simulate_reads_a_plot_file(plot, tmp_path, capsys, cl_device):
                                            target=(tab["x_m"][1], tab["y_m"][1]))
     with np.load(tmp_path / "wf.npz") as z:
         assert np.array_equal(z["waveform"], ref.waveform)
+
+
+def test_solid_and_directional_wood_are_named_in_the_notes(small_tree):
+    """A plot keeps one turbid wood value per voxel: a tree's solid wood and bark directions
+    are simulated as turbid wood, and the plot's notes say so."""
+    solid = Scene(origin=(0.0, 0.0, 0.0), voxel_size=H, shape=(4, 4, 6), ijk=[[1, 1, 1], [1, 1, 2], [2, 2, 4]],
+                  lad=[0.0, 0.0, 1.0], wood=[0.9, 0.9, 0.0], wood_solid=[True, False, False],
+                  wood_beta=[0.0, 0.8, 0.0], wood_axis=[[0, 0, 1]] * 3, leaf_angle=small_tree.leaf_angle,
+                  materials=small_tree.materials, ground_z=0.0)
+    p = PlotScene(20.0, voxel_size=H, ground_z=0.0)
+    p.add_tree(solid, 10.0, 10.0)
+    note = [n for n in p.notes if "turbid" in n]
+    assert len(note) == 1 and "1 solid wood voxels" in note[0] and "wood_axis" in note[0]
+    plain = Scene(origin=(0.0, 0.0, 0.0), voxel_size=H, shape=(4, 4, 6), ijk=[[2, 2, 4]], lad=[1.0],
+                  leaf_angle=small_tree.leaf_angle, materials=small_tree.materials, ground_z=0.0)
+    q = PlotScene(20.0, voxel_size=H, ground_z=0.0)
+    q.add_tree(plain, 10.0, 10.0)
+    assert not any("turbid" in n for n in q.notes)
