@@ -138,7 +138,8 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
         if model and with_allocator(plan.run - plan.undetected) <= limit:
             fix += "undetected='ignore', "
         factor = (ahead / max(limit, 1)) ** (1 / 3)
-        raise InputError(f"{plan.sizes()}; the {layout.value} layout needs {format_bytes(ahead)} but only "
+        raise InputError(f"{plan.sizes()}; tracing and estimating with the {layout.value} layout need "
+                         f"{format_bytes(ahead)} but only "
                          f"{format_bytes(limit)} is available; use {fix}a voxel_size of at least "
                          f"{grid.voxel_size * factor:.3g} m, or a smaller region (bounds=...)")
     return plan

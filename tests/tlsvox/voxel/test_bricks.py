@@ -169,7 +169,7 @@ def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
     assert "hold echoes" in plan.describe()
     roomy = with_allocator(plan.beams + plan.echoes + plan.sparse) + 1024  # the sparse run fits, the dense not
     assert memory_plan(grid, beams, tracer, max_bytes=roomy).layout is Layout.SPARSE
-    with pytest.raises(InputError, match=r"dense layout needs .* but only .* is available; use layout='sparse'"):
+    with pytest.raises(InputError, match=r"tracing and estimating with the dense layout need .* but only .* is available; use layout='sparse'"):
         memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
     with pytest.raises(InputError, match="voxel_size of at least"):
         memory_plan(grid, beams, tracer, max_bytes=1024)
@@ -193,7 +193,7 @@ def test_memory_plan_counts_the_detection_model(box_scans, tracer):  # noqa: F81
     assert model.undetected >= 2 * plain.beams + with_tail * ECHOES_PER_TAIL * 16 + grid.n_voxels * 8
     assert model.run == plain.run + model.undetected
     assert "undetected='model'" in model.describe() and "undetected" not in plain.describe()
-    with pytest.raises(InputError, match="dense layout needs"):
+    with pytest.raises(InputError, match="with the dense layout need "):
         memory_plan(grid, beams, tracer, layout="dense", undetected="model", max_bytes=plain.need + 1024)
 
 
