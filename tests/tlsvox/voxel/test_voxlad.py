@@ -93,7 +93,7 @@ def test_mismatched_scans_are_errors(box_scans):
 
 
 def test_grid_too_large_reports_size(box_scans):
-    with pytest.raises(InputError, match=r"needs [0-9.]+ [KMG]iB .* only 1.0 KiB"):
+    with pytest.raises(InputError, match=r"need [0-9.]+ [KMG]iB .* only 1.0 KiB"):
         voxelize(box_scans, voxel_size=0.5, ground=None, max_bytes=1024, progress=False)
 
 
