@@ -125,7 +125,8 @@ def test_cli_voxelize_qsm_fills_the_scanned_trunk(tmp_path, capsys):
     axis_xy, r = np.array([3.0, 0.0]), 0.2
     phi = rng.uniform(0.55 * np.pi, 1.45 * np.pi, 20000)  # the side facing a scanner at the origin
     z = rng.uniform(0.5, 2.5, len(phi))
-    pts = np.column_stack([axis_xy[0] + r * np.cos(phi), r * np.sin(phi), z - 1.5]) + rng.normal(0, 0.002, (len(phi), 3))
+    pts = np.column_stack([axis_xy[0] + r * np.cos(phi), r * np.sin(phi), z - 1.5])  # scanner frame: 1.5 m up
+    pts += rng.normal(0, 0.002, pts.shape)
     miss = rng.normal(size=(2000, 3))
     miss[:, 2] = np.abs(miss[:, 2]) + 0.5
     d = np.vstack([pts / np.linalg.norm(pts, axis=1, keepdims=True), miss / np.linalg.norm(miss, axis=1,
