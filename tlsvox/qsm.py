@@ -362,7 +362,7 @@ def apply_cylinders(scene, model: CylinderModel, wood_points=None, *, min_radius
     import dataclasses
 
     from tlsvox.truth.meshtruth import normal_moments_per_voxel
-    from tlsvox.voxel.solid import cap_share, cylinder_cells, cylinder_surface, dilate
+    from tlsvox.voxel.solid import cap_share, cylinder_cells, cylinder_surface
 
     h = float(scene.voxel_size)
     shape = tuple(int(v) for v in scene.shape)
@@ -440,10 +440,9 @@ def apply_cylinders(scene, model: CylinderModel, wood_points=None, *, min_radius
         expl = CylinderModel(cyl, model.support[use], model.sigma[use], model.coverage_deg[use],
                              model.chain[use]).explained(wp[ok])
         info["wood_echoes_explained"] = round(float(expl.mean()), 4) if len(expl) else 0.0
-        near = dilate(flat, shape).reshape(-1)
-        near[flat] = False
         allk = np.ravel_multi_index(ijk.T, shape)
-        cand = np.flatnonzero(near[allk] & ~wood_solid & (wood > 0))
+        cand = np.flatnonzero(~wood_solid & (wood > 0))
+        cand = cand[_beside(ijk[cand], flat, shape)]
         if len(cand):
             uk, inv = np.unique(wflat, return_inverse=True)
             tot = np.bincount(inv, minlength=len(uk))
@@ -462,6 +461,26 @@ def apply_cylinders(scene, model: CylinderModel, wood_points=None, *, min_radius
                               wood_solid=wood_solid, wood_cap=wood_cap, occluded=occluded, lad_std=lad_std,
                               meta=meta)
     return out, info
+
+
+def _beside(ijk, flat, shape) -> np.ndarray:
+    """(K,) bool: which voxels ``ijk`` have one of their 26 neighbours among ``flat`` (sorted flat indices).
+
+    Looked up per voxel, so nothing of the grid's size is made (a 2 cm grid has 10^8 voxels).
+    """
+    out = np.zeros(len(ijk), bool)
+    if not len(flat) or not len(ijk):
+        return out
+    shape_a = np.asarray(shape)
+    for off in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
+        if not off.any():
+            continue
+        nb = ijk + off
+        ok = np.all((nb >= 0) & (nb < shape_a), axis=1)
+        keys = np.ravel_multi_index(nb[ok].T, tuple(shape))
+        pos = np.minimum(np.searchsorted(flat, keys), len(flat) - 1)
+        out[np.flatnonzero(ok)[flat[pos] == keys]] = True
+    return out
 
 
 def wood_points(scans, classes=None, *, class_codes: str = "pointclass") -> np.ndarray:
