@@ -357,7 +357,12 @@ def apply_cylinders(scene, model: CylinderModel, wood_points=None, *, min_radius
     Returns
     -------
     (Scene, dict)
-        The new scene (the input is not changed) and what was done.
+        The new scene (the input is not changed; ``meta["qsm"]`` holds the
+        model's summary and the dict) and what was done: ``cylinders_filling``
+        (those of at least ``min_radius``), ``solid_voxels``, ``new_voxels``
+        (solid voxels the scene did not store before), ``turbid_scaled``
+        (voxels whose turbid wood was scaled down), ``wood_echoes_explained``
+        (share of ``wood_points`` on or in a cylinder).
     """
     import dataclasses
 
@@ -371,7 +376,7 @@ def apply_cylinders(scene, model: CylinderModel, wood_points=None, *, min_radius
     min_radius = 0.5 * h if min_radius is None else float(min_radius)
     use = cyl[:, 6] >= min_radius
     cyl = cyl[use]
-    info = {"cylinders": int(len(cyl)), "solid_voxels": 0, "new_voxels": 0, "turbid_scaled": 0,
+    info = {"cylinders_filling": int(len(cyl)), "solid_voxels": 0, "new_voxels": 0, "turbid_scaled": 0,
             "wood_echoes_explained": None}
     if not len(cyl):
         return scene, info
