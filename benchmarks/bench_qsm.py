@@ -141,8 +141,8 @@ def main(argv=None):
              "Each fitted piece is matched to the true cylinder nearest its midpoint. The mesh's cylinders "
              "are octagonal prisms: their faces lie between 0.924 r and r, and a circle fitted to them has "
              "radius 0.949 r. Offset: the piece's midpoint from the true axis; angle: between the axes; "
-             "length: the pieces' total length over the true cylinders' (pieces overlap, and a chain's "
-             "top runs on along its axis).", "",
+             "axis inside: the share of the true axes that lies inside a fitted cylinder (the rest stays "
+             "turbid wood: occlusion gaps, forks, pieces too poorly supported to keep).", "",
              "| true cylinders | count | r | pieces | fitted r, m | offset, mm (median / max) | "
              "angle, deg (median / max) | axis inside |", "|---|---:|---:|---:|---|---|---|---:|"]
     for name, count, r, length, k, rr, off, ang, cov in fit:
