@@ -340,7 +340,8 @@ def report(d: dict, out: Path, png: Path) -> None:
     lines += ["## 1. Voxel size, scene source and hot spot", "",
               f"{d['n_vox']:,} photons per run. `scene s`: building the voxel scene, once per size. Exact LAD = "
               "`tree.truth_scene` (the mesh's leaf and bark area per voxel); TLS pipeline = "
-              "`scene_from_scans` = register + classify + voxelise/VoxLAD (the three parts in brackets; the two "
+              "`scene_from_scans` = register + classify + voxelise/VoxLAD [+ cylinders fitted to the wood echoes "
+              "filling solid wood, `tlsvox.qsm`, where the run had it] (the parts in brackets; the two "
               f"simulated scans, {d['scan_s']:.0f} s, are not counted). `sim s`: one waveform simulation.", "",
               "| scene | voxel | hot spot | voxels | scene s | sim s | NRMSE | 1 - r | E ratio |",
               "|---|---:|---|---:|---:|---:|---|---|---|"]
@@ -348,7 +349,8 @@ def report(d: dict, out: Path, png: Path) -> None:
         parts = ""
         if "scene_parts" in r:
             sp = r["scene_parts"]
-            parts = f" ({sp.get('register', 0):.0f} + {sp.get('classify', 0):.0f} + {sp.get('voxelize', 0):.0f})"
+            parts = f" ({sp.get('register', 0):.0f} + {sp.get('classify', 0):.0f} + {sp.get('voxelize', 0):.0f}"
+            parts += f" + {sp['qsm']:.0f})" if "qsm" in sp else ")"
         lines.append(f"| {r['source']} | {r['h']:g} m | {'on' if r['hot'] else 'off'} | {r['voxels']:,} | "
                      f"{r['scene_s']:.1f}{parts} | {per(r, 'time')} | {per(r, 'nrmse')} | {per(r, 'one_r')} | "
                      f"{per(r, 'total')} |")

@@ -71,8 +71,9 @@ def main(argv=None):
 
         scans = [simulate_scan(tree, pose=pp, seed=i, scan_id=i + 1, name=f"scan{i + 1}", progress=False)
                  for i, pp in enumerate(paper_scan_poses(tree))]
-        tls = scene_from_scans(scans, voxel_size=args.voxel, progress=False).scene
-        tls_wood = tls.wood.copy()
+        tls_run = scene_from_scans(scans, voxel_size=args.voxel, progress=False)
+        tls, tls_turbid = tls_run.scene, tls_run.voxelized.scene  # solid wood from fitted cylinders; without them
+        tls_wood = tls_turbid.wood.copy()
     rows = []
     # (mesh's cylinders, twin's wood, mesh tree, twin, hot spot variants)
     models = [("capped", "solid surface, bark beside dropped", tree, twin, (True, False)),
@@ -89,9 +90,11 @@ def main(argv=None):
                 pairs = [("no bark", "no wood", leaves, leaves.truth_scene(args.voxel), (True, False))]
                 if tls is not None:
                     pairs.append(("no bark", "TLS pipeline, wood removed",  leaves,
-                                  dataclasses.replace(tls, wood=np.zeros_like(tls_wood)), (True,)))
+                                  dataclasses.replace(tls_turbid, wood=np.zeros_like(tls_wood)), (True,)))
             else:
-                pairs = models + ([("capped", "TLS pipeline", tree, tls, (True,))] if tls is not None else [])
+                pairs = models + ([("capped", "TLS pipeline (fitted cylinders)", tree, tls, (True,)),
+                                   ("capped", "TLS pipeline, turbid wood (qsm=False)", tree, tls_turbid, (True,))]
+                                  if tls is not None else [])
             refs = {}
             for mesh_name, wood_name, t, scene, hots in pairs:
                 if mesh_name not in refs:
@@ -139,10 +142,12 @@ def main(argv=None):
               "'isotropic bark' gives the bark around the core random facets instead of each voxel's bark "
               "axis and anisotropy. (4) Hollow wood ('open tubes / hollow'): the twin as it was until 2026-11, "
               "a shell of turbid bark around empty voxels, against a mesh of open tubes.", "",
-              "'TLS pipeline': the scene estimated from the scans, whose wood is the stretched count of wood "
-              "echoes per voxel (`count_stretch`): turbid, randomly oriented facets, no solid core (the scans "
-              "see a trunk's surface, not its inside); its rows against the exact twin's give the estimation "
-              "term, leaves and wood apart.", ""]
+              "'TLS pipeline (fitted cylinders)': the scene estimated from the scans, its trunk and main "
+              "branches solid wood filled from cylinders fitted to the wood echoes (`tlsvox.qsm`, the "
+              "pipeline's default since 2026-11-23), the other wood echoes the stretched count per voxel "
+              "(`count_stretch`); 'turbid wood (qsm=False)': all of its wood that count, turbid, randomly "
+              "oriented facets, no solid core (the scans see a trunk's surface, not its inside). Its rows "
+              "against the exact twin's give the estimation term, leaves and wood apart.", ""]
     write_page(args.out, lines)
 
 

@@ -1,7 +1,8 @@
 """The whole first half of the paper in one call: scans -> voxel scene.
 
 register (targets, else FPFH + ICP) -> classify (leaf / wood / ground / noise)
--> beam tracing and LAD estimation (:func:`tlsvox.voxel.voxlad`) -> Scene.
+-> beam tracing and LAD estimation (:func:`tlsvox.voxel.voxlad`) -> cylinders
+fitted to the wood echoes fill solid wood voxels (:mod:`tlsvox.qsm`) -> Scene.
 
 Georeferencing: registration puts every scan in the reference scan's frame.
 To place the scene in the world (the airborne frame) the reference scan needs
@@ -32,19 +33,24 @@ class PipelineResult:
     classifications: list
     voxelized: object
     timings: dict = field(default_factory=dict)
+    cylinders: object = None  #: the tlsvox.qsm.CylinderModel fitted (None with qsm=False)
 
     def summary(self) -> dict:
         reg = [r.to_dict() if r is not None else None for r in self.registration]
         for r in reg:
             if r is not None:
                 r.pop("stages", None)
-        return {"registration": reg, "classification": [c.summary() for c in self.classifications],
-                "timings_s": self.timings}
+        doc = {"registration": reg, "classification": [c.summary() for c in self.classifications],
+               "timings_s": self.timings}
+        if self.cylinders is not None:
+            doc["qsm"] = (self.scene.meta or {}).get("qsm", self.cylinders.summary())
+        return doc
 
 
 def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle", leaf_angle="uniform",
                      leaf_azimuth: str = "outward", refine: bool = True, georeference: str = "true",
-                     register_kwargs=None, voxelize_kwargs=None, progress: bool = True) -> PipelineResult:
+                     register_kwargs=None, voxelize_kwargs=None, qsm: bool = True, qsm_kwargs=None,
+                     progress: bool = True) -> PipelineResult:
     """Register, classify and voxelise a set of scans of one tree.
 
     Parameters
@@ -62,6 +68,13 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
         (simulated scans); ``none``: the scene stays in the first scan's frame.
     register_kwargs, voxelize_kwargs : dict, optional
         Passed to :func:`tlsvox.register.register_scans` and :func:`tlsvox.voxel.voxlad`.
+    qsm : bool
+        Fit cylinders to the wood-classified echoes (:func:`tlsvox.qsm.fit_cylinders`)
+        and fill solid wood voxels from them (:func:`tlsvox.qsm.apply_cylinders`);
+        wood echoes no cylinder explains stay turbid wood.  Default on
+        (docs/voxelize.md, "Solid wood from fitted cylinders", measures it).
+    qsm_kwargs : dict, optional
+        Passed to :func:`tlsvox.qsm.fit_cylinders`.
 
     Returns
     -------
@@ -94,5 +107,14 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
                    leaf_angle=leaf_angle, leaf_azimuth=leaf_azimuth, estimator=estimator, progress=progress,
                    **(voxelize_kwargs or {}))
     timings["voxelize"] = time.perf_counter() - t0
-    return PipelineResult(scene=vox.scene, registration=registration, classifications=classes, voxelized=vox,
-                          timings=timings)
+    scene, model = vox.scene, None
+    if qsm:
+        from tlsvox.qsm import apply_cylinders, fit_cylinders, wood_points
+
+        t0 = time.perf_counter()
+        wood = wood_points(scans, [c.labels for c in classes], class_codes="pointclass")
+        model = fit_cylinders(wood, **(qsm_kwargs or {}))
+        scene, _ = apply_cylinders(scene, model, wood)
+        timings["qsm"] = time.perf_counter() - t0
+    return PipelineResult(scene=scene, registration=registration, classifications=classes, voxelized=vox,
+                          timings=timings, cylinders=model)

@@ -23,11 +23,16 @@ def tree_and_scans():
     return tree, scans
 
 
-def test_pipeline_registers_georeferences_and_voxelises(tree_and_scans):
+@pytest.fixture(scope="module")
+def pipeline_result(tree_and_scans):
+    return scene_from_scans(tree_and_scans[1], voxel_size=0.2, progress=False)
+
+
+def test_pipeline_registers_georeferences_and_voxelises(tree_and_scans, pipeline_result):
     from tlsvox.voxel.voxlad import voxelize
 
     tree, scans = tree_and_scans
-    res = scene_from_scans(scans, voxel_size=0.2, progress=False)
+    res = pipeline_result
     # registration: the second scan's pose against its true pose (known transform);
     # the reference scan takes its true pose (georeference="true")
     assert np.array_equal(scans[0].pose, scans[0].pose_true)
@@ -42,9 +47,47 @@ def test_pipeline_registers_georeferences_and_voxelises(tree_and_scans):
                       class_codes="pointclass", leaf_angle="uniform", leaf_azimuth="outward", estimator="bcmle",
                       progress=False)
     assert np.array_equal(direct.lad.lad, res.voxelized.lad.lad)
-    assert set(res.timings) == {"register", "classify", "voxelize"}
+    assert set(res.timings) == {"register", "classify", "voxelize", "qsm"}
     summary = res.summary()
     assert len(summary["registration"]) == 2 and len(summary["classification"]) == 2
+
+
+def test_pipeline_fits_the_trunk_and_fills_it_solid(tree_and_scans, pipeline_result):
+    # the trunk's fitted cylinders against the tree's own: the mesh's trunk is an octagonal prism, so its
+    # surface lies between the inscribed radius r cos(22.5 deg) and r; a fit to it must too (range noise and
+    # registration error, a few mm, average out over thousands of echoes), its axis within that band's
+    # width (r (1 - cos 22.5 deg) = 1.1 cm here) of the true axis, along it within 2 degrees
+    from tlsvox.voxel.solid import cylinder_cells
+
+    tree, scans = tree_and_scans
+    res = pipeline_result
+    true = tree.cylinders[0]  # the trunk, 0 .. crown_base, upright
+    r, top = true[6], true[5]
+    cyl = res.cylinders.cylinders
+    mid = 0.5 * (cyl[:, :3] + cyl[:, 3:6])
+    trunk = (mid[:, 2] < top - 0.3) & (np.hypot(mid[:, 0], mid[:, 1]) < r)
+    assert trunk.sum() >= 2
+    band = r * (1 - np.cos(np.pi / 8))
+    assert np.all((cyl[trunk, 6] > r - band) & (cyl[trunk, 6] <= r)), cyl[trunk, 6]
+    for c in cyl[trunk]:
+        u = (c[3:6] - c[:3]) / np.linalg.norm(c[3:6] - c[:3])
+        assert np.degrees(np.arccos(abs(u[2]))) < 2.0
+        assert np.hypot(*mid[trunk][0, :2]) < band
+    assert cyl[trunk][:, [2, 5]].min() < 0.3 and cyl[trunk][:, [2, 5]].max() > top - 0.3
+    # the scene's solid voxels hold the fitted cylinders' cells, and the scene without them is the turbid one
+    sc = res.scene
+    assert sc.wood_solid.sum() == res.scene.meta["qsm"]["solid_voxels"] > 0
+    flat, _, _ = cylinder_cells(cyl[cyl[:, 6] >= 0.1], origin=sc.origin, voxel_size=0.2, shape=sc.shape)
+    assert np.array_equal(np.sort(np.ravel_multi_index(sc.ijk[sc.wood_solid].T, sc.shape)), flat)
+    assert not np.any(res.voxelized.scene.wood_solid)
+
+
+@pytest.mark.slow
+def test_pipeline_without_qsm_keeps_the_turbid_wood(tree_and_scans, pipeline_result):
+    plain = scene_from_scans(tree_and_scans[1], voxel_size=0.2, progress=False, qsm=False)
+    assert plain.cylinders is None and "qsm" not in plain.timings
+    assert not np.any(plain.scene.wood_solid)
+    assert np.array_equal(plain.scene.wood, pipeline_result.voxelized.scene.wood)
 
 
 def test_pipeline_refuses_what_it_cannot_do(tree_and_scans):

@@ -104,6 +104,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        help="LAD estimator (default bcmle, Pimont et al. 2018)")
     model.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
                        help="wood model (default count_stretch, the paper)")
+    model.add_argument("--qsm", action="store_true",
+                       help="fit cylinders to the wood echoes (classified scans, or truth material) and fill solid "
+                            "wood voxels from them; wood echoes no cylinder explains stay turbid wood "
+                            "(docs/voxelize.md, solid wood from fitted cylinders; tlsvox.pipeline does it by default)")
     model.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
                        help="occluded voxels: leave at 0, fill with their height layer's mean, or with the mean "
                             "of the nearest seen crown voxels (neighbourhood; dense layout)")
@@ -254,6 +258,15 @@ def run(args) -> int:
         measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
         leaf_angle = measured.leaf_angle
     res = voxelize(scans, leaf_angle=leaf_angle, **options)
+    qsm = None
+    if args.qsm:
+        from tlsvox.qsm import apply_cylinders, fit_cylinders, wood_points
+
+        wood = wood_points(scans)
+        if not len(wood):
+            res.scene.meta["warnings"].append("--qsm: the scans have no wood echoes (classify them with tlsvox "
+                                              "classify); no cylinders were fitted")
+        res.scene, qsm = apply_cylinders(res.scene, fit_cylinders(wood), wood)
     for w in res.scene.meta["warnings"]:
         print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
     if args.strict and res.scene.meta["warnings"]:
@@ -280,6 +293,7 @@ def run(args) -> int:
                    "estimator": s.meta["estimator"], "echo_weights": s.meta["echo_weights"],
                    "undetected": {k: v for k, v in s.meta["undetected"].items() if k != "models"},
                    "flags": s.meta["flags"], "beams": s.meta["beams"],
+                   **({} if qsm is None else {"qsm": s.meta.get("qsm", qsm)}),
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
     return 0

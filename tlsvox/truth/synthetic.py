@@ -32,6 +32,7 @@ from voxlidar.leafangle import LeafAngle, LeafAzimuth, sample_leaf_normals
 from voxlidar.materials import Material
 from tlsvox.truth._mesh import cylinders_mesh, leaf_mesh, orthonormal, polygon_area_factor, segment_distance
 from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
+from tlsvox.voxel.solid import cap_share, cylinder_cells, dilate
 
 __all__ = ["TreeParams", "SyntheticTree", "make_tree", "make_leaf_slab", "make_wall", "load_tree"]
 
@@ -223,34 +224,7 @@ class SyntheticTree:
 
     def _solid_cells(self, origin, voxel_size, shape):
         """:meth:`solid_wood_voxels` and the row in ``cylinders`` of each voxel's cylinder."""
-        origin = np.asarray(origin, dtype=np.float64)
-        shape = tuple(int(v) for v in shape)
-        a, b, r = self.cylinders[:, :3], self.cylinders[:, 3:6], self.cylinders[:, 6]
-        length = np.linalg.norm(b - a, axis=1)
-        axes = (b - a) / np.where(length > 0, length, 1.0)[:, None]
-        axes *= np.where(axes[:, 2] < 0, -1.0, 1.0)[:, None]
-        flats, owner = [], []
-        for i in np.flatnonzero((length > 0) & (r > 0)):
-            lo = np.maximum(np.floor((np.minimum(a[i], b[i]) - r[i] - origin) / voxel_size).astype(int), 0)
-            hi = np.minimum(np.floor((np.maximum(a[i], b[i]) + r[i] - origin) / voxel_size).astype(int),
-                            np.array(shape) - 1)
-            if np.any(hi < lo):
-                continue
-            g = np.stack(np.meshgrid(*[np.arange(lo[k], hi[k] + 1) for k in range(3)], indexing="ij"),
-                         -1).reshape(-1, 3)
-            x = origin + (g + 0.5) * voxel_size - a[i]
-            u = (b[i] - a[i]) / length[i]
-            t = x @ u  # along the axis from a, m
-            radial = np.linalg.norm(x - t[:, None] * u, axis=1)
-            inside = (t >= 0) & (t <= length[i]) & (radial < r[i])  # flat ends, as the mesh's caps
-            flats.append(np.ravel_multi_index(g[inside].T, shape))
-            owner.append(np.full(int(inside.sum()), i))
-        if not flats:
-            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64)
-        # np.unique keeps each voxel's first occurrence: reversed, that is the last cylinder listed
-        flat, first = np.unique(np.concatenate(flats)[::-1], return_index=True)
-        own = np.concatenate(owner)[::-1][first]
-        return flat.astype(np.int64), axes[own], own.astype(np.int64)
+        return cylinder_cells(self.cylinders, origin=origin, voxel_size=voxel_size, shape=shape)
 
     def truth_scene(self, voxel_size: float = 0.2, *, wavelength_nm=None, wood_model: str = "directional",
                     solid_wood: bool = True, core_bark: bool = False):
@@ -311,7 +285,7 @@ class SyntheticTree:
         # from its core, stay turbid bark
         cored = _bark_owner(bark_tris, self.cylinders)
         cored = np.isin(cored, np.unique(solid_owner)) & (cored >= 0) & (not core_bark)
-        near_core = _dilate(solid_flat, shape).reshape(-1)
+        near_core = dilate(solid_flat, shape).reshape(-1)
         # area and normal moments per voxel of the other bark and of the cored cylinders' bark
         # (disjoint sets: together, what one pass over all the bark would give)
         fo, ao, mo = normal_moments_per_voxel(bark_tris[~cored], **kw)
@@ -357,7 +331,7 @@ class SyntheticTree:
             wood_solid = np.zeros(len(ijk), bool)
             wood_solid[solid] = True
             wood_cap = np.zeros(len(ijk))
-            wood_cap[solid] = _cap_share(solid_flat, solid_axis, flat, area, mom, shape)
+            wood_cap[solid] = cap_share(solid_flat, solid_axis, flat, area, mom, shape)
         else:
             wood_solid = wood_cap = None
         return Scene(origin=origin, voxel_size=voxel_size, shape=shape, ijk=ijk, lad=lad, wood=wood,
@@ -469,46 +443,6 @@ def _bark_owner(tris, cylinders, tol: float = 1e-6) -> np.ndarray:
         ok = off < tol
         owner[start:start + len(t)] = np.where(ok.any(axis=1), ok.argmax(axis=1), -1)
     return owner
-
-
-def _dilate(cells, shape) -> np.ndarray:
-    """Dense (nx, ny, nz) bool mask of ``cells`` (flat indices) and their 26 neighbours."""
-    mask = np.zeros(tuple(shape), bool)
-    if not len(cells):
-        return mask
-    ijk = np.stack(np.unravel_index(cells, tuple(shape)), axis=1)
-    for off in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
-        nb = ijk + off
-        nb = nb[np.all((nb >= 0) & (nb < np.asarray(shape)), axis=1)]
-        mask[tuple(nb.T)] = True
-    return mask
-
-
-def _cap_share(cells, axis, flat, area, moment, shape) -> np.ndarray:
-    """Share of the bark around each of ``cells`` on end caps of a cylinder about ``axis``.
-
-    The bark of the cell and its 26 neighbours (``flat``, ``area``, ``moment``
-    from :func:`tlsvox.truth.meshtruth.normal_moments_per_voxel`): ``a^T M a / A``,
-    the area-weighted mean of ``(n . a)^2``, which is 1 on an end cap and 0 on
-    the side.  A cell with no bark around it (deep inside a thick trunk) gets 0.
-    """
-    shape = np.asarray(shape, dtype=np.int64)
-    ijk = np.stack(np.unravel_index(cells, tuple(shape)), axis=1)
-    tot_a = np.zeros(len(cells))
-    tot_m = np.zeros((len(cells), 3, 3))
-    for off in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
-        nb = ijk + off
-        inside = np.all((nb >= 0) & (nb < shape), axis=1)
-        keys = np.ravel_multi_index(nb[inside].T, tuple(shape))
-        pos = np.minimum(np.searchsorted(flat, keys), max(len(flat) - 1, 0))
-        hit = np.zeros(len(cells), bool)
-        if len(flat):
-            hit[inside] = flat[pos] == keys
-        rows = pos[hit[inside]]
-        tot_a[hit] += area[rows]
-        tot_m[hit] += moment[rows]
-    share = np.einsum("ki,kij,kj->k", axis, tot_m, axis) / np.maximum(tot_a, 1e-300)
-    return np.clip(np.where(tot_a > 0, share, 0.0), 0.0, 1.0)
 
 
 def _branches(p: TreeParams, rng: np.random.Generator):
