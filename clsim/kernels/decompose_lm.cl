@@ -41,8 +41,6 @@ typedef float se_real;
 
 /* Sigmas beyond which an echo is left out of a block of samples (exp(-32) = 1.3e-14). */
 #define REACH 8.0f
-/* Index of (p, c), c >= p, in the packed upper triangle of an NF x NF matrix. */
-#define HIDX(p, c) ((p) * (2 * NF - (p) - 1) / 2 + (c))
 
 CLSIM_INLINE float hsum8(const float8 v)
 {
@@ -398,10 +396,6 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
             ratio = fast_max(ratio, fast_abs(step[2 * K + k]) / (0.5f * s + 0.5f));
         }
         for (int p = 0; p < NF; ++p) step[p] /= ratio;
-        for (int p = 0; p < NP; ++p) qt[p] = q[p] + (p < NF ? step[p] : 0.0f);
-        for (int k = 0; k < K; ++k)
-            qt[2 * K + k] = clamp(fast_abs(qt[2 * K + k]), 0.2f, (float)n);
-        const float ct = evaluate(y, fl, b0, b1, qt, 1, ht, gt);
         /* predicted decrease of the RSS: -2 g.d - d.H.d */
         float pred = 0.0f;
         for (int p = 0; p < NF; ++p) {
@@ -409,6 +403,17 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
             for (int c2 = 0; c2 < NF; ++c2) hd += h[p * NF + c2] * step[c2];
             pred -= step[p] * (2.0f * g[p] + hd);
         }
+        /* converged: at the start or after an accepted step (nu back at 2), a step the
+         * trust region leaves whole would lower the RSS by less than the gain that
+         * stops the fit; it is not taken (nor counted) */
+        if (nu == 2.0f && ratio <= 1.0f && pred <= fast_max(tol * cost, enough_noise)) {
+            --it;
+            break;
+        }
+        for (int p = 0; p < NP; ++p) qt[p] = q[p] + (p < NF ? step[p] : 0.0f);
+        for (int k = 0; k < K; ++k)
+            qt[2 * K + k] = clamp(fast_abs(qt[2 * K + k]), 0.2f, (float)n);
+        const float ct = evaluate(y, fl, b0, b1, qt, 1, ht, gt);
         if (ct <= cost && ct < BIG) {
             const float gain = cost - ct;
             const float rho = pred > 0.0f ? clamp(gain / pred, 0.0f, 1.0f) : 0.0f;

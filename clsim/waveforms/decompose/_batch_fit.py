@@ -8,7 +8,10 @@ keeps its own damping ``lambda`` (Nielsen 1999: after an accepted step
 multiplied by ``max(1/3, 1 - (2 rho - 1)^3)``, ``rho`` the ratio of actual to
 predicted decrease; after a rejected one by ``nu``, which doubles while steps
 keep failing) and leaves the active set when an
-accepted step lowers its RSS by less than ``tol`` relative. Censored
+accepted step lowers its RSS by less than ``tol`` relative (or ``0.01 noise^2``),
+or when, at the start or after an accepted step, the next step (whole, inside the
+trust region) is predicted to lower it by less than that: the step is then not
+taken, which saves the evaluation that would only confirm convergence. Censored
 (clipped) samples count only where the model falls below them (Tobin 1958),
 as in the single-waveform fit.
 
@@ -161,6 +164,22 @@ def fit_group(y, w, a, m, s, b, *, cens=None, fit_baseline=True, max_iter=40, to
             ratio = np.maximum(np.abs(step[:, k:2 * k]) / (2.0 * sa + 1.0),
                                np.abs(step[:, 2 * k:3 * k]) / (0.5 * sa + 0.5)).max(axis=1)
             step *= (1.0 / np.maximum(ratio, 1.0))[:, None]
+            # predicted decrease of the RSS, -2 g.d - d.H.d
+            pred = -2.0 * np.einsum("gp,gp->g", grad[act], step) - np.einsum(
+                "gp,gpq,gq->g", step, h, step)
+            # converged: at the start or after an accepted step (nu back at 2), a step
+            # the trust region leaves whole would lower the RSS by less than the gain
+            # that stops the fit (below); it is not taken, nor counted
+            enough = tol * np.maximum(cost[act], 1e-300)
+            if noise is not None:
+                enough = np.maximum(enough, 0.01 * noise[act] ** 2)
+            conv = (nu[act] == 2.0) & (ratio <= 1.0) & (pred <= enough)
+            if conv.any():
+                n_iter[act[conv]] -= 1
+                keep = ~conv
+                act, step, h, pred, sa = act[keep], step[keep], h[keep], pred[keep], sa[keep]
+                if act.size == 0:
+                    break
             na = a[act] + step[:, :k]
             nm = m[act] + step[:, k:2 * k]
             ns = np.clip(np.abs(s[act] + step[:, 2 * k:3 * k]), 0.2, n)
@@ -169,9 +188,7 @@ def fit_group(y, w, a, m, s, b, *, cens=None, fit_baseline=True, max_iter=40, to
                                na, nm, ns, nb, fit_baseline, True)
             ct = np.einsum("gn,gn->g", rt, rt)
             ok = np.isfinite(ct) & (ct <= cost[act])
-            # gain ratio: actual over predicted decrease of the RSS, -2 g.d - d.H.d
-            pred = -2.0 * np.einsum("gp,gp->g", grad[act], step) - np.einsum(
-                "gp,gpq,gq->g", step, h, step)
+            # gain ratio: actual over predicted decrease of the RSS
             rho = np.where(pred > 0, (cost[act] - ct) / np.where(pred > 0, pred, 1.0), 0.0)
             acc = act[ok]
             gain = cost[acc] - ct[ok]

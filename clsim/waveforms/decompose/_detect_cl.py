@@ -95,6 +95,7 @@ class Detector:
         src, inc = _source()
         prg = build_program(fitter.context, src, [inc] + detect_options(fitter.info))
         self.fitter = fitter
+        self._filters: dict = {}
         self.noise = cl.Kernel(prg, "noise_stats")
         self.noise.set_scalar_arg_dtypes([None, np.int32, None, np.int32, np.float32, None,
                                           None, None, None, None, np.int32])
@@ -102,6 +103,23 @@ class Detector:
         self.cand.set_scalar_arg_dtypes([None, np.int32, np.int32, None, None, None, None,
                                          np.int32, np.int32, np.int32, np.float32, np.float32,
                                          np.int32, np.int32, None, None, None, np.int32])
+
+    def filter_buffer(self, pulse):
+        """The detection filters' weights on the device (the matched filter of
+        ``pulse``, then :data:`_SMOOTH`), uploaded once per pulse (the last few kept)."""
+        import pyopencl as cl
+
+        key = (int(pulse.centre), pulse.weights.tobytes())
+        with self.fitter.lock:
+            buf = self._filters.get(key)
+            if buf is None:
+                flt = np.concatenate([pulse.weights, _SMOOTH]).astype(np.float32)
+                buf = cl.Buffer(self.fitter.context, cl.mem_flags.READ_ONLY
+                                | cl.mem_flags.COPY_HOST_PTR, hostbuf=flt)
+                if len(self._filters) >= 8:
+                    self._filters.pop(next(iter(self._filters)))
+                self._filters[key] = buf
+        return buf
 
     def bind(self, y, lengths) -> "BoundDetection":
         """Upload a chunk's samples (N, n) and lengths (N,)."""
@@ -168,10 +186,9 @@ class BoundDetection:
         ctx = self.det.fitter.context
         mf = cl.mem_flags
         p = pulse.shape
-        flt = np.concatenate([pulse.weights, _SMOOTH]).astype(np.float32)
         st = np.ascontiguousarray(np.column_stack([self.stats[:, 0], self.stats[:, 1],
                                                    level]), dtype=np.float32)
-        d_flt = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=flt)
+        d_flt = self.det.filter_buffer(pulse)
         d_st = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=st)
         # the padding of the baseline-free samples: the filters' reach, 8 more for the
         # last block of 8 outputs
