@@ -135,6 +135,82 @@ def test_missed_share_matches_the_scanner(slab_scan, lad, angle, size):
     assert 0.005 < measured < 0.1
 
 
+
+def _parts_before(s):
+    """Per echo of a scan: the beam parts its pulse still had when it reached the echo (n times
+    what the pulse's earlier echoes left)."""
+    order = np.lexsort((s.return_number, s.pulse_id))
+    pid, frac = s.pulse_id[order], s.beam_fraction[order].astype(float)
+    cum = np.cumsum(frac)
+    start = np.r_[0, np.flatnonzero(np.diff(pid)) + 1]
+    first = np.repeat(start, np.diff(np.r_[start, len(pid)]))
+    before = cum - frac - (cum[first] - frac[first])
+    out = np.empty(len(pid), np.int64)
+    out[order] = np.rint(7 * (1.0 - before))
+    return out
+
+
+@pytest.mark.slow
+def test_missed_share_of_one_remaining_part_matches_the_scanner():
+    """A pulse's tail of one beam part (six parts already on leaves): its hit reads rho mu / 7, so
+    much more of it goes unrecorded than of a whole beam's hits.  On the synthetic oak's far scan
+    (outward leaves, every echo kept), the share of such hits under -20 dB against q with
+    ``parts=1`` (no merging here: no other part of the tail is left to merge with).  Tolerance: 3
+    standard errors of the measured share plus 3 of the model's Monte Carlo (three other seeds).
+    The whole beam's q, which the walk took for every tail before, reads a third of it (measured:
+    0.123 +- 0.004 lost, 0.118 by the one-part q, 0.039 by the whole beam's; the near scan 0.072 +-
+    0.002, 0.072, 0.020)."""
+    pytest.importorskip("open3d")
+    from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
+    from tlsvox.truth.synthetic import TreeParams, make_tree
+    from tlsvox.voxel import detection
+    from tlsvox.voxel.pulses import outward_g_table
+    from voxlidar.leafangle import LeafAngle
+
+    tree = make_tree(TreeParams(leaf_azimuth="outward", leaf_cluster_sigma=0.35), seed=1)
+    pose = paper_scan_poses(tree)[0]
+    s = simulate_scan(tree, pose=pose, preset=ScannerPreset.riegl_vz400(min_reflectance_db=-60.0), seed=10,
+                      scan_id=0, progress=False)
+    leaf = (s.truth_material == 1) & (_parts_before(s) == 1)
+    assert leaf.sum() > 3000
+    f = s.beam_fraction[leaf].astype(float)
+    miss = s.reflectance_db[leaf] < -20.0
+    measured = f[miss].sum() / f.sum()
+    se = np.sqrt(np.sum((f * (miss - measured)) ** 2)) / f.sum()
+    model = DetectionModel.for_scan(s, threshold_db=-20.0)
+    la = LeafAngle("uniform")
+    world = s.world_xyz(s.pose_true)[leaf]
+    v = world - s.pose_true[:3, 3]
+    r = np.linalg.norm(v, axis=1)
+    d = v / r[:, None]
+    theta = np.arccos(np.clip(d[:, 2], -1, 1))
+    c = (world[:, 0] * d[:, 0] + world[:, 1] * d[:, 1]) / np.maximum(
+        np.hypot(world[:, 0], world[:, 1]) * np.hypot(d[:, 0], d[:, 1]), 1e-12)  # the tree's axis: x = y = 0
+    g = detection._bilinear_g(outward_g_table(la), theta, c)
+
+    def lost_share(seed, parts):
+        h, _, w = projection_tables(model, la, ranges=(r.min(), r.max()), outward=True, n_w=3, seed=seed, parts=parts)
+        return np.sum(f * detection._interp_h(h, w, theta, c, model.beam_radius(r)) / g) / f.sum()
+
+    preds = [lost_share(seed, 1) for seed in (0, 1, 2, 3)]
+    model_se = float(np.std(preds[1:], ddof=1))
+    assert abs(preds[0] - measured) < 3 * se + 3 * model_se, (measured, se, preds)
+    whole = lost_share(0, None)
+    assert whole < measured - 3 * se - 3 * model_se, (whole, measured, se)
+
+
+def test_fewer_parts_are_missed_more_and_parts_are_checked():
+    m = DetectionModel(**VZ400)
+    mu = np.array([0.2, 0.3, 0.6])
+    q = {k: missed_share(m, mu, [0.005], parts=k)[0][:, 0] for k in (1, 3, 7)}
+    # one part: lost exactly below mu = 7 x 0.01 / 0.267 = 0.262, whatever the leaf
+    assert q[1] == pytest.approx([1.0, 0.0, 0.0])
+    assert np.all(q[1] >= q[3] - 1e-12) and np.all(q[3] >= q[7] - 1e-12)
+    assert np.array_equal(missed_share(m, mu, [0.005], parts=7)[0], missed_share(m, mu, [0.005])[0])
+    with pytest.raises(InputError, match="parts"):
+        missed_share(m, mu, [0.005], parts=8)
+
+
 # ---- the correction in the estimators: the leaf box of test_weights at the VZ-400's -20 dB
 
 # the fixture ``bench`` (benchmarks/bench_echo_weights.py) is in conftest.py
