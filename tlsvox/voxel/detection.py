@@ -22,14 +22,6 @@ The model (``voxelize(undetected="model")``)
    echo's reflectance ``j rho mu / n`` carries Gaussian noise of
    ``noise_db``; ``q`` is the ``j``-weighted probability of falling under the
    threshold (a seeded Monte Carlo over placements, :func:`missed_share`).
-   A pulse's *tail* (the share ``T`` no recorded echo took) is the
-   ``k = round(n T)`` parts that went past the leaves of its recorded
-   echoes: its own hits are by at most ``k`` parts and read ``j rho mu / n``
-   against the whole beam, so ``q`` is taken for those ``k`` parts (the parts
-   beyond a straight leaf edge at a random angle; ``parts=`` of
-   :func:`missed_share`).  One remaining part is lost below ``mu = 0.26`` at
-   the VZ-400's -20 dB, where a whole beam is lost mostly when it grazes: on
-   the synthetic oak's scans a third of what the whole beam's ``q`` said.
 2. **Unrecorded projection** ``H``: a beam of direction ``d`` crossing leaf
    area density ``u`` is intercepted at rate ``G u`` per metre, of which
    ``H u`` goes unrecorded, with
@@ -50,13 +42,7 @@ The model (``voxelize(undetected="model")``)
    (the numerator: reaching ``s`` and stopping there unrecorded; the
    denominator: not being recorded at all), ``E`` the stretches within the
    range resolution of a recorded echo of the same pulse, where an
-   unrecorded hit would have merged into that echo and been recorded.  In a
-   tail of ``k > 1`` parts (``H`` of those ``k`` parts, step 1) the density
-   is also thinned by :math:`e^{-\int_s^{s+\Delta} G_{any} u\,ds'}`, the
-   chance that none of the other ``k - 1`` parts met a leaf within the range
-   resolution ``Delta`` behind the hit (theirs would have merged with it into
-   an echo bright enough to record), ``G_any`` their "any part" projection
-   (``spread`` of :func:`missed_share`).  A
+   unrecorded hit would have merged into that echo and been recorded.  A
    pulse with no recorded echo went through a gap with all its parts
    together, so its parts' survival is not ``e^-tau``: its loss is
    ``T min(1, int H u ds)``, spread as ``H u``.  The expected unrecorded stop
@@ -229,8 +215,7 @@ def _undetected_probability(model: DetectionModel, j, mu):
     return (db < model.threshold_db).astype(np.float64)
 
 
-def missed_share(model: DetectionModel, mu, w, *, placements: int = PLACEMENTS, seed: int = 0,
-                 parts: int | None = None) -> np.ndarray:
+def missed_share(model: DetectionModel, mu, w, *, placements: int = PLACEMENTS, seed: int = 0) -> np.ndarray:
     """q(mu, w): share of the beam parts hitting a leaf at incidence cosine mu that go unrecorded.
 
     Parameters
@@ -242,13 +227,6 @@ def missed_share(model: DetectionModel, mu, w, *, placements: int = PLACEMENTS, 
     placements : int
         Random leaf placements per cell (offset, rotation in the leaf plane,
         rotation of the beam pattern); the same ``seed`` gives the same table.
-    parts : int, optional
-        The beam parts still travelling (default all ``model.n_subrays``): a
-        pulse's tail after a leaf took some of its parts.  The parts left are
-        those beyond a straight leaf edge at a random angle (the ``parts``
-        parts furthest along a random direction across the pattern); a hit
-        by ``j`` of them still reads ``j rho mu / n`` against the whole beam,
-        so a tail's hits are fainter and more often unrecorded.
 
     Returns
     -------
@@ -263,24 +241,13 @@ def missed_share(model: DetectionModel, mu, w, *, placements: int = PLACEMENTS, 
 
     mu = np.clip(np.asarray(mu, dtype=np.float64).reshape(-1), 0.0, 1.0)
     w = np.asarray(w, dtype=np.float64).reshape(-1)
-    n = model.n_subrays
-    k_parts = n if parts is None else int(parts)
-    if not 1 <= k_parts <= n:
-        raise InputError(f"parts={parts!r} must be a whole number of beam parts in 1..{n}")
-    radius, angle = subray_pattern(n)
+    radius, angle = subray_pattern(model.n_subrays)
     a, b = 0.5 * model.leaf_length, 0.5 * model.leaf_width
     rng = np.random.default_rng(seed)
     # the same placements for every cell (common random numbers: a smooth table)
     psi = rng.uniform(0.0, 2 * np.pi, placements)
     spin = rng.uniform(0.0, 2 * np.pi, placements)
     ux, uy = rng.uniform(-1.0, 1.0, (2, placements))
-    live = np.ones((placements, n), bool)
-    if k_parts < n:  # the parts beyond a straight edge at a random angle (its own stream: the full beam's
-        # placements stay those above)
-        edge = np.random.default_rng([seed, k_parts]).uniform(0.0, 2 * np.pi, placements)
-        along = radius[None, :] * np.cos(angle[None, :] + (spin - edge)[:, None])
-        live[:] = False
-        live[np.arange(placements)[:, None], np.argsort(-along, axis=1)[:, :k_parts]] = True
     cp, sp = np.cos(psi), np.sin(psi)
     out = np.zeros((len(mu), len(w)))
     spread = np.ones((len(mu), len(w)))
@@ -301,7 +268,7 @@ def missed_share(model: DetectionModel, mu, w, *, placements: int = PLACEMENTS, 
             y = py - cy[:, None]
             xa = x * cp[:, None] + y * sp[:, None]
             yb = -x * sp[:, None] + y * cp[:, None]
-            inside = ((xa / a) ** 2 + (yb / b) ** 2 <= 1.0) & live
+            inside = (xa / a) ** 2 + (yb / b) ** 2 <= 1.0
             j = inside.sum(axis=1)
             # each placement stands for an area ex * ey of offsets
             weight = j * ex * ey
@@ -310,7 +277,7 @@ def missed_share(model: DetectionModel, mu, w, *, placements: int = PLACEMENTS, 
                 out[i, k] = float(_undetected_probability(model, 1, m))
                 continue
             out[i, k] = float((weight * _undetected_probability(model, j, m)).sum() / total)
-            spread[i, k] = float(((j > 0) * ex * ey).sum() * k_parts / total)
+            spread[i, k] = float(((j > 0) * ex * ey).sum() * model.n_subrays / total)
     # edge-on: the limit of the last finite cells
     for k in range(len(w)):
         bad = ~np.isfinite(spread[:, k])
@@ -319,18 +286,16 @@ def missed_share(model: DetectionModel, mu, w, *, placements: int = PLACEMENTS, 
     return out, spread
 
 
-@functools.lru_cache(maxsize=64)
-def _missed_table(model: DetectionModel, w_lo: float, w_hi: float, n_w: int, seed: int = 0,
-                  parts: int | None = None):
+@functools.lru_cache(maxsize=16)
+def _missed_table(model: DetectionModel, w_lo: float, w_hi: float, n_w: int, seed: int = 0):
     mu = np.concatenate([np.linspace(0.0, 0.5, 101), np.linspace(0.5, 1.0, 26)[1:]])
     w = np.linspace(w_lo, w_hi, n_w) if n_w > 1 else np.array([w_lo])
-    q, spread = missed_share(model, mu, w, seed=seed, parts=parts)
+    q, spread = missed_share(model, mu, w, seed=seed)
     return mu, w, q, spread
 
 
 def projection_tables(model: DetectionModel, leaf_angle, *, ranges, outward: bool = False,
-                      n_theta: int = 91, n_c: int = 33, n_w: int = 6, nodes: int = 512, seed: int = 0,
-                      parts: int | None = None):
+                      n_theta: int = 91, n_c: int = 33, n_w: int = 6, nodes: int = 512, seed: int = 0):
     """H, the unrecorded projection, tabulated for the beams of one scan.
 
     Parameters
@@ -346,8 +311,6 @@ def projection_tables(model: DetectionModel, leaf_angle, *, ranges, outward: boo
         outward direction; else leaves of uniform azimuth (``n_c`` = 1).
     seed : int
         Seed of the placements of :func:`missed_share`.
-    parts : int, optional
-        Beam parts still travelling (:func:`missed_share`; default the whole beam).
 
     Returns
     -------
@@ -369,8 +332,7 @@ def projection_tables(model: DetectionModel, leaf_angle, *, ranges, outward: boo
     lo, hi = (float(v) for v in ranges)
     w_lo, w_hi = float(model.beam_radius(max(lo, 0.0))), float(model.beam_radius(max(hi, lo)))
     # one radius node where the radii do not differ (a zero divergence, or one range)
-    mu_nodes, w, q, spread = _missed_table(model, w_lo, w_hi, n_w if w_hi > w_lo else 1, int(seed),
-                                           None if parts is None or int(parts) == model.n_subrays else int(parts))
+    mu_nodes, w, q, spread = _missed_table(model, w_lo, w_hi, n_w if w_hi > w_lo else 1, int(seed))
     tl = np.asarray(la.ppf((np.arange(nodes) + 0.5) / nodes), dtype=np.float64)
     theta = np.linspace(0.0, np.pi, n_theta)
     sin_l, cos_l = np.sin(tl), np.cos(tl)
@@ -472,17 +434,8 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
     none = (np.zeros(0, np.int64), np.zeros(0))
     if not len(todo):
         return beams, {"given_back": 0.0, "tail": float(beams.tail.sum()), "pulses": 0, "added": none}
-    # a tail is the beam parts no recorded echo took: its own hits are by fewer parts, so fainter
-    n = model.n_subrays
-    tail_parts = np.clip(np.rint(beams.tail * n), 1, n).astype(np.int64)
-    ranges = (float(t0[todo].min()), float(t1[todo].max()))
-    htabs, gany = {}, {}  # H of k parts; G_any of the k - 1 parts left beside a one-part hit
-    for kp in np.unique(tail_parts[todo]):
-        htabs[int(kp)], _, w_nodes = projection_tables(model, leaf_angle, ranges=ranges, outward=outward is not None,
-                                                       parts=int(kp))
-        if kp > 1:
-            gany[int(kp)] = projection_tables(model, leaf_angle, ranges=ranges, outward=outward is not None,
-                                              parts=int(kp) - 1)[1]
+    htab, _, w_nodes = projection_tables(model, leaf_angle, ranges=(float(t0[todo].min()), float(t1[todo].max())),
+                                      outward=outward is not None)
     theta_all = beams.zenith()
     given = np.zeros(len(beams))
     new_r, new_b = [], []
@@ -542,33 +495,10 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
         g = np.zeros(t.shape)
         hh = np.zeros(t.shape)
         g[sel_r, sel_c] = gv
-        kp_s = tail_parts[sel][sel_r]
-        hv = np.zeros(len(sel_r))
-        av = np.zeros(len(sel_r))
-        for kp, htab in htabs.items():
-            at = kp_s == kp
-            if at.any():
-                hv[at] = _interp_h(htab, w_nodes, theta[at], c[at], wb[at])
-                if kp in gany:
-                    av[at] = _interp_h(gany[kp], w_nodes, theta[at], c[at], wb[at])
-        hh[sel_r, sel_c] = np.minimum(hv, gv)
-        ga = np.zeros(t.shape)
-        ga[sel_r, sel_c] = av
+        hh[sel_r, sel_c] = np.minimum(_interp_h(htab, w_nodes, theta, c, wb), gv)
         kappa = g * u * dsb[:, None]
         tau = np.cumsum(kappa, axis=1) - 0.5 * kappa
         lost = hh * u * dsb[:, None] * np.exp(-tau)
-        if gany:
-            # the tail's other parts meeting a leaf within the range resolution behind the unrecorded
-            # hit would have merged with it into a recorded echo: thin by the chance that they did
-            # not, exp(-integral of G_any u over that stretch), G_any of the k - 1 parts left
-            cum = np.concatenate([np.zeros((len(sel), 1)), np.cumsum(ga * u * dsb[:, None], axis=1)], axis=1)
-            x = np.minimum(np.arange(m)[None, :] + 0.5 + (model.range_resolution / dsb)[:, None], m)
-            j0 = np.minimum(np.floor(x).astype(np.int64), m - 1)
-            fr = x - j0
-            rows_ = np.arange(len(sel))[:, None]
-            ahead = cum[rows_, j0] * (1 - fr) + cum[rows_, j0 + 1] * fr
-            here = 0.5 * (cum[:, :m] + cum[:, 1:])
-            lost = lost * np.exp(-np.maximum(ahead - here, 0.0))
         n_e = beams.echo_start[sel + 1] - beams.echo_start[sel]
         # an unrecorded hit within the range resolution of a recorded echo of the same pulse would
         # have merged into it: none there
