@@ -8,8 +8,11 @@ exact + nee on the device benchmark's layer (``clsim bench``: 10 m x 10 m x 2 m,
 photons/s and voxel steps/s of the tree in ``--base`` and of this tree, each in
 its own worker process importing its own ``clsim`` (kernels and host code), the
 two taking turns run by run (medians of ``--repeats`` runs, with the range), so
-that a slow spell of a shared machine falls on both alike.  The load average is
-logged before and after.  Wrap in ``flock /tmp/voxlidar-bench.lock`` on a shared
+that a slow spell of a shared machine falls on both alike.  Beside the wall-clock
+rates, voxel steps per CPU-second of the worker process (its OpenCL runtime's
+threads included): another process sharing the cores lowers the wall-clock rate
+by up to 2x, the CPU-time rate much less.  The load average is logged before
+and after.  Wrap in ``flock /tmp/voxlidar-bench.lock`` on a shared
 machine.
 """
 
@@ -31,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # The worker: builds the kernel once, then runs one benchmark per line of stdin (the seed)
 # and answers with one JSON line.
 WORKER = """
-import json, sys
+import json, resource, sys
 from clsim.cli.simulate import benchmark_scene
 from clsim.transport.simulator import Simulator
 import clsim
@@ -39,9 +42,13 @@ scene, sensor = benchmark_scene()
 sim = Simulator(device=sys.argv[1] or None)
 sim.run(scene, sensor, photons=2000, seed=0)
 print(json.dumps(dict(device=sim.device_name, clsim=clsim.__file__)), flush=True)
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 for line in sys.stdin:
+    c0 = cpu()
     res = sim.run(scene, sensor, photons=int(sys.argv[2]), seed=int(line), max_order=3)
-    print(json.dumps(dict(s=res.elapsed_s, steps=float(res.stat("voxel_steps")[0]))), flush=True)
+    print(json.dumps(dict(s=res.elapsed_s, cpu=cpu() - c0, steps=float(res.stat("voxel_steps")[0]))), flush=True)
 """
 
 
@@ -83,8 +90,10 @@ def measure(trees: dict, device, photons: int, repeats: int) -> dict:
     out = {}
     for k, rs in runs.items():
         vps = [x["steps"] / x["s"] for x in rs]
+        cps = [x["steps"] / max(x["cpu"], 1e-9) for x in rs]
         out[k] = dict(pps=photons / statistics.median(x["s"] for x in rs), vps=statistics.median(vps),
-                      vrange=(min(vps), max(vps)), **workers[k].info)
+                      vrange=(min(vps), max(vps)), cps=statistics.median(cps), crange=(min(cps), max(cps)),
+                      **workers[k].info)
     return out
 
 
@@ -111,13 +120,18 @@ def main(argv=None) -> int:
              f"{os.cpu_count()} logical CPUs. Load average before {load0:.2f}, after {load1:.2f}. "
              f"exact + nee, the benchmark layer, `max_order=3`, {args.photons:,} photons per run; medians of "
              f"{args.repeats} runs, the two trees taking turns.", "",
-             "| tree | photons/s | voxel steps/s (median) | range |", "|---|---:|---:|---|"]
+             "Voxel steps per CPU-second: the run's voxel steps over the CPU time its process took (the "
+             "runtime's threads included, and the host's set-up of the run, which the wall-clock time leaves out), "
+             "which another process sharing the cores changes less than the wall-clock rate.", "",
+             "| tree | photons/s | voxel steps/s (median) | range | voxel steps per CPU-second (median) | range |",
+             "|---|---:|---:|---|---:|---|"]
     for k, label in (("base", args.label), ("this tree", "this tree")):
         r = res[k]
         lines.append(f"| {label} | {r['pps']:,.0f} | {r['vps'] / 1e6:.1f} M | "
-                     f"{r['vrange'][0] / 1e6:.1f}-{r['vrange'][1] / 1e6:.1f} M |")
+                     f"{r['vrange'][0] / 1e6:.1f}-{r['vrange'][1] / 1e6:.1f} M | {r['cps'] / 1e6:.1f} M | "
+                     f"{r['crange'][0] / 1e6:.1f}-{r['crange'][1] / 1e6:.1f} M |")
     lines += ["", f"Ratio this tree / base: photons/s x{n['pps'] / b['pps']:.3f}, voxel steps/s "
-              f"x{n['vps'] / b['vps']:.3f}.", ""]
+              f"x{n['vps'] / b['vps']:.3f}, voxel steps per CPU-second x{n['cps'] / b['cps']:.3f}.", ""]
     text = "\n".join(lines)
     print(text)
     if args.out:
