@@ -311,10 +311,12 @@ class _Channel:
     (their relative gap, 2^-24 or more, exceeds the quotient's rounding), so the
     maximum is the one of the whole divided row, and so are the values."""
 
-    def __init__(self, raw, scale, out, fast, slow):
+    def __init__(self, raw, scale, out, fast, slow, at=None):
         self.raw, self.scale, self.fast, self.slow = raw, scale, fast, slow
+        # the rows of ``raw`` (``at``: row i is raw[at[i]], read in place)
+        self.at = np.arange(fast.size) if at is None else at
         if out is not None:
-            raw[out] = -np.inf
+            np.copyto(raw, -np.inf, where=out)
         self.inv = np.cumsum(~fast) - 1  # row -> its row of ``slow``
 
     def argmax(self):
@@ -325,7 +327,7 @@ class _Channel:
 
     def __call__(self, pos, idx):
         """Values at rows ``pos`` (P,) and their samples ``idx`` (P, w), float64."""
-        v = self.raw[pos[:, None], idx].astype(float)
+        v = self.raw[self.at[pos][:, None], idx].astype(float)
         if self.scale is not None:
             v /= self.scale[pos][:, None]
         sl = ~self.fast[pos]
@@ -339,13 +341,12 @@ def _search_view(st, rows, y, use, cens, pl, level, spread, out):
     and its matched filter over ``level`` and smoothing over ``spread`` (each -inf where
     ``out``); rows without a kept residual (or an extreme scale) in float64, the
     residual computed here."""
-    kept = st.resid[rows]
     fast = st.resid_ok[rows] & (level > 1e-200) & (level < 1e200) & (spread > 1e-200) & (
         spread < 1e200)
     slow = [None, None, None]
     if not fast.all():
         sr = rows[~fast]
-        r, fm, fs = (kept[~fast, c].astype(float) for c in range(3))
+        r, fm, fs = (st.resid[sr, c].astype(float) for c in range(3))
         redo = np.flatnonzero(~st.resid_ok[sr])
         if redo.size:
             n = y.shape[1]
@@ -360,9 +361,10 @@ def _search_view(st, rows, y, use, cens, pl, level, spread, out):
         fs /= spread[~fast][:, None]
         fs[out[~fast]] = -np.inf
         slow = [r, fm, fs]
-    return (_Channel(kept[:, 1], level, out, fast, slow[1]),
-            _Channel(kept[:, 2], spread, out, fast, slow[2]),
-            _Channel(kept[:, 0], None, None, fast, slow[0]))
+    # the filters copied (masked here), the residual read in place at the samples used
+    return (_Channel(st.resid[rows, 1], level, out, fast, slow[1]),
+            _Channel(st.resid[rows, 2], spread, out, fast, slow[2]),
+            _Channel(st.resid[:, 0], None, None, fast, slow[0], at=rows))
 
 
 #: Separation, in sums of the pair's sigmas, beyond which two echoes count as resolved
