@@ -49,7 +49,7 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     """Fit rows (R,) with start (R, K) arrays, grouped by the number of active echoes
     (``a`` NaN = inactive), all groups one call of ``fit`` (:func:`_group_fitter`;
     ``linear``: start amplitudes and baseline by linear least squares first).
-    Returns per-row results padded back to (R, K)."""
+    Returns per-row results padded back to (R, K), the residuals as a :class:`_Resid`."""
     rk = np.isfinite(a).sum(axis=1)
     R, K = a.shape
     out_a, out_m, out_s = np.full((R, K), np.nan), np.full((R, K), np.nan), np.full((R, K), np.nan)
@@ -78,14 +78,8 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
             out_bse[sel] = res.se[:, 3 * k]
         if res.resid is not None and res.filtered is not None:
             if out_resid is None:
-                # filled row by row below; rows no group fills are NaN after the loop
-                out_resid = np.empty((R, 3, res.resid.shape[1]), dtype=np.float32)
-                filled = np.zeros(R, bool)
-            out_resid[sel, 0] = res.resid
-            out_resid[sel, 1:] = res.filtered
-            filled[sel] = True
-    if out_resid is not None and not filled.all():
-        out_resid[~filled] = np.nan
+                out_resid = _Resid(R)
+            out_resid.add(sel, res.resid, res.filtered)
     return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff, out_resid
 
 
@@ -108,18 +102,50 @@ def _store(st, rows, a, m, s, se, b, bse, rss, neff, resid):
     _keep_resid(st, rows, resid)
 
 
+class _Resid:
+    """The residuals and their filtered twins of a round's rows (R,), left where the
+    device's results hold them: parts ``(sel, src, resid, filtered)``, rows ``sel`` of
+    the round being rows ``src`` (None: all, in order) of ``resid`` (G, n) and
+    ``filtered`` (G, 2, n); rows in no part have none."""
+
+    def __init__(self, n_rows):
+        self.n_rows, self.parts = n_rows, []
+
+    def add(self, sel, resid, filtered, src=None):
+        self.parts.append((np.asarray(sel), src, resid, filtered))
+
+    def take(self, idx):
+        """The rows ``idx`` (positions or a mask) of this round, in that order."""
+        idx = np.flatnonzero(idx) if idx.dtype == bool else idx
+        part = np.full(self.n_rows, -1)
+        loc = np.zeros(self.n_rows, int)
+        for p, (sel, src, _, _) in enumerate(self.parts):
+            part[sel] = p
+            loc[sel] = np.arange(sel.size) if src is None else src
+        out = _Resid(idx.size)
+        for p, (_, _, resid, filtered) in enumerate(self.parts):
+            hit = np.flatnonzero(part[idx] == p)
+            if hit.size:
+                out.add(hit, resid, filtered, loc[idx[hit]])
+        return out
+
+
 def _keep_resid(st, rows, resid):
-    """Keep the fits' residuals and their filtered twins (R, 3, n) of ``rows`` (None,
-    or NaN rows: not kept)."""
+    """Keep the fits' residuals and their filtered twins (a :class:`_Resid` of ``rows``;
+    None, or rows without one or with a NaN first sample: not kept)."""
+    st.resid_ok[rows] = False
     if resid is None:
-        st.resid_ok[rows] = False
         return
-    ok = ~np.isnan(resid[:, 0, 0]) & ~np.isnan(resid[:, 1, 0])
-    if ok.all():
-        st.resid[rows] = resid
-    else:
-        st.resid[rows[ok]] = resid[ok]
-    st.resid_ok[rows] = ok
+    for sel, src, r, f in resid.parts:
+        if src is not None:
+            r, f = r[src], f[src]
+        ok = ~np.isnan(r[:, 0]) & ~np.isnan(f[:, 0, 0])
+        dest = rows[sel]
+        if not ok.all():
+            dest, r, f = dest[ok], r[ok], f[ok]
+        st.resid[dest, 0] = r
+        st.resid[dest, 1:] = f
+        st.resid_ok[dest] = True
 
 
 def _bad(a, m, s, se_a, u, sigma, n):
@@ -200,7 +226,7 @@ def _rescue(st, start, y, use, cens, lengths):
     st.se[rows, :, best] = res[3][ii, :, 0]
     st.b[rows], st.b_se[rows], st.rss[rows], st.n_eff[rows] = (res[4][ii], res[5][ii],
                                                              res[6][ii], res[7][ii])
-    _keep_resid(st, rows, None if res[8] is None else res[8][ii])
+    _keep_resid(st, rows, None if res[8] is None else res[8].take(ii))
 
 
 def _bic(rss, n, p):
@@ -294,7 +320,7 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         ok = (bic_new < bic_old) & ~bad.any(axis=1) & np.isfinite(frss)
         acc = rows[ok]
         _store(st, acc, fa[ok], fm_[ok], fs_[ok], fse[ok], fb[ok], fbse[ok], frss[ok],
-               fneff[ok], None if fres is None else fres[ok])
+               fneff[ok], None if fres is None else fres.take(ok))
         skipped[acc] = False
         passes[acc] = 0
         search[rows[~ok]] = False
