@@ -49,7 +49,7 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
     """Fit rows (R,) with start (R, K) arrays, grouped by the number of active echoes
     (``a`` NaN = inactive), all groups one call of ``fit`` (:func:`_group_fitter`;
     ``linear``: start amplitudes and baseline by linear least squares first).
-    Returns per-row results padded back to (R, K)."""
+    Returns per-row results padded back to (R, K), the residuals as a :class:`_Resid`."""
     rk = np.isfinite(a).sum(axis=1)
     R, K = a.shape
     out_a, out_m, out_s = np.full((R, K), np.nan), np.full((R, K), np.nan), np.full((R, K), np.nan)
@@ -78,9 +78,8 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
             out_bse[sel] = res.se[:, 3 * k]
         if res.resid is not None and res.filtered is not None:
             if out_resid is None:
-                out_resid = np.full((R, 3, res.resid.shape[1]), np.nan, dtype=np.float32)
-            out_resid[sel, 0] = res.resid
-            out_resid[sel, 1:] = res.filtered
+                out_resid = _Resid(R)
+            out_resid.add(sel, res.resid, res.filtered)
     return out_a, out_m, out_s, out_se, out_b, out_bse, out_rss, out_neff, out_resid
 
 
@@ -103,15 +102,50 @@ def _store(st, rows, a, m, s, se, b, bse, rss, neff, resid):
     _keep_resid(st, rows, resid)
 
 
+class _Resid:
+    """The residuals and their filtered twins of a round's rows (R,), left where the
+    device's results hold them: parts ``(sel, src, resid, filtered)``, rows ``sel`` of
+    the round being rows ``src`` (None: all, in order) of ``resid`` (G, n) and
+    ``filtered`` (G, 2, n); rows in no part have none."""
+
+    def __init__(self, n_rows):
+        self.n_rows, self.parts = n_rows, []
+
+    def add(self, sel, resid, filtered, src=None):
+        self.parts.append((np.asarray(sel), src, resid, filtered))
+
+    def take(self, idx):
+        """The rows ``idx`` (positions or a mask) of this round, in that order."""
+        idx = np.flatnonzero(idx) if idx.dtype == bool else idx
+        part = np.full(self.n_rows, -1)
+        loc = np.zeros(self.n_rows, int)
+        for p, (sel, src, _, _) in enumerate(self.parts):
+            part[sel] = p
+            loc[sel] = np.arange(sel.size) if src is None else src
+        out = _Resid(idx.size)
+        for p, (_, _, resid, filtered) in enumerate(self.parts):
+            hit = np.flatnonzero(part[idx] == p)
+            if hit.size:
+                out.add(hit, resid, filtered, loc[idx[hit]])
+        return out
+
+
 def _keep_resid(st, rows, resid):
-    """Keep the fits' residuals and their filtered twins (R, 3, n) of ``rows`` (None,
-    or NaN rows: not kept)."""
+    """Keep the fits' residuals and their filtered twins (a :class:`_Resid` of ``rows``;
+    None, or rows without one or with a NaN first sample: not kept)."""
+    st.resid_ok[rows] = False
     if resid is None:
-        st.resid_ok[rows] = False
         return
-    ok = ~np.isnan(resid[:, 0, 0]) & ~np.isnan(resid[:, 1, 0])
-    st.resid[rows[ok]] = resid[ok]
-    st.resid_ok[rows] = ok
+    for sel, src, r, f in resid.parts:
+        if src is not None:
+            r, f = r[src], f[src]
+        ok = ~np.isnan(r[:, 0]) & ~np.isnan(f[:, 0, 0])
+        dest = rows[sel]
+        if not ok.all():
+            dest, r, f = dest[ok], r[ok], f[ok]
+        st.resid[dest, 0] = r
+        st.resid[dest, 1:] = f
+        st.resid_ok[dest] = True
 
 
 def _bad(a, m, s, se_a, u, sigma, n):
@@ -192,7 +226,7 @@ def _rescue(st, start, y, use, cens, lengths):
     st.se[rows, :, best] = res[3][ii, :, 0]
     st.b[rows], st.b_se[rows], st.rss[rows], st.n_eff[rows] = (res[4][ii], res[5][ii],
                                                              res[6][ii], res[7][ii])
-    _keep_resid(st, rows, None if res[8] is None else res[8][ii])
+    _keep_resid(st, rows, None if res[8] is None else res[8].take(ii))
 
 
 def _bic(rss, n, p):
@@ -227,28 +261,16 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
             return
         on = st.on[rows]
         # the residual of the last fit and its matched filter and smoothing, kept from
-        # the device (else computed here)
-        kept = st.resid[rows]
-        r, fm, fs = (kept[:, c].astype(float) for c in range(3))
-        redo = np.flatnonzero(~st.resid_ok[rows])
-        if redo.size:
-            rr = np.where(use[rows[redo]], y[rows[redo]] - _model(st, rows[redo], n), 0.0)
-            if cens is not None:
-                rr = np.where(cens[rows[redo]], 0.0, rr)
-            r[redo] = rr
-            fm[redo] = filter_output(rr, pl)
-            fs[redo] = gaussian_filter1d(rr, 1.0, axis=1, mode="constant")
-        out = ~use[rows] | skipped[rows]
-        fm /= level[rows][:, None]
-        fm[out] = -np.inf
-        fs /= (4.0 * sigma[rows])[:, None]
-        fs[out] = -np.inf
-        # the search follows whichever filter stands higher above its threshold
+        # the device (float32; else computed here), each filter over its threshold
         ii = np.arange(rows.size)
-        jm, js = np.argmax(fm, axis=1), np.argmax(fs, axis=1)
-        use_m = fm[ii, jm] >= fs[ii, js]
+        fm_at, fs_at, r_at = _search_view(st, rows, y, use, cens, pl, level[rows],
+                                          4.0 * sigma[rows], ~use[rows] | skipped[rows])
+        # the search follows whichever filter stands higher above its threshold
+        jm, js = fm_at.argmax(), fs_at.argmax()
+        vm, vs = fm_at(ii, jm[:, None])[:, 0], fs_at(ii, js[:, None])[:, 0]
+        use_m = vm >= vs
         j = np.where(use_m, jm, js)
-        go = np.where(use_m, fm[ii, jm], fs[ii, js]) >= 1.0
+        go = np.where(use_m, vm, vs) >= 1.0
         search[rows[~go]] = False
         rows, j, use_m, on, ii = rows[go], j[go], use_m[go], on[go], ii[go]
         if rows.size == 0:
@@ -257,8 +279,8 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         # and its two neighbours (the filter's own width removed); amplitude from the
         # residual
         near3 = np.clip(j[:, None] + np.arange(-1, 2), 0, n - 1)
-        filt = np.where(use_m[:, None], fm[ii[:, None], near3] * level[rows][:, None],
-                        fs[ii[:, None], near3] * (4.0 * sigma[rows])[:, None])
+        filt = np.where(use_m[:, None], fm_at(ii, near3) * level[rows][:, None],
+                        fs_at(ii, near3) * (4.0 * sigma[rows])[:, None])
         m1, var = _log_parabola(filt, np.arange(rows.size), np.ones_like(j), 3)
         # (a maximum on the first or last sample has no neighbour on that side)
         inner = (j > 0) & (j < n - 1)
@@ -268,7 +290,7 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         s0 = np.clip(np.where(np.isfinite(var) & (var > 0.25), np.sqrt(np.abs(var)),
                               pl.sigma), 0.5, n / 2.0)
         s1 = s0
-        a1 = np.maximum(r[ii, j], filt[:, 1])
+        a1 = np.maximum(r_at(ii, j[:, None])[:, 0], filt[:, 1])
         res = _resolved_rows(st.a[rows], st.m[rows], st.s[rows], on, a1, m1, s1)
         res &= np.isfinite(a1) & (a1 > 0)
         # unresolved: pass over this feature (mask it) and try the next, up to 3 times
@@ -298,11 +320,77 @@ def _add(st, y, use, cens, u, sigma, lengths, pl, level, k_cap):
         ok = (bic_new < bic_old) & ~bad.any(axis=1) & np.isfinite(frss)
         acc = rows[ok]
         _store(st, acc, fa[ok], fm_[ok], fs_[ok], fse[ok], fb[ok], fbse[ok], frss[ok],
-               fneff[ok], None if fres is None else fres[ok])
+               fneff[ok], None if fres is None else fres.take(ok))
         skipped[acc] = False
         passes[acc] = 0
         search[rows[~ok]] = False
         search[acc] &= st.k()[acc] < k_cap
+
+
+class _Channel:
+    """One channel (residual, matched filter or smoothing) of the search's rows, each
+    row divided by its ``scale`` (None: 1) and -inf where ``out``: rows ``fast`` read
+    from the device's float32 values, the others from float64 rows ``slow`` (S, n).
+    Only the samples asked for are divided (:meth:`__call__`); :meth:`argmax` is
+    taken on the float32 rows as they stand: the float64 quotient of two float32
+    values by one positive scale (between 1e-200 and 1e200) keeps their order strictly
+    (their relative gap, 2^-24 or more, exceeds the quotient's rounding), so the
+    maximum is the one of the whole divided row, and so are the values."""
+
+    def __init__(self, raw, scale, out, fast, slow, at=None):
+        self.raw, self.scale, self.fast, self.slow = raw, scale, fast, slow
+        # the rows of ``raw`` (``at``: row i is raw[at[i]], read in place)
+        self.at = np.arange(fast.size) if at is None else at
+        if out is not None:
+            np.copyto(raw, -np.inf, where=out)
+        self.inv = np.cumsum(~fast) - 1  # row -> its row of ``slow``
+
+    def argmax(self):
+        j = np.argmax(self.raw, axis=1)
+        if self.slow is not None:
+            j[~self.fast] = np.argmax(self.slow, axis=1)
+        return j
+
+    def __call__(self, pos, idx):
+        """Values at rows ``pos`` (P,) and their samples ``idx`` (P, w), float64."""
+        v = self.raw[self.at[pos][:, None], idx].astype(float)
+        if self.scale is not None:
+            v /= self.scale[pos][:, None]
+        sl = ~self.fast[pos]
+        if sl.any():
+            v[sl] = self.slow[self.inv[pos[sl]][:, None], idx[sl]]
+        return v
+
+
+def _search_view(st, rows, y, use, cens, pl, level, spread, out):
+    """The residual search's channels (:class:`_Channel`) of ``rows``: the kept residual
+    and its matched filter over ``level`` and smoothing over ``spread`` (each -inf where
+    ``out``); rows without a kept residual (or an extreme scale) in float64, the
+    residual computed here."""
+    fast = st.resid_ok[rows] & (level > 1e-200) & (level < 1e200) & (spread > 1e-200) & (
+        spread < 1e200)
+    slow = [None, None, None]
+    if not fast.all():
+        sr = rows[~fast]
+        r, fm, fs = (st.resid[sr, c].astype(float) for c in range(3))
+        redo = np.flatnonzero(~st.resid_ok[sr])
+        if redo.size:
+            n = y.shape[1]
+            rr = np.where(use[sr[redo]], y[sr[redo]] - _model(st, sr[redo], n), 0.0)
+            if cens is not None:
+                rr = np.where(cens[sr[redo]], 0.0, rr)
+            r[redo] = rr
+            fm[redo] = filter_output(rr, pl)
+            fs[redo] = gaussian_filter1d(rr, 1.0, axis=1, mode="constant")
+        fm /= level[~fast][:, None]
+        fm[out[~fast]] = -np.inf
+        fs /= spread[~fast][:, None]
+        fs[out[~fast]] = -np.inf
+        slow = [r, fm, fs]
+    # the filters copied (masked here), the residual read in place at the samples used
+    return (_Channel(st.resid[rows, 1], level, out, fast, slow[1]),
+            _Channel(st.resid[rows, 2], spread, out, fast, slow[2]),
+            _Channel(st.resid[:, 0], None, None, fast, slow[0], at=rows))
 
 
 #: Separation, in sums of the pair's sigmas, beyond which two echoes count as resolved
