@@ -5,9 +5,9 @@ steps' CPU (``time.thread_time``) is apart from the OpenCL runtime's threads
 (``time.process_time``: all). Prints the medians of ``--calls`` calls. To compare two
 trees, run it in each by turns, each its own process, under the benchmark lock::
 
-    for r in 1 2 3; do for t in /tmp/base /work/wt-x; do
+    for r in 1 2 3; do for t in BASE_TREE THIS_TREE; do
       (cd $t && PYTHONPATH=$t flock /tmp/voxlidar-bench.lock python \\
-         /work/wt-x/benchmarks/decompose_host_cpu.py); done; done
+         THIS_TREE/benchmarks/decompose_host_cpu.py); done; done
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import concurrent.futures as cf
 import os
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -41,7 +42,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--calls", type=int, default=5)
     ap.add_argument("--copies", type=int, default=40, help="NEON's 500 waveforms repeated")
-    ap.add_argument("--data", default="/work/shared/data/neon-harvard-waveforms/return.csv")
+    default = (Path(os.environ["VOXLIDAR_SHARED_DATA"]) if os.environ.get("VOXLIDAR_SHARED_DATA")
+               else Path(__file__).resolve().parents[2] / "shared" / "data")
+    ap.add_argument("--data", default=str(default / "neon-harvard-waveforms" / "return.csv"),
+                    help="NEON's return.csv (default: ../shared/data, or $VOXLIDAR_SHARED_DATA)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.getcwd())
     cf.ThreadPoolExecutor = _Inline
