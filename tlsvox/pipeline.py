@@ -1,8 +1,9 @@
 """The whole first half of the paper in one call: scans -> voxel scene.
 
 register (targets, else FPFH + ICP) -> classify (leaf / wood / ground / noise)
--> beam tracing and LAD estimation (:func:`tlsvox.voxel.voxlad`) -> cylinders
-fitted to the wood echoes fill solid wood voxels (:mod:`tlsvox.qsm`) -> Scene.
+-> cylinders fitted to the wood echoes (:mod:`tlsvox.qsm`; leaf-classed echoes
+on their bark relabelled wood) -> beam tracing and LAD estimation
+(:func:`tlsvox.voxel.voxlad`) -> the cylinders fill solid wood voxels -> Scene.
 
 Georeferencing: registration puts every scan in the reference scan's frame.
 To place the scene in the world (the airborne frame) the reference scan needs
@@ -14,6 +15,7 @@ those tools play.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -50,7 +52,7 @@ class PipelineResult:
 def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle", leaf_angle="uniform",
                      leaf_azimuth: str = "outward", refine: bool = True, georeference: str = "true",
                      register_kwargs=None, voxelize_kwargs=None, qsm: bool = True, qsm_kwargs=None,
-                     progress: bool = True) -> PipelineResult:
+                     qsm_relabel: bool = True, progress: bool = True) -> PipelineResult:
     """Register, classify and voxelise a set of scans of one tree.
 
     Parameters
@@ -75,6 +77,12 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
         (docs/voxelize.md, "Solid wood from fitted cylinders", measures it).
     qsm_kwargs : dict, optional
         Passed to :func:`tlsvox.qsm.fit_cylinders`.
+    qsm_relabel : bool
+        With ``qsm``: leaf-classed echoes on a fitted cylinder's bark
+        (:func:`tlsvox.qsm.bark_echoes`) are relabelled wood before the scans
+        are voxelised (each classification's ``on_cylinders`` counts them), so
+        bark the classifier missed is not counted as leaf area.  The cylinders
+        are fitted to the classifier's wood echoes, before the relabelling.
 
     Returns
     -------
@@ -102,19 +110,32 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
     t0 = time.perf_counter()
     classes = [classify_scan(s, refine=refine) for s in scans]
     timings["classify"] = time.perf_counter() - t0
+    model = None
+    if qsm:
+        from tlsvox.classify import PointClass
+        from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+
+        t0 = time.perf_counter()
+        model = fit_cylinders(wood_points(scans, [c.labels for c in classes], class_codes="pointclass"),
+                              **(qsm_kwargs or {}))
+        if qsm_relabel:
+            for i, (c, bark) in enumerate(zip(classes, bark_echoes(scans, model, [c.labels for c in classes]))):
+                labels = np.where(bark, np.uint8(PointClass.WOOD), c.labels).astype(c.labels.dtype)
+                counts = {k.name.lower(): int(np.count_nonzero(labels == k)) for k in PointClass}
+                classes[i] = dataclasses.replace(c, labels=labels, counts=counts, on_cylinders=int(bark.sum()))
+        timings["qsm"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     vox = voxelize(scans, voxel_size=voxel_size, classes=[c.labels for c in classes], class_codes="pointclass",
                    leaf_angle=leaf_angle, leaf_azimuth=leaf_azimuth, estimator=estimator, progress=progress,
                    **(voxelize_kwargs or {}))
     timings["voxelize"] = time.perf_counter() - t0
-    scene, model = vox.scene, None
+    scene = vox.scene
     if qsm:
-        from tlsvox.qsm import apply_cylinders, fit_cylinders, wood_points
+        from tlsvox.qsm import apply_cylinders
 
         t0 = time.perf_counter()
-        wood = wood_points(scans, [c.labels for c in classes], class_codes="pointclass")
-        model = fit_cylinders(wood, **(qsm_kwargs or {}))
-        scene, _ = apply_cylinders(scene, model, wood)
-        timings["qsm"] = time.perf_counter() - t0
+        scene, _ = apply_cylinders(scene, model, wood_points(scans, [c.labels for c in classes],
+                                                             class_codes="pointclass"))
+        timings["qsm"] += time.perf_counter() - t0
     return PipelineResult(scene=scene, registration=registration, classifications=classes, voxelized=vox,
                           timings=timings, cylinders=model)

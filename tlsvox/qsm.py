@@ -9,7 +9,9 @@ to each; well-supported cylinders then fill solid wood voxels
 (:func:`apply_cylinders`) with the machinery the truth's twin uses
 (:mod:`tlsvox.voxel.solid`: flat-ended cylinders, the cap share from the
 cylinders' surface, the fitted cylinder's turbid bark beside its core
-dropped).  Wood echoes no cylinder explains stay turbid wood.
+dropped).  Wood echoes no cylinder explains stay turbid wood.  Leaf-classed
+echoes on a fitted cylinder's bark (:func:`bark_echoes`) are bark the
+classifier missed: the pipeline relabels them wood before it voxelises.
 
 The steps (:func:`fit_cylinders`):
 
@@ -67,7 +69,7 @@ import numpy as np
 
 from tlsvox.errors import InputError
 
-__all__ = ["CylinderModel", "fit_cylinders", "apply_cylinders", "wood_points"]
+__all__ = ["CylinderModel", "fit_cylinders", "apply_cylinders", "bark_echoes", "wood_points"]
 
 
 @dataclass
@@ -103,21 +105,34 @@ class CylinderModel:
     def explained(self, points, *, tolerance: float | None = None) -> np.ndarray:
         """(N,) bool: points within ``tolerance`` (default ``max(3 sigma, 2 cm)`` of each
         cylinder) of a cylinder's surface, or inside it, between its ends (plus the tolerance)."""
+        return self.owner(points, tolerance=tolerance) >= 0
+
+    def owner(self, points, *, tolerance: float | None = None, surface: bool = False,
+              floor: float = 0.02) -> np.ndarray:
+        """(N,) int: the first cylinder that explains each point (:meth:`explained`), -1 for none.
+
+        The default tolerance is each cylinder's ``max(3 sigma, floor)``.  With
+        ``surface``, only points within the tolerance of the side (not inside) count."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        out = np.zeros(len(p), bool)
+        out = np.full(len(p), -1, np.int64)
         for i, (c, s) in enumerate(zip(self.cylinders, self.sigma)):
-            tol = max(3.0 * s, 0.02) if tolerance is None else float(tolerance)
+            tol = max(3.0 * s, floor) if tolerance is None else float(tolerance)
             a, b, r = c[:3], c[3:6], c[6]
+            reach = r + tol
+            box = np.all((p >= np.minimum(a, b) - reach) & (p <= np.maximum(a, b) + reach), axis=1)
+            box &= out < 0
+            if not box.any():
+                continue
+            idx = np.flatnonzero(box)
             length = np.linalg.norm(b - a)
             u = (b - a) / length
-            x = p - a
+            x = p[idx] - a
             t = x @ u
-            near = (t > -tol) & (t < length + tol)
-            if not near.any():
-                continue
-            xs = x[near]
-            radial = np.linalg.norm(xs - (xs @ u)[:, None] * u, axis=1)
-            out[np.flatnonzero(near)[radial < r + tol]] = True
+            radial = np.linalg.norm(x - t[:, None] * u, axis=1)
+            hit = (t > -tol) & (t < length + tol) & (radial < reach)
+            if surface:
+                hit &= radial > r - tol
+            out[idx[hit]] = i
         return out
 
     def summary(self) -> dict:
@@ -486,6 +501,53 @@ def _beside(ijk, flat, shape) -> np.ndarray:
         pos = np.minimum(np.searchsorted(flat, keys), len(flat) - 1)
         out[np.flatnonzero(ok)[flat[pos] == keys]] = True
     return out
+
+
+#: :func:`bark_echoes`: the least half-width of a cylinder's bark band, m.  A fit's sigma is the spread of
+#: the thinned points (each the mean of the echoes in a 2 cm cell), less than one echo's; 1 cm is about
+#: 3 sigma of a TLS range (3-5 mm precision and accuracy for the VZ-400 class of scanners)
+BARK_FLOOR = 0.01
+
+
+def bark_echoes(scans, model: CylinderModel, classes=None, *, class_codes: str = "pointclass",
+                tolerance: float | None = None) -> list:
+    """Per scan, (N_s,) bool: echoes classed as leaf that lie on a fitted cylinder's bark.
+
+    A leaf-classed echo within ``tolerance`` of a cylinder's side (default
+    each cylinder's ``max(3 sigma, BARK_FLOOR)``; not inside it: an oversized
+    piece across a fork would take the leaves in it) is bark the leaf/wood
+    classifier missed (dark, wet or foreshortened bark reads like leaves in
+    reflectance): a cylinder fitted to hundreds of wood echoes says where the
+    bark is better than one echo's reflectance.  Only cylinders whose band
+    holds at least as many of the scans' wood echoes as leaf echoes relabel:
+    the classifier agrees with them on most of their surface; one with more
+    leaf than wood echoes on it runs through foliage and its leaves stay
+    leaves.  Leaves within the band of a trusted branch are taken with it
+    (docs/bench/relabel.md measures how often against the truth).  ``classes``/``class_codes``
+    as :func:`tlsvox.voxel.voxlad.voxelize`'s; scans without a pose are taken
+    in their own frame.
+    """
+    from tlsvox.voxel.trace import EchoKind
+    from tlsvox.voxel.voxlad import _kinds_for
+
+    scans = list(scans)
+    classes = [None] * len(scans) if classes is None else list(classes)
+    n = len(model)
+    leaf_owner, n_leaf, n_wood = [], np.zeros(n, np.int64), np.zeros(n, np.int64)
+    for s, c in zip(scans, classes):
+        kind = _kinds_for(s, c, class_codes)
+        owner = np.full(len(kind), -1, np.int64)
+        if n and len(kind):
+            xyz = s.world_xyz(s.pose if s.pose is not None else np.eye(4))
+            sel = (kind == EchoKind.LEAF) | (kind == EchoKind.WOOD)
+            owner[sel] = model.owner(xyz[sel], tolerance=tolerance, surface=True, floor=BARK_FLOOR)
+            on = owner >= 0
+            n_leaf += np.bincount(owner[on & (kind == EchoKind.LEAF)], minlength=n)
+            n_wood += np.bincount(owner[on & (kind == EchoKind.WOOD)], minlength=n)
+            owner[kind != EchoKind.LEAF] = -1
+        leaf_owner.append(owner)
+    trusted = n_wood >= n_leaf
+    return [(o >= 0) & trusted[np.maximum(o, 0)] for o in leaf_owner]
 
 
 def wood_points(scans, classes=None, *, class_codes: str = "pointclass") -> np.ndarray:

@@ -157,3 +157,41 @@ def test_cli_voxelize_qsm_fills_the_scanned_trunk(tmp_path, capsys):
     assert len(flat) > 100
     assert not np.any(turbid.wood_solid)
     assert solid.meta["qsm"]["cylinders"] >= 1 and summary["qsm"]["solid_voxels"] == len(got)
+
+
+def test_cli_qsm_relabels_leaf_echoes_on_the_bark_in_memory_only(tmp_path, capsys):
+    # a classified scan of a bare trunk in which one echo in five is labelled leaf (bark the classifier
+    # missed) and a clump of leaf echoes 30 cm off the trunk: with --qsm the trunk's leaf-labelled echoes
+    # count as wood (all of them up to the tail of the range noise: they lie on its surface) and the clump's do
+    # not; --qsm-keep-labels keeps them; the file's labels are never changed
+    import json
+
+    from tlsvox.classify import PointClass
+    from tlsvox.cli.app import main as tlsvox_main
+    from tlsvox.scan import CLASSIFY_MARK, PulseTable, Scan
+
+    rng = np.random.default_rng(5)
+    r = 0.2
+    phi = rng.uniform(0.55 * np.pi, 1.45 * np.pi, 20000)
+    z = rng.uniform(0.5, 2.5, len(phi))
+    trunk = np.column_stack([3.0 + r * np.cos(phi), r * np.sin(phi), z - 1.5])
+    trunk += rng.normal(0, 0.002, trunk.shape)
+    clump = np.array([2.5, 0.0, 0.0]) + rng.normal(0, 0.03, (500, 3))
+    pts = np.vstack([trunk, clump])
+    labels = np.full(len(pts), PointClass.WOOD, np.uint8)
+    missed = rng.random(len(trunk)) < 0.2
+    labels[:len(trunk)][missed] = PointClass.LEAF
+    labels[len(trunk):] = PointClass.LEAF
+    d = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    pose = np.eye(4)
+    pose[2, 3] = 1.5
+    scan = Scan(xyz=pts, pulse_id=np.arange(len(pts)), classification=labels, pose=pose,
+                pulses=PulseTable(d, np.ones(len(pts), int)), meta={"classes": CLASSIFY_MARK})
+    scan.write(tmp_path / "trunk.laz")
+    common = ["voxelize", str(tmp_path / "trunk.laz"), "--voxel-size", "0.1", "--ground", "none", "--qsm"]
+    assert tlsvox_main([*common, "-o", str(tmp_path / "a.npz")]) == 0
+    moved = json.loads(capsys.readouterr().out)["qsm"]["leaf_echoes_relabelled_wood"]
+    assert 0.995 * missed.sum() <= moved <= missed.sum()  # 1 cm is 5 sigma of the 2 mm range noise
+    assert tlsvox_main([*common, "-o", str(tmp_path / "b.npz"), "--qsm-keep-labels"]) == 0
+    assert json.loads(capsys.readouterr().out)["qsm"]["leaf_echoes_relabelled_wood"] == 0
+    assert np.array_equal(Scan.read(tmp_path / "trunk.laz").classification, labels)

@@ -53,6 +53,10 @@ class Classification:
     method, rule : str
     moved_to_wood : int
         Echoes the geometric refinement moved (0 without it).
+    on_cylinders : int
+        Leaf-classed echoes relabelled wood because they lie on the bark of a
+        cylinder fitted to the wood echoes (:func:`tlsvox.qsm.bark_echoes`;
+        :func:`tlsvox.pipeline.scene_from_scans` does it; 0 otherwise).
     """
 
     scan_name: str
@@ -71,6 +75,7 @@ class Classification:
     feature_label: str = "apparent reflectance"
     incidence_correction: bool = False
     fit_single_returns: bool = False
+    on_cylinders: int = 0
 
     def summary(self) -> dict:
         m = self.mixture
@@ -82,7 +87,8 @@ class Classification:
                 "noise_threshold": float(nt) if np.isfinite(nt) else None,
                 "target_threshold": self.target_threshold,
                 "means": m.means.tolist(), "sigmas": m.sigmas.tolist(), "weights": m.weights.tolist(),
-                "refined": self.refined, "moved_to_wood": self.moved_to_wood, "counts": self.counts}
+                "refined": self.refined, "moved_to_wood": self.moved_to_wood, "on_cylinders": self.on_cylinders,
+                "counts": self.counts}
 
 
 def _scan_step_deg(scan: Scan) -> float | None:

@@ -26,9 +26,11 @@ each scan's NAME.pose.json sidecar); a single scan may use its own frame with
 --scanner-frame. Scans without a pulse table (points only) need their angular
 grid (--angular-grid) to rebuild the pulses that left no echo.
 
-Echo classes: the scan's truth_material when present (simulated scans),
-otherwise every echo counts as plant material (the result is then plant area
-density) except ground echoes near the fitted ground plane.
+Echo classes: the labels 'tlsvox classify' wrote into the scan, else the
+scan's truth_material (simulated scans), otherwise every echo counts as plant
+material (the result is then plant area density) except ground echoes near
+the fitted ground plane. With --qsm, leaf-labelled echoes on the bark of a
+fitted cylinder count as wood (in memory; --qsm-keep-labels keeps them leaf).
 
 Echo weights (--echo-weights): how much of its pulse each echo stops. 'auto'
 (default) uses the share of the beam the echo intercepted when the scan has a
@@ -107,7 +109,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     model.add_argument("--qsm", action="store_true",
                        help="fit cylinders to the wood echoes (classified scans, or truth material) and fill solid "
                             "wood voxels from them; wood echoes no cylinder explains stay turbid wood "
-                            "(docs/voxelize.md, solid wood from fitted cylinders; tlsvox.pipeline does it by default)")
+                            "(docs/voxelize.md, solid wood from fitted cylinders; tlsvox.pipeline does it by default); "
+                            "leaf-classed echoes on a cylinder's bark are counted as wood (see --qsm-keep-labels)")
+    model.add_argument("--qsm-keep-labels", action="store_true",
+                       help="with --qsm: keep the scans' leaf labels on the fitted cylinders' bark (by default "
+                            "those echoes count as wood; the files are never changed)")
     model.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
                        help="occluded voxels: leave at 0, fill with their height layer's mean, or with the mean "
                             "of the nearest seen crown voxels (neighbourhood; dense layout)")
@@ -257,16 +263,30 @@ def run(args) -> int:
             raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
         measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
         leaf_angle = measured.leaf_angle
-    res = voxelize(scans, leaf_angle=leaf_angle, **options)
-    qsm = None
+    qsm = model = None
+    relabelled = 0
     if args.qsm:
-        from tlsvox.qsm import apply_cylinders, fit_cylinders, wood_points
+        from tlsvox.classify import PointClass
+        from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+
+        model = fit_cylinders(wood_points(scans))
+        if not args.qsm_keep_labels:  # classified scans only (in memory; the input files are not touched)
+            classified = [s for s in scans if s.classification is not None]
+            for s, bark in zip(classified, bark_echoes(classified, model)):
+                s.classification = np.where(bark, np.uint8(PointClass.WOOD), s.classification).astype(
+                    s.classification.dtype)
+                relabelled += int(bark.sum())
+    res = voxelize(scans, leaf_angle=leaf_angle, **options)
+    if args.qsm:
+        from tlsvox.qsm import apply_cylinders, wood_points
 
         wood = wood_points(scans)
         if not len(wood):
             res.scene.meta["warnings"].append("--qsm: the scans have no wood echoes (classify them with tlsvox "
                                               "classify); no cylinders were fitted")
-        res.scene, qsm = apply_cylinders(res.scene, fit_cylinders(wood), wood)
+        res.scene, qsm = apply_cylinders(res.scene, model, wood)
+        qsm["leaf_echoes_relabelled_wood"] = relabelled
+        res.scene.meta.setdefault("qsm", {**model.summary(), **qsm})["leaf_echoes_relabelled_wood"] = relabelled
     for w in res.scene.meta["warnings"]:
         print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
     if args.strict and res.scene.meta["warnings"]:
