@@ -11,7 +11,7 @@ flagged occluded against the mesh's (as the demo scores it).
 
 Writes docs/bench/relabel.md.
 
-    .venv/bin/python benchmarks/bench_relabel.py            # about 6 min on 2 cores
+    .venv/bin/python benchmarks/bench_relabel.py            # about 4-5 min on 2 cores
 """
 
 from __future__ import annotations
@@ -90,7 +90,8 @@ def main(argv=None):
         f"Command: `.venv/bin/python benchmarks/bench_relabel.py --seed {args.seed}` ({minutes:.1f} min). "
         + machine_line(load0, os.getloadavg()),
         "",
-        f"The synthetic oak of seed {args.seed} (the demo's), its two simulated VZ-400 scans, "
+        f"The synthetic oak of seed {args.seed}{' (the demo' + chr(39) + 's)' if args.seed == 1 else ''}, its two "
+        "simulated VZ-400 scans, "
         f"`scene_from_scans` at {100 * args.voxel_size:.0f} cm with `undetected=\"model\"`, "
         f"`fill=\"neighbourhood\"` (the demo's settings), `qsm_relabel` off and on; {len(cyl)} cylinders fitted. "
         "A leaf-classed echo within max(3 sigma, 1 cm) of a trusted cylinder's side is relabelled wood "

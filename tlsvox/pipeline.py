@@ -82,7 +82,9 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
         (:func:`tlsvox.qsm.bark_echoes`) are relabelled wood before the scans
         are voxelised (each classification's ``on_cylinders`` counts them), so
         bark the classifier missed is not counted as leaf area.  The cylinders
-        are fitted to the classifier's wood echoes, before the relabelling.
+        are fitted to the classifier's wood echoes, before the relabelling;
+        the scene's turbid wood and ``apply_cylinders`` (its
+        ``wood_echoes_explained`` too) see the wood echoes after it.
 
     Returns
     -------

@@ -119,7 +119,8 @@ class CylinderModel:
             tol = max(3.0 * s, floor) if tolerance is None else float(tolerance)
             a, b, r = c[:3], c[3:6], c[6]
             reach = r + tol
-            box = np.all((p >= np.minimum(a, b) - reach) & (p <= np.maximum(a, b) + reach), axis=1)
+            pad = reach + tol  # a point tol beyond an end and reach off the axis lies within this of the end
+            box = np.all((p >= np.minimum(a, b) - pad) & (p <= np.maximum(a, b) + pad), axis=1)
             box &= out < 0
             if not box.any():
                 continue
@@ -523,16 +524,48 @@ def bark_echoes(scans, model: CylinderModel, classes=None, *, class_codes: str =
     the classifier agrees with them on most of their surface; one with more
     leaf than wood echoes on it runs through foliage and its leaves stay
     leaves.  Leaves within the band of a trusted branch are taken with it
-    (docs/bench/relabel.md measures how often against the truth).  ``classes``/``class_codes``
-    as :func:`tlsvox.voxel.voxlad.voxelize`'s; scans without a pose are taken
-    in their own frame.
+    (docs/bench/relabel.md measures how often against the truth).
+
+    Parameters
+    ----------
+    scans : sequence of tlsvox.scan.Scan
+        Registered scans (``pose``), as given to ``voxelize``.
+    model : CylinderModel
+        Cylinders fitted to the same scans' wood echoes (:func:`fit_cylinders`).
+    classes, class_codes
+        As :func:`tlsvox.voxel.voxlad.voxelize`'s: one label array per scan,
+        default each scan's own classification, else its truth material.
+    tolerance : float, optional
+        Half-width of the bark band, m (default per cylinder, above).
+
+    Returns
+    -------
+    list of (N_s,) bool
+        Per scan, its leaf-classed echoes on a trusted cylinder's bark.
+
+    Examples
+    --------
+    >>> from tlsvox.scan import PulseTable, Scan
+    >>> m = CylinderModel(np.array([[0, 0, 0, 0, 0, 2, 0.1]]), np.array([100]), np.array([0.002]),
+    ...                   np.array([180.0]), np.array([0]))
+    >>> xyz = np.array([[0.1, 0, 1], [0.1, 0, 1.2], [0.105, 0, 0.5], [0.2, 0, 1]])  # bark x 3, 10 cm off
+    >>> scan = Scan(xyz=xyz, pulse_id=np.arange(4), pose=np.eye(4),
+    ...             pulses=PulseTable(xyz / np.linalg.norm(xyz, axis=1, keepdims=True), np.ones(4, int)))
+    >>> from tlsvox.classify import PointClass
+    >>> labels = np.array([PointClass.WOOD, PointClass.WOOD, PointClass.LEAF, PointClass.LEAF], np.uint8)
+    >>> bark_echoes([scan], m, [labels])[0].tolist()
+    [False, False, True, False]
     """
     from tlsvox.voxel.trace import EchoKind
     from tlsvox.voxel.voxlad import _kinds_for
 
     scans = list(scans)
     classes = [None] * len(scans) if classes is None else list(classes)
+    if len(classes) != len(scans):
+        raise InputError(f"classes holds {len(classes)} label arrays for {len(scans)} scans; pass one per scan")
     n = len(model)
+    if n == 0:  # nothing fitted (too few wood echoes): nothing to relabel
+        return [np.zeros(len(s), bool) for s in scans]
     leaf_owner, n_leaf, n_wood = [], np.zeros(n, np.int64), np.zeros(n, np.int64)
     for s, c in zip(scans, classes):
         kind = _kinds_for(s, c, class_codes)

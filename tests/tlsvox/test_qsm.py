@@ -177,7 +177,11 @@ def test_cli_qsm_relabels_leaf_echoes_on_the_bark_in_memory_only(tmp_path, capsy
     trunk = np.column_stack([3.0 + r * np.cos(phi), r * np.sin(phi), z - 1.5])
     trunk += rng.normal(0, 0.002, trunk.shape)
     clump = np.array([2.5, 0.0, 0.0]) + rng.normal(0, 0.03, (500, 3))
-    pts = np.vstack([trunk, clump])
+    # leaves 3-5 cm off the bark, on the scanner's side (well outside the 1 cm band): they stay leaves
+    phi2 = rng.uniform(0.8 * np.pi, 1.2 * np.pi, 300)
+    rho2 = r + rng.uniform(0.03, 0.05, len(phi2))
+    near = np.column_stack([3.0 + rho2 * np.cos(phi2), rho2 * np.sin(phi2), rng.uniform(-0.8, 0.8, len(phi2))])
+    pts = np.vstack([trunk, clump, near])
     labels = np.full(len(pts), PointClass.WOOD, np.uint8)
     missed = rng.random(len(trunk)) < 0.2
     labels[:len(trunk)][missed] = PointClass.LEAF
@@ -195,3 +199,39 @@ def test_cli_qsm_relabels_leaf_echoes_on_the_bark_in_memory_only(tmp_path, capsy
     assert tlsvox_main([*common, "-o", str(tmp_path / "b.npz"), "--qsm-keep-labels"]) == 0
     assert json.loads(capsys.readouterr().out)["qsm"]["leaf_echoes_relabelled_wood"] == 0
     assert np.array_equal(Scan.read(tmp_path / "trunk.laz").classification, labels)
+    # the relabelled echoes are wood to the estimator: the trunk's missed bark no longer makes leaf area
+    from voxlidar.scene import Scene
+
+    a, b = Scene.load(tmp_path / "a.npz"), Scene.load(tmp_path / "b.npz")
+    assert a.total_leaf_area() < 0.8 * b.total_leaf_area(), (a.total_leaf_area(), b.total_leaf_area())
+    # echo by echo: exactly the trunk's leaf-labelled echoes within the band, none of the clump or the near leaves
+    from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+
+    read = Scan.read(tmp_path / "trunk.laz")
+    read.pose = pose
+    bark = bark_echoes([read], fit_cylinders(wood_points([read])))[0]
+    assert not bark[len(trunk):].any() and np.all(bark[:len(trunk)] <= missed)
+
+
+def test_cli_qsm_with_no_wood_echoes_warns_and_writes(tmp_path, capsys):
+    # a classified scan of leaves only: nothing to fit, nothing relabelled, the scene written with the warning
+    import json
+
+    from tlsvox.classify import PointClass
+    from tlsvox.cli.app import main as tlsvox_main
+    from tlsvox.qsm import bark_echoes, fit_cylinders
+    from tlsvox.scan import CLASSIFY_MARK, PulseTable, Scan
+
+    pts = np.array([2.5, 0.0, 0.0]) + np.random.default_rng(6).normal(0, 0.2, (2000, 3))
+    scan = Scan(xyz=pts, pulse_id=np.arange(len(pts)), classification=np.full(len(pts), PointClass.LEAF, np.uint8),
+                pose=np.eye(4), pulses=PulseTable(pts / np.linalg.norm(pts, axis=1, keepdims=True),
+                                                  np.ones(len(pts), int)), meta={"classes": CLASSIFY_MARK})
+    empty = fit_cylinders(np.zeros((0, 3)))
+    assert len(empty) == 0 and not bark_echoes([scan], empty)[0].any()
+    scan.write(tmp_path / "leaves.laz")
+    common = ["voxelize", str(tmp_path / "leaves.laz"), "--voxel-size", "0.2", "--ground", "none"]
+    assert tlsvox_main([*common, "-o", str(tmp_path / "a.npz"), "--qsm"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["qsm"]["leaf_echoes_relabelled_wood"] == 0 and "no wood echoes" in out.err
+    assert tlsvox_main([*common, "-o", str(tmp_path / "b.npz"), "--qsm-keep-labels"]) == 2
+    assert "needs --qsm" in capsys.readouterr().err

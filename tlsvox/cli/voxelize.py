@@ -113,7 +113,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                             "leaf-classed echoes on a cylinder's bark are counted as wood (see --qsm-keep-labels)")
     model.add_argument("--qsm-keep-labels", action="store_true",
                        help="with --qsm: keep the scans' leaf labels on the fitted cylinders' bark (by default "
-                            "those echoes count as wood; the files are never changed)")
+                            "the leaf echoes of classified scans there count as wood; truth materials are kept; "
+                            "the files are never changed)")
     model.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
                        help="occluded voxels: leave at 0, fill with their height layer's mean, or with the mean "
                             "of the nearest seen crown voxels (neighbourhood; dense layout)")
@@ -251,21 +252,14 @@ def run(args) -> int:
                    wood_reflectance=args.wood_reflectance, undetected=args.undetected,
                    detection_threshold_db=args.detection_threshold_db, leaf_shape=args.leaf_shape,
                    tracer=Tracer(args.device) if args.device else None)
+    if args.qsm_keep_labels and not args.qsm:
+        raise InputError("--qsm-keep-labels needs --qsm (it keeps the leaf labels on the fitted cylinders' bark)")
     if args.plan:  # the same run's plan (the leaf angle model does not change what it holds)
         print(voxelize(scans, plan_only=True, **options).describe())
         return 0
-    measured = None
-    leaf_angle = args.leaf_angle or "uniform"
-    if args.leaf_angle == "measured":
-        from tlsvox.leafangles import measure_leaf_angles
-
-        if args.leaf_angle_layers < 1:
-            raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
-        measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
-        leaf_angle = measured.leaf_angle
     qsm = model = None
     relabelled = 0
-    if args.qsm:
+    if args.qsm:  # before the leaf angles are measured: they read the leaf labels
         from tlsvox.classify import PointClass
         from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
 
@@ -276,6 +270,15 @@ def run(args) -> int:
                 s.classification = np.where(bark, np.uint8(PointClass.WOOD), s.classification).astype(
                     s.classification.dtype)
                 relabelled += int(bark.sum())
+    measured = None
+    leaf_angle = args.leaf_angle or "uniform"
+    if args.leaf_angle == "measured":
+        from tlsvox.leafangles import measure_leaf_angles
+
+        if args.leaf_angle_layers < 1:
+            raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
+        measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
+        leaf_angle = measured.leaf_angle
     res = voxelize(scans, leaf_angle=leaf_angle, **options)
     if args.qsm:
         from tlsvox.qsm import apply_cylinders, wood_points
