@@ -6,8 +6,9 @@
  * -DK) and a fitted (-DFIT_BASELINE=1) or held baseline.  Parameters are laid
  * out [a_1..a_K, m_1..m_K, s_1..s_K, b] (samples); the Jacobian is never
  * stored: each block of 8 samples (a float8) adds its rows to the normal matrix
- * J^T J and to J^T r in one regular pass over every entry, the echoes more than
- * REACH sigma away adding exact zeros (their exponentials are not taken).
+ * J^T J and to J^T r in one regular pass over every entry (two blocks per pass),
+ * the echoes more than REACH sigma away adding exact zeros (their exponentials
+ * are not taken).
  *
  * Portability: the kernel is built without -cl-fast-relaxed-math and relies on
  * no infinity: a trial step whose residual sum overflows (or is NaN) fails the
@@ -64,13 +65,58 @@ CLSIM_INLINE void unpack_sums(const float8 *v, const float8 *m, const int M, flo
     }
 }
 
-/* Residual sum of squares at q and, when want, J^T J (h, NF x NF, full) and J^T r (g).
- * A censored sample counts only where the model falls below it (Tobin 1958).
- * Eight samples at a time (float8: one SIMD register on a CPU), over the blocks
- * [b0, b1) that hold the samples that count (the others add exact zeros); rows are
- * padded to a multiple of 8 with samples that do not count. */
+/* One block of 8 samples from i0 at q: its residuals r (zero where a sample does not
+ * count, or is censored below the model: Tobin 1958), the weights kf (1 where it
+ * counts, else 0) and the columns d of the weighted Jacobian (zeros for an echo out
+ * of reach, whose exponential is not taken); 0 when no echo reaches the block. */
+CLSIM_INLINE int block(global const float *y, global const uchar *fl, const int i0,
+                       const float *q, const float *inv_s, const float *a_s, const float *lo,
+                       const float *hi, float8 *r, float8 *kf, float8 *d)
+{
+    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    const int8 f = convert_int8(vload8(0, fl + i0));
+    const float x0 = (float)i0;
+    const float8 t = (float8)(x0) + lane;
+    float8 e[K], z[K];
+    float8 model = (float8)(q[3 * K]);
+    int reached = 0;
+    for (int k = 0; k < K; ++k) {
+        /* an echo out of reach adds exact zeros (its exponential is not taken) */
+        z[k] = (float8)(0.0f);
+        e[k] = (float8)(0.0f);
+        if (x0 >= lo[k] && x0 <= hi[k]) {
+            reached = 1;
+            z[k] = (t - q[K + k]) * inv_s[k];
+            e[k] = exp(-0.5f * z[k] * z[k]);
+            model += q[k] * e[k];
+        }
+    }
+    const float8 rr = model - vload8(0, y + i0);
+    const int8 keep = ((f & USE) != 0) & ~(((f & CENS) != 0) & (rr >= 0.0f));
+    *r = select((float8)(0.0f), rr, keep);
+    *kf = select((float8)(0.0f), (float8)(1.0f), keep);
+    for (int k = 0; k < K; ++k) {
+        d[k] = e[k] * *kf;
+        d[K + k] = d[k] * a_s[k] * z[k];
+        d[2 * K + k] = d[K + k] * z[k];
+    }
+#if FIT_BASELINE
+    d[3 * K] = *kf;
+#endif
+    return reached;
+}
+
+/* Residual sum of squares at q, J^T J (h, NF x NF, full) and J^T r (g).  Eight
+ * samples at a time (float8: one SIMD register on a CPU), over the blocks [b0, b1)
+ * that hold the samples that count (the others add exact zeros); rows are padded to
+ * a multiple of 8 with samples that do not count.  Two blocks per pass over the
+ * accumulators: each is loaded and stored once for both blocks' fused multiply-adds,
+ * in the blocks' order, which halves their memory traffic once they no longer fit in
+ * registers (about a tenth of the kernel's time on PoCL; fma is what PoCL contracted
+ * the earlier one-block `+=` to under -cl-mad-enable, so the sums and fits are the
+ * same bit for bit there). */
 CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const int b0,
-                            const int b1, const float *q, const int want, float *h, float *g)
+                            const int b1, const float *q, float *h, float *g)
 {
     float inv_s[K], a_s[K];
     for (int k = 0; k < K; ++k) {
@@ -84,63 +130,38 @@ CLSIM_INLINE float evaluate(global const float *y, global const uchar *fl, const
         lo[k] = q[K + k] - REACH * q[2 * K + k] - 7.0f;
         hi[k] = q[K + k] + REACH * q[2 * K + k];
     }
-    const float8 lane = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
     float8 hv[NF * (NF + 1) / 2], gv[NF];
     float8 cost = (float8)(0.0f);
-    if (want) {
-        for (int i = 0; i < NF * (NF + 1) / 2; ++i) hv[i] = (float8)(0.0f);
-        for (int i = 0; i < NF; ++i) gv[i] = (float8)(0.0f);
-    }
-    for (int i0 = b0; i0 < b1; i0 += 8) {
-        const int8 f = convert_int8(vload8(0, fl + i0));
-        const float x0 = (float)i0;
-        const float8 t = (float8)(x0) + lane;
-        float8 e[K], z[K];
-        float8 model = (float8)(q[3 * K]);
-        int reached = 0;
-        for (int k = 0; k < K; ++k) {
-            /* an echo out of reach adds exact zeros (its exponential is not taken) */
-            z[k] = (float8)(0.0f);
-            e[k] = (float8)(0.0f);
-            if (x0 >= lo[k] && x0 <= hi[k]) {
-                reached = 1;
-                z[k] = (t - q[K + k]) * inv_s[k];
-                e[k] = exp(-0.5f * z[k] * z[k]);
-                model += q[k] * e[k];
-            }
-        }
-        float8 r = model - vload8(0, y + i0);
-        const int8 keep = ((f & USE) != 0) & ~(((f & CENS) != 0) & (r >= 0.0f));
-        r = select((float8)(0.0f), r, keep);
-        cost += r * r;
-        if (!want) continue;
-        const float8 kf = select((float8)(0.0f), (float8)(1.0f), keep);
+    for (int i = 0; i < NF * (NF + 1) / 2; ++i) hv[i] = (float8)(0.0f);
+    for (int i = 0; i < NF; ++i) gv[i] = (float8)(0.0f);
+    for (int i0 = b0; i0 < b1; i0 += 16) {
+        const int two = i0 + 8 < b1;
+        float8 r1, k1, d1[NF], r2 = (float8)(0.0f), k2 = (float8)(0.0f), d2[NF];
+        int reached = block(y, fl, i0, q, inv_s, a_s, lo, hi, &r1, &k1, d1);
+        if (two)
+            reached |= block(y, fl, i0 + 8, q, inv_s, a_s, lo, hi, &r2, &k2, d2);
+        else
+            for (int p = 0; p < NF; ++p) d2[p] = (float8)(0.0f);
+        cost = fma(r1, r1, cost);
+        cost = fma(r2, r2, cost);
         if (!reached) {
             /* baseline alone: the echoes' rows and columns would add exact zeros */
 #if FIT_BASELINE
-            gv[NF - 1] += kf * r;
-            hv[NF * (NF + 1) / 2 - 1] += kf;
+            gv[NF - 1] = fma(k2, r2, fma(k1, r1, gv[NF - 1]));
+            hv[NF * (NF + 1) / 2 - 1] = (hv[NF * (NF + 1) / 2 - 1] + k1) + k2;
 #endif
             continue;
         }
-        float8 d[NF];
-        for (int k = 0; k < K; ++k) {
-            d[k] = e[k] * kf;
-            d[K + k] = d[k] * a_s[k] * z[k];
-            d[2 * K + k] = d[K + k] * z[k];
-        }
-#if FIT_BASELINE
-        d[3 * K] = kf;
-#endif
         /* every entry, in one regular pass (the rows of echoes out of reach add exact
          * zeros: a branch per entry costs more than the multiply-add it saves) */
         int idx = 0;
         for (int p = 0; p < NF; ++p) {
-            gv[p] += d[p] * r;
-            for (int c = p; c < NF; ++c) hv[idx++] += d[p] * d[c];
+            gv[p] = fma(d2[p], r2, fma(d1[p], r1, gv[p]));
+            for (int c = p; c < NF; ++c, ++idx)
+                hv[idx] = fma(d2[p], d2[c], fma(d1[p], d1[c], hv[idx]));
         }
     }
-    if (want) unpack_sums(gv, hv, NF, g, h);
+    unpack_sums(gv, hv, NF, g, h);
     return hsum8(cost);
 }
 
@@ -232,9 +253,10 @@ CLSIM_INLINE void linear_start(global const float *y, global const uchar *fl, co
 }
 #endif
 
-/* The damped normal matrix h + lam diag(h) (lam at least 1e-6) into c, scaled to a
- * unit diagonal (Marquardt 1963: the same step, and float32 factorises it far more
- * accurately than the raw matrix, whose diagonal spans many orders), with its
+/* The damped normal matrix h + lam diag(h) (lam at least 1e-6) into c's lower
+ * triangle and diagonal (what cholesky() reads), scaled to a unit diagonal
+ * (Marquardt 1963: the same step, and float32 factorises it far more accurately
+ * than the raw matrix, whose diagonal spans many orders), with its
  * right-hand side -g scaled alike; the step is x * sc.  A parameter whose diagonal
  * is (relatively) zero is frozen: its row and column become the identity, its
  * right-hand side zero, so it takes no step. */
@@ -246,7 +268,7 @@ CLSIM_INLINE void damped(const float *h, const float *g, const float lam, float 
     const float tiny = 1.0e-7f * dmax;
     for (int p = 0; p < NF; ++p) sc[p] = h[p * NF + p] > tiny ? rsqrt(h[p * NF + p]) : 0.0f;
     for (int p = 0; p < NF; ++p) {
-        for (int c2 = 0; c2 < NF; ++c2) c[p * NF + c2] = h[p * NF + c2] * sc[p] * sc[c2];
+        for (int c2 = 0; c2 < p; ++c2) c[p * NF + c2] = h[p * NF + c2] * sc[p] * sc[c2];
         c[p * NF + p] = sc[p] > 0.0f ? 1.0f + fast_max(lam, 1.0e-6f) : 1.0f;
         rhs[p] = -g[p] * sc[p];
     }
@@ -372,7 +394,7 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
 #if FIT_BASELINE
     if (linear) linear_start(y, fl, b0, b1, q, c);
 #endif
-    float cost = evaluate(y, fl, b0, b1, q, 1, h, g);
+    float cost = evaluate(y, fl, b0, b1, q, h, g);
     float lam = 1.0e-3f, nu = 2.0f;
     int it = 0;
     while (it < max_iter) {
@@ -413,7 +435,7 @@ kernel void lm_fit(global const float *Y, global const uchar *FL, const int n,
         for (int p = 0; p < NP; ++p) qt[p] = q[p] + (p < NF ? step[p] : 0.0f);
         for (int k = 0; k < K; ++k)
             qt[2 * K + k] = clamp(fast_abs(qt[2 * K + k]), 0.2f, (float)n);
-        const float ct = evaluate(y, fl, b0, b1, qt, 1, ht, gt);
+        const float ct = evaluate(y, fl, b0, b1, qt, ht, gt);
         if (ct <= cost && ct < BIG) {
             const float gain = cost - ct;
             const float rho = pred > 0.0f ? clamp(gain / pred, 0.0f, 1.0f) : 0.0f;

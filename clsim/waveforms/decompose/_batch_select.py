@@ -63,16 +63,25 @@ def _fit_rows(fit, rows, a, m, s, b, fit_baseline=True, linear=False):
             continue
         sel = np.flatnonzero(rk == k)
         on = np.isfinite(a[sel])
-        # compact the active echoes to the first k columns
-        order = np.argsort(~on, axis=1, kind="stable")[:, :k]
-        take = lambda v: np.take_along_axis(v[sel], order, axis=1)  # noqa: E731
-        groups.append((rows[sel], take(a), take(m), take(s), b[sel]))
+        if on[:, :k].all():
+            # the active echoes are the first k columns already (as after detection)
+            order = None
+            groups.append((rows[sel], a[sel, :k], m[sel, :k], s[sel, :k], b[sel]))
+        else:
+            # compact the active echoes to the first k columns
+            order = np.argsort(~on, axis=1, kind="stable")[:, :k]
+            a_k, m_k, s_k = (np.take_along_axis(v[sel], order, axis=1) for v in (a, m, s))
+            groups.append((rows[sel], a_k, m_k, s_k, b[sel]))
         placed.append((k, sel, order))
     for (k, sel, order), res in zip(placed, fit(groups, fit_baseline, linear)):
         ii = sel[:, None]
-        out_a[ii, order], out_m[ii, order], out_s[ii, order] = res.a, res.m, res.s
-        for q in range(3):
-            out_se[ii, q, order] = res.se[:, q * k:(q + 1) * k]
+        if order is None:
+            out_a[sel, :k], out_m[sel, :k], out_s[sel, :k] = res.a, res.m, res.s
+            out_se[sel, :, :k] = res.se[:, :3 * k].reshape(-1, 3, k)
+        else:
+            out_a[ii, order], out_m[ii, order], out_s[ii, order] = res.a, res.m, res.s
+            for q in range(3):
+                out_se[ii, q, order] = res.se[:, q * k:(q + 1) * k]
         out_b[sel], out_rss[sel], out_neff[sel] = res.b, res.rss, res.n_eff
         if fit_baseline:
             out_bse[sel] = res.se[:, 3 * k]

@@ -191,6 +191,35 @@ def test_device_fits_match_numpy(cl_device_for_fits):
     assert abs(got.n_iter.mean() - ref.n_iter.mean()) < 0.5, (got.n_iter.mean(), ref.n_iter.mean())
 
 
+@pytest.mark.parametrize("blocks", [1, 2, 3, 4, 5])
+def test_device_fits_every_block_of_the_span(blocks, cl_device_for_fits):
+    """The kernel sums two blocks of 8 samples per pass; a counted span of an odd
+    number of blocks ends on a block alone. An echo whose tails reach the span's first
+    and last samples (2 sigma from its peak), counted over 8 x ``blocks`` samples that
+    start and end inside a longer row: the device fits the NumPy fits' minimum over the
+    same samples (parameters within 0.02 standard error, RSS within 1e-4 relative, as
+    in ``test_device_fits_match_numpy``); a block left out or one read beyond the span
+    would change the RSS by the squared noise of its samples (1/blocks of it or more)."""
+    rng = np.random.default_rng(20 + blocks)
+    n, lo, g = 64, 8, 300
+    span = 8 * blocks
+    t = np.arange(n, dtype=float)
+    m0, s0 = lo + (span - 1) / 2.0, span / 4.0
+    y = 10.0 + gaussian_sum(t, [90.0], [m0], [s0]) + rng.normal(0.0, 2.0, (g, n))
+    use = np.zeros(y.shape, bool)
+    use[:, lo:lo + span] = True
+    noise = np.full(g, 2.0)
+    start = (np.full((g, 1), 80.0), np.full((g, 1), m0 + 0.3), np.full((g, 1), 1.1 * s0),
+             np.full(g, 9.0))
+    ref = fit_group(y, use, *start, noise=noise)
+    got = device_fitter(cl_device_for_fits).bind(y, use, None, noise).fit(np.arange(g), *start)
+    np.testing.assert_array_equal(got.n_eff, span)
+    for name, col in (("a", 0), ("m", 1), ("s", 2), ("b", 3)):
+        dz = np.abs(getattr(got, name).reshape(g) - getattr(ref, name).reshape(g)) / ref.se[:, col]
+        assert np.all(dz < 0.02), (name, dz.max())
+    np.testing.assert_allclose(got.rss, ref.rss, rtol=1e-4)
+
+
 def test_device_standard_errors_float32_inverse(cl_device_for_fits):
     """The standard errors inverted in float32 (devices without double) agree with the
     double inverse of the same fits within 1e-4 relative (the matrix is scaled to a
