@@ -115,16 +115,21 @@ class CylinderModel:
         ``surface``, only points within the tolerance of the side (not inside) count."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(p), -1, np.int64)
+        if not len(p) or not len(self):
+            return out
+        order = np.argsort(p[:, 0], kind="stable")  # each cylinder's box is a slice of the points sorted by x
+        px = p[order, 0]
         for i, (c, s) in enumerate(zip(self.cylinders, self.sigma)):
             tol = max(3.0 * s, floor) if tolerance is None else float(tolerance)
             a, b, r = c[:3], c[3:6], c[6]
             reach = r + tol
             pad = reach + tol  # a point tol beyond an end and reach off the axis lies within this of the end
-            box = np.all((p >= np.minimum(a, b) - pad) & (p <= np.maximum(a, b) + pad), axis=1)
-            box &= out < 0
-            if not box.any():
+            lo, hi = np.minimum(a, b) - pad, np.maximum(a, b) + pad
+            idx = order[np.searchsorted(px, lo[0], "left"):np.searchsorted(px, hi[0], "right")]
+            q = p[idx]
+            idx = idx[np.all((q[:, 1:] >= lo[1:]) & (q[:, 1:] <= hi[1:]), axis=1) & (out[idx] < 0)]
+            if not len(idx):
                 continue
-            idx = np.flatnonzero(box)
             length = np.linalg.norm(b - a)
             u = (b - a) / length
             x = p[idx] - a

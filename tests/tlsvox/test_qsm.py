@@ -235,3 +235,33 @@ def test_cli_qsm_with_no_wood_echoes_warns_and_writes(tmp_path, capsys):
     assert json.loads(out.out)["qsm"]["leaf_echoes_relabelled_wood"] == 0 and "no wood echoes" in out.err
     assert tlsvox_main([*common, "-o", str(tmp_path / "b.npz"), "--qsm-keep-labels"]) == 2
     assert "needs --qsm" in capsys.readouterr().err
+
+
+def test_owner_matches_the_direct_test_of_every_cylinder():
+    # owner() looks each cylinder up in a slice of the points sorted by x: the same first owner as testing
+    # every point against every cylinder (ends overshot by the tolerance, thin and thick, tilted cylinders)
+    rng = np.random.default_rng(8)
+    n = 40
+    a = rng.uniform(-1, 1, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    b = a + d * rng.uniform(0.1, 0.6, (n, 1))
+    cyl = np.hstack([a, b, rng.uniform(0.01, 0.2, (n, 1))])
+    model = CylinderModel(cyl, np.full(n, 50), rng.uniform(0.001, 0.01, n), np.full(n, 180.0), np.arange(n))
+    pts = rng.uniform(-1.3, 1.3, (200_000, 3))
+    for kw in ({}, {"surface": True, "floor": 0.01}, {"tolerance": 0.05}):
+        want = np.full(len(pts), -1)
+        for i, (c, s) in enumerate(zip(cyl, model.sigma)):
+            tol = kw.get("tolerance", max(3 * s, kw.get("floor", 0.02)))
+            length = np.linalg.norm(c[3:6] - c[:3])
+            u = (c[3:6] - c[:3]) / length
+            x = pts - c[:3]
+            t = x @ u
+            rad = np.linalg.norm(x - t[:, None] * u, axis=1)
+            hit = (t > -tol) & (t < length + tol) & (rad < c[6] + tol) & (want < 0)
+            if kw.get("surface"):
+                hit &= rad > c[6] - tol
+            want[hit] = i
+        got = model.owner(pts, **kw)
+        assert (want >= 0).sum() > 1000 and np.array_equal(got, want)
+    assert np.array_equal(model.explained(pts), model.owner(pts) >= 0)
