@@ -38,7 +38,7 @@ def main(argv=None):
     from tlsvox.pipeline import scene_from_scans
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
-    from tlsvox.voxel.voxlad import score_lad
+    from tlsvox.voxel.quality import score_seen
     from voxlidar.materials import Material
 
     load0 = os.getloadavg()
@@ -61,11 +61,7 @@ def main(argv=None):
         sc = pr.scene
         truth = tree.leaf_area_per_voxel(origin=sc.origin, voxel_size=sc.voxel_size, shape=sc.shape)
         vol = sc.voxel_size**3
-        lad, occ = sc.dense("lad"), sc.dense("occluded")
-        visible = ~occ & ((lad > 0) | (truth > 0))
-        all_ = score_lad(lad, truth / vol, voxel_volume=vol)
-        vis = score_lad(np.where(visible, lad, 0.0), np.where(visible, truth / vol, 0.0), mask=visible,
-                        voxel_volume=vol)
+        all_, vis = score_seen(sc.dense("lad"), sc.dense("occluded"), truth / vol, voxel_volume=vol)
         per_scan = []
         for s, c in zip(ss, pr.classifications):
             q = score(c.labels, s.truth_material)

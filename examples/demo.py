@@ -155,7 +155,7 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
     from tlsvox.pipeline import scene_from_scans
     from tlsvox.classify.plots import plot_reflectance_histograms, render_classified
     from tlsvox.render import colormap, render, voxel_mesh
-    from tlsvox.voxel.voxlad import score_lad
+    from tlsvox.voxel.quality import score_seen
 
     with rep.stage("register, classify, voxelize"):
         pr = scene_from_scans(scans, voxel_size=args.voxel_size, progress=True,
@@ -191,12 +191,7 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
     with rep.stage("score LAD against the mesh truth"):
         truth_area = tree.leaf_area_per_voxel(origin=scene.origin, voxel_size=scene.voxel_size, shape=scene.shape)
         vol = scene.voxel_size**3
-        lad = scene.dense("lad")
-        occ = scene.dense("occluded")
-        visible = ~occ & ((lad > 0) | (truth_area > 0))
-        sc_all = score_lad(lad, truth_area / vol, voxel_volume=vol)
-        sc_vis = score_lad(np.where(visible, lad, 0.0), np.where(visible, truth_area / vol, 0.0), mask=visible,
-                           voxel_volume=vol)
+        sc_all, sc_vis = score_seen(scene.dense("lad"), scene.dense("occluded"), truth_area / vol, voxel_volume=vol)
     rep.summary["lad"] = {"all": sc_all, "visible": sc_vis, "undetected": args.undetected, "fill": args.fill}
     with rep.stage("figures: voxels"):
         c = scene.centers()

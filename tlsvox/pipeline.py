@@ -15,7 +15,6 @@ those tools play.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -114,17 +113,14 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
     timings["classify"] = time.perf_counter() - t0
     model = None
     if qsm:
-        from tlsvox.classify import PointClass
         from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
 
         t0 = time.perf_counter()
         model = fit_cylinders(wood_points(scans, [c.labels for c in classes], class_codes="pointclass"),
                               **(qsm_kwargs or {}))
         if qsm_relabel:
-            for i, (c, bark) in enumerate(zip(classes, bark_echoes(scans, model, [c.labels for c in classes]))):
-                labels = np.where(bark, np.uint8(PointClass.WOOD), c.labels).astype(c.labels.dtype)
-                counts = {k.name.lower(): int(np.count_nonzero(labels == k)) for k in PointClass}
-                classes[i] = dataclasses.replace(c, labels=labels, counts=counts, on_cylinders=int(bark.sum()))
+            barks = bark_echoes(scans, model, [c.labels for c in classes])
+            classes = [c.with_bark(bark) for c, bark in zip(classes, barks)]
         timings["qsm"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     vox = voxelize(scans, voxel_size=voxel_size, classes=[c.labels for c in classes], class_codes="pointclass",

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 import numpy as np
 from tlsvox.errors import InputError
@@ -77,6 +78,14 @@ class Classification:
     fit_single_returns: bool = False
     on_cylinders: int = 0
 
+    def with_bark(self, bark) -> "Classification":
+        """A copy with the echoes of ``bark`` ((N,) bool: leaf echoes on a fitted cylinder's bark,
+        :func:`tlsvox.qsm.bark_echoes`) labelled wood, its counts and ``on_cylinders`` updated."""
+        bark = np.asarray(bark, bool)
+        labels = np.where(bark, np.uint8(PointClass.WOOD), self.labels).astype(self.labels.dtype)
+        return dataclasses.replace(self, labels=labels, counts=class_counts(labels),
+                                   on_cylinders=self.on_cylinders + int(bark.sum()))
+
     def summary(self) -> dict:
         m = self.mixture
         nt = self.noise_threshold
@@ -89,6 +98,11 @@ class Classification:
                 "means": m.means.tolist(), "sigmas": m.sigmas.tolist(), "weights": m.weights.tolist(),
                 "refined": self.refined, "moved_to_wood": self.moved_to_wood, "on_cylinders": self.on_cylinders,
                 "counts": self.counts}
+
+
+def class_counts(labels) -> dict:
+    """Echoes per :class:`PointClass`, by lower-case name."""
+    return {c.name.lower(): int(np.count_nonzero(labels == c)) for c in PointClass}
 
 
 def _scan_step_deg(scan: Scan) -> float | None:
@@ -229,8 +243,8 @@ def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod
     if refine:
         labels, moved = refine_geometric(scan.xyz, labels, k=refine_k, min_linearity=min_linearity,
                                          min_wood_fraction=min_wood_fraction)
-    counts = {c.name.lower(): int(np.count_nonzero(labels == c)) for c in PointClass}
     return Classification(scan.name, labels, rho, mix, t, noise_t, target_threshold, rule.value,
-                          refine, moved, counts, method=method.value, feature=feature, feature_label=label,
+                          refine, moved, class_counts(labels), method=method.value, feature=feature,
+                          feature_label=label,
                           incidence_correction=bool(incidence_correction),
                           fit_single_returns=bool(fit.sum() < len(fit)))

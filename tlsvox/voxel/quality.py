@@ -6,7 +6,7 @@ import numpy as np
 
 from tlsvox.errors import InputError
 
-__all__ = ["LAD_PLAUSIBLE_MAX", "LINE_FIT_MIN", "OCCLUDED_SHARE_MAX", "quality_warnings", "score_lad"]
+__all__ = ["LAD_PLAUSIBLE_MAX", "LINE_FIT_MIN", "OCCLUDED_SHARE_MAX", "quality_warnings", "score_lad", "score_seen"]
 
 
 #: Quality gates (``tlsvox voxelize`` warns; with ``--strict`` it fails).
@@ -82,3 +82,28 @@ def score_lad(lad, truth, *, mask=None, voxel_volume: float = 1.0) -> dict:
     return {"total_area": ta, "true_area": tt, "area_error": (ta - tt) / tt if tt > 0 else float("nan"),
             "rmse": float(np.sqrt(np.mean(diff**2))) if diff.size else 0.0,
             "bias": float(np.mean(diff)) if diff.size else 0.0, "n_scored": int(m.sum())}
+
+
+def score_seen(lad, occluded, truth, *, voxel_volume: float = 1.0) -> tuple[dict, dict]:
+    """:func:`score_lad` over all voxels, and over the voxels not flagged occluded.
+
+    The second counts only voxels not flagged ``occluded`` that hold leaf area in
+    the estimate or the truth (the demo's "voxels not flagged occluded" row).
+
+    Returns
+    -------
+    (dict, dict)
+        All voxels; seen voxels (``total_area`` and ``true_area`` over those only).
+
+    Examples
+    --------
+    >>> lad, truth = np.array([1.0, 2.0, 0.0]), np.array([1.0, 1.0, 3.0])
+    >>> all_, seen = score_seen(lad, np.array([False, False, True]), truth)
+    >>> round(all_["area_error"], 2), seen["area_error"]
+    (-0.4, 0.5)
+    """
+    lad = np.asarray(lad, dtype=np.float64)
+    truth = np.asarray(truth, dtype=np.float64)
+    seen = ~np.asarray(occluded, bool) & ((lad > 0) | (truth > 0))
+    return (score_lad(lad, truth, voxel_volume=voxel_volume),
+            score_lad(np.where(seen, lad, 0.0), np.where(seen, truth, 0.0), mask=seen, voxel_volume=voxel_volume))
