@@ -107,6 +107,11 @@ def main(argv=None) -> int:
                     "(default 0.02,0.05,0.1,0.2,0.4; quick 0.2,0.4)")
     ap.add_argument("--tls-sizes", default=None, help="voxel sizes for the TLS pipeline, m "
                     "(default 0.02,0.05,0.1,0.2,0.4; quick 0.2,0.4)")
+    ap.add_argument("--tls-lad-sizes", default="0.1,0.2",
+                    help="also run each TLS pipeline size below these with the LAD estimated at that size "
+                         "(voxelize's lad_voxel_size, placed evenly; '': not)")
+    ap.add_argument("--tls-lad-echoes", action="store_true",
+                    help="and with the leaf area placed by leaf echo weight (lad_placement='echoes')")
     ap.add_argument("--hotspot-off-size", type=float, default=0.2,
                     help="voxel size also simulated without the hot-spot option")
     ap.add_argument("--pulses", default="nadir-centre,oblique-edge")
@@ -225,7 +230,7 @@ def main(argv=None) -> int:
         for hot in ((True, False) if abs(h - args.hotspot_off_size) < 1e-9 else (True,)):
             res = simulate(scene, n_vox, hot, seeds)
             rows.append(dict(axis="voxel", source="exact LAD", h=h, hot=hot, photons=n_vox, scene_s=t_scene,
-                             voxels=len(scene.lad), per=res))
+                             voxels=len(scene.lad), leaf_area=float(scene.lad.sum() * h**3), per=res))
             log(f"exact LAD {h:g} m hot={hot}: scene {t_scene:.1f} s; "
                 + "; ".join(f"{k} nrmse {v['nrmse']:.3f} 1-r {v['one_r']:.3f} {v['time']:.1f} s"
                             for k, v in res.items()))
@@ -241,22 +246,33 @@ def main(argv=None) -> int:
         scan_s = time.perf_counter() - t0
         n_pulses = sum(len(s.pulses) for s in scans)
         log(f"two simulated scans: {n_pulses:,} pulses, {scan_s:.1f} s")
-    for h in tls_sizes:
+    runs = [(h, None, None) for h in tls_sizes]
+    for H in [float(v) for v in args.tls_lad_sizes.split(",") if v]:  # the LAD estimated at H (a multiple of h)
+        for h in tls_sizes:
+            if h < H and abs(H / h - round(H / h)) < 1e-6:
+                runs += [(h, H, "even")] + ([(h, H, "echoes")] if args.tls_lad_echoes else [])
+    for h, lad_h, placement in runs:
         for s in scans:
             s.pose = None  # scene_from_scans sets the poses: start from unknown poses every time
+        source = ("TLS pipeline" if lad_h is None else f"TLS pipeline, LAD at {lad_h * 100:g} cm"
+                  + (", placed by echoes" if placement == "echoes" else ""))
         t0 = time.perf_counter()
         try:
-            pr = scene_from_scans(scans, voxel_size=h, progress=False)
+            pr = scene_from_scans(scans, voxel_size=h, progress=False,
+                                  voxelize_kwargs=None if lad_h is None else dict(lad_voxel_size=lad_h,
+                                                                                  lad_placement=placement))
         except Exception as err:  # noqa: BLE001 - e.g. the memory guard at small voxel sizes
             tls_skipped.append((h, f"{type(err).__name__}: {err}"))
-            log(f"TLS pipeline {h:g} m skipped: {err}")
+            log(f"{source} {h:g} m skipped: {err}")
             continue
         t_scene = time.perf_counter() - t0
-        for hot in ((True, False) if abs(h - args.hotspot_off_size) < 1e-9 else (True,)):
+        for hot in ((True, False) if abs(h - args.hotspot_off_size) < 1e-9 and lad_h is None else (True,)):
             res = simulate(pr.scene, n_vox, hot, seeds)
-            rows.append(dict(axis="voxel", source="TLS pipeline", h=h, hot=hot, photons=n_vox, scene_s=t_scene,
-                             scene_parts=dict(pr.timings), voxels=len(pr.scene.lad), per=res))
-            log(f"TLS pipeline {h:g} m hot={hot}: scene {t_scene:.1f} s {pr.timings}; "
+            rows.append(dict(axis="voxel", source=source, h=h, hot=hot, photons=n_vox, scene_s=t_scene,
+                             scene_parts=dict(pr.timings), voxels=len(pr.scene.lad),
+                             leaf_area=float(pr.scene.lad.sum() * h**3), per=res))
+            log(f"{source} {h:g} m hot={hot}: scene {t_scene:.1f} s {pr.timings}; leaf area "
+                f"{rows[-1]['leaf_area']:.1f} m2; "
                 + "; ".join(f"{k} nrmse {v['nrmse']:.3f} 1-r {v['one_r']:.3f} {v['time']:.1f} s"
                             for k, v in res.items()))
         del pr
@@ -342,16 +358,21 @@ def report(d: dict, out: Path, png: Path) -> None:
               "`tree.truth_scene` (the mesh's leaf and bark area per voxel); TLS pipeline = "
               "`scene_from_scans` = register + classify + voxelise/VoxLAD [+ cylinders fitted to the wood echoes "
               "filling solid wood, `tlsvox.qsm`, where the run had it] (the parts in brackets; the two "
-              f"simulated scans, {d['scan_s']:.0f} s, are not counted). `sim s`: one waveform simulation.", "",
-              "| scene | voxel | hot spot | voxels | scene s | sim s | NRMSE | 1 - r | E ratio |",
-              "|---|---:|---|---:|---:|---:|---|---|---|"]
+              f"simulated scans, {d['scan_s']:.0f} s, are not counted); *LAD at N cm*: `voxelize`'s "
+              "`lad_voxel_size`, the LAD estimated on the N cm grid and put on each of its fine voxels "
+              "(*placed by echoes*: its leaf area shared by their leaf echo weight; tlsvox.voxel.coarse). "
+              f"Leaf area: the scene's ({d['leaf_area']:.0f} m2 true). "
+              "`sim s`: one waveform simulation.", "",
+              "| scene | voxel | hot spot | voxels | leaf area, m2 | scene s | sim s | NRMSE | 1 - r | E ratio |",
+              "|---|---:|---|---:|---:|---:|---:|---|---|---|"]
     for r in rows:
         parts = ""
         if "scene_parts" in r:
             sp = r["scene_parts"]
             parts = f" ({sp.get('register', 0):.0f} + {sp.get('classify', 0):.0f} + {sp.get('voxelize', 0):.0f}"
             parts += f" + {sp['qsm']:.0f})" if "qsm" in sp else ")"
-        lines.append(f"| {r['source']} | {r['h']:g} m | {'on' if r['hot'] else 'off'} | {r['voxels']:,} | "
+        area = f"{r['leaf_area']:.1f}" if "leaf_area" in r else "-"
+        lines.append(f"| {r['source']} | {r['h']:g} m | {'on' if r['hot'] else 'off'} | {r['voxels']:,} | {area} | "
                      f"{r['scene_s']:.1f}{parts} | {per(r, 'time')} | {per(r, 'nrmse')} | {per(r, 'one_r')} | "
                      f"{per(r, 'total')} |")
     for h, msg in d["tls_skipped"]:
@@ -377,9 +398,10 @@ def report(d: dict, out: Path, png: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(14, 5.6))
-    colors = {"exact LAD": "tab:green", "TLS pipeline": "tab:blue"}
+    sources = list(dict.fromkeys(r["source"] for r in rows))
+    colors = dict(zip(sources, ["tab:green", "tab:blue", "tab:orange", "tab:brown", "tab:purple", "tab:olive"]))
     marks = dict(zip(pn, ["o", "^", "s", "D"]))
-    for src in ("exact LAD", "TLS pipeline"):
+    for src in sources:
         for n in pn:
             rr = [r for r in rows if r["source"] == src and r["hot"]]
             if not rr:

@@ -87,6 +87,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     grid.add_argument("--layout", default="auto", choices=[m.value for m in Layout],
                       help="tracer memory: sums for every voxel (dense), or only for voxels holding echoes "
                            "plus coarse sums per 8^3 brick (sparse; small voxels); default auto: dense up to 1 GiB")
+    grid.add_argument("--lad-voxel-size", type=float, default=None, metavar="METRES",
+                      help="estimate the LAD on a grid this much coarser (a whole multiple of --voxel-size, e.g. "
+                           "0.1 for 0.02 voxels; the estimators need voxels wider than the leaves) and put it on the "
+                           "fine grid, which keeps the wood and ground at --voxel-size (docs/voxelize.md, "
+                           "leaf-scale voxels)")
+    grid.add_argument("--lad-placement", default="even", choices=["even", "echoes"],
+                      help="with --lad-voxel-size: every fine voxel takes its coarse voxel's LAD (even, default), "
+                           "or its leaf area shared by the fine voxels' leaf echo weight (echoes)")
     grid.add_argument("--plan", action="store_true",
                       help="print what the grid will cost in memory for each layout, and exit (writes nothing)")
     grid.add_argument("--ground", default="ransac",
@@ -252,6 +260,10 @@ def run(args) -> int:
                    wood_reflectance=args.wood_reflectance, undetected=args.undetected,
                    detection_threshold_db=args.detection_threshold_db, leaf_shape=args.leaf_shape,
                    tracer=Tracer(args.device) if args.device else None)
+    if args.lad_voxel_size is not None:
+        options.update(lad_voxel_size=args.lad_voxel_size, lad_placement=args.lad_placement)
+    elif args.lad_placement != "even":
+        raise InputError("--lad-placement needs --lad-voxel-size (it says how the coarse LAD is put on the fine grid)")
     if args.qsm_keep_labels and not args.qsm:
         raise InputError("--qsm-keep-labels needs --qsm (it keeps the leaf labels on the fitted cylinders' bark)")
     if args.plan:  # the same run's plan (the leaf angle model does not change what it holds)
@@ -316,6 +328,8 @@ def run(args) -> int:
                    "estimator": s.meta["estimator"], "echo_weights": s.meta["echo_weights"],
                    "undetected": {k: v for k, v in s.meta["undetected"].items() if k != "models"},
                    "flags": s.meta["flags"], "beams": s.meta["beams"],
+                   **({} if "lad_voxel_size" not in s.meta else {"lad_voxel_size": {
+                       k: s.meta["lad_voxel_size"][k] for k in ("size", "placement", "rule")}}),
                    **({} if qsm is None else {"qsm": s.meta.get("qsm", qsm)}),
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))

@@ -64,6 +64,7 @@ class VoxelizeResult:
     ground: GroundPlane | None
     scans: list = field(default_factory=list)  #: per-scan info dicts
     timings: dict = field(default_factory=dict)  #: seconds per stage
+    coarse: "VoxelizeResult | None" = None  #: with ``lad_voxel_size``: the coarse run the LAD came from
 
 
 def _kinds_for(scan: Scan, classes, class_codes: str) -> np.ndarray:
@@ -94,7 +95,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
              echo_weights="auto", leaf_reflectance: float | None = None, wood_reflectance: float | None = None,
              undetected="ignore", detection_threshold_db: float | None = None, leaf_shape=(0.05, 0.025),
              undetected_iterations: int = 4, layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
-             progress: bool = True, plan_only: bool = False) -> VoxelizeResult:
+             lad_voxel_size: float | None = None, lad_placement: str = "even", progress: bool = True,
+             plan_only: bool = False) -> VoxelizeResult:
     """Build the voxel scene from registered scans.
 
     Parameters
@@ -186,6 +188,21 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         plan (:func:`memory_plan`) is checked before tracing.
     progress : bool
         tqdm progress bars.
+    lad_voxel_size : float, metres, optional
+        Estimate the leaf area density on a grid this much coarser (a whole
+        multiple of ``voxel_size``, e.g. 0.1 for 2 cm voxels) and place each
+        coarse voxel's leaf area on its fine voxels in proportion to their
+        leaf echo weight (:mod:`tlsvox.voxel.coarse`): for voxels smaller than
+        the leaves, where the turbid estimators fail.  ``fill`` and
+        ``undetected`` then act on the coarse grid; wood and ground stay fine.
+        Stated in ``scene.meta["lad_voxel_size"]``; the coarse run is the
+        result's ``coarse``.
+    lad_placement : {"even", "echoes"}
+        With ``lad_voxel_size``: each coarse voxel's LAD on all its fine
+        voxels (``even``, default), or its leaf area in proportion to the fine
+        voxels' leaf echo weight (``echoes``; it puts the leaves on the
+        surfaces the scanners saw, and reads worse against airborne
+        waveforms, docs/voxelize.md).
     plan_only : bool
         Stop after the beams and return the :class:`MemoryPlan` (nothing traced).
 
@@ -193,6 +210,11 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     -------
     VoxelizeResult (or MemoryPlan with ``plan_only``)
     """
+    if lad_voxel_size is not None:
+        call = dict(locals())  # every argument, for the fine and the coarse run
+        from tlsvox.voxel.coarse import voxelize_coarse_lad
+
+        return voxelize_coarse_lad(call)
     timings = {}
     t0 = time.perf_counter()
     if isinstance(scans, Scan):
