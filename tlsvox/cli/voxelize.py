@@ -261,6 +261,9 @@ def run(args) -> int:
                    detection_threshold_db=args.detection_threshold_db, leaf_shape=args.leaf_shape,
                    tracer=Tracer(args.device) if args.device else None)
     if args.lad_voxel_size is not None:
+        from tlsvox.voxel.coarse import ratio_of
+
+        ratio_of(args.voxel_size, args.lad_voxel_size)  # before any fitting or measuring
         options.update(lad_voxel_size=args.lad_voxel_size, lad_placement=args.lad_placement)
     elif args.lad_placement != "even":
         raise InputError("--lad-placement needs --lad-voxel-size (it says how the coarse LAD is put on the fine grid)")

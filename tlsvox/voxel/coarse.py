@@ -39,12 +39,19 @@ import numpy as np
 
 from tlsvox.errors import InputError
 
-__all__ = ["combine", "ratio_of", "voxelize_coarse_lad"]
+__all__ = ["PLACEMENTS", "combine", "opaque_lad", "ratio_of", "voxelize_coarse_lad"]
+
+PLACEMENTS = ("even", "echoes")  #: how the coarse LAD goes onto the fine grid
 
 
-def ratio_of(voxel_size: float, lad_voxel_size: float) -> int:
+def ratio_of(voxel_size, lad_voxel_size) -> int:
     """The whole number ``k`` of fine voxels along a coarse one; an InputError when there is none."""
-    if lad_voxel_size is None or not np.isfinite(lad_voxel_size) or lad_voxel_size <= 0:
+    try:
+        voxel_size, lad_voxel_size = float(voxel_size), float(lad_voxel_size)
+    except (TypeError, ValueError):
+        raise InputError(f"lad_voxel_size={lad_voxel_size!r} must be a number of metres, a whole multiple of "
+                         f"voxel_size={voxel_size!r}") from None
+    if not np.isfinite(lad_voxel_size) or lad_voxel_size <= 0:
         raise InputError(f"lad_voxel_size={lad_voxel_size!r} must be a positive size in metres, a whole multiple "
                          f"of voxel_size={voxel_size:g} (e.g. {5 * voxel_size:g})")
     k = lad_voxel_size / voxel_size
@@ -62,27 +69,33 @@ def voxelize_coarse_lad(call: dict):
     ``coarse`` is the coarse run's (its LadEstimate, stats and scene), or the
     larger of the two runs' MemoryPlans with ``plan_only``.
     """
+    from tlsvox.scan import Scan
+    from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import voxelize
 
-    k = ratio_of(float(call["voxel_size"]), call["lad_voxel_size"])
+    k = ratio_of(call["voxel_size"], call["lad_voxel_size"])
     placement = str(call.pop("lad_placement")).lower()
-    if placement not in ("even", "echoes"):
+    if placement not in PLACEMENTS:
         raise InputError(f"lad_placement={placement!r} must be 'even' (each coarse voxel's LAD on all its fine "
                          "voxels) or 'echoes' (its leaf area in proportion to their leaf echo weight)")
     scans = call.pop("scans")
-    call["lad_voxel_size"] = None
-    fine_call = dict(call, fill="none", undetected="ignore")
-    fine = voxelize(scans, **fine_call)
+    scans = [scans] if isinstance(scans, Scan) else list(scans)  # two runs read them
+    H = float(call["lad_voxel_size"])
+    call.update(lad_voxel_size=None, tracer=call["tracer"] or Tracer())
+    # the coarse run first, on the grid the user's bounds give; the fine grid then covers exactly its
+    # voxels (k^3 fine ones each), so no coarse voxel is cut.  The layout asked for is the fine grid's.
+    coarse_call = dict(call, voxel_size=H, layout="auto")
+    fine_call = dict(call, fill="none", undetected="ignore", snap=False, margin=0.0)
     if call["plan_only"]:
-        # the coarse grid covers about the same box; its plan decides where it is the larger
-        coarse_plan = voxelize(scans, **dict(call, voxel_size=k * float(call["voxel_size"]), bounds=None, snap=False))
-        return max(fine, coarse_plan, key=lambda p: p.need)
-    g = fine.grid
-    coarse_call = dict(call, voxel_size=k * g.voxel_size, bounds=np.array([g.lower, g.upper]), snap=False, margin=0.0,
-                       ground=fine.ground, crown_center=(fine.scene.crown_center
-                                                        if str(call["leaf_azimuth"]).lower() == "outward" else
-                                                        call["crown_center"]))
+        coarse_plan = voxelize(scans, **coarse_call)
+        cg = coarse_plan.grid
+        fine_plan = voxelize(scans, **dict(fine_call, bounds=np.array([cg.lower, cg.upper])))
+        return max(coarse_plan, fine_plan, key=lambda p: p.need)
     coarse = voxelize(scans, **coarse_call)
+    cg = coarse.grid
+    outward = str(call["leaf_azimuth"]).lower() == "outward"
+    fine = voxelize(scans, **dict(fine_call, bounds=np.array([cg.lower, cg.upper]), ground=coarse.ground,
+                                  crown_center=coarse.scene.crown_center if outward else call["crown_center"]))
     return combine(fine, coarse, k, placement)
 
 
@@ -97,7 +110,9 @@ def opaque_lad(voxel_size: float) -> float:
     >>> opaque_lad(0.02)
     1000.0
     """
-    return OPAQUE_TAU / (0.5 * voxel_size)
+    from voxlidar.scene import LAD_MAX
+
+    return min(OPAQUE_TAU / (0.5 * voxel_size), 0.5 * LAD_MAX)
 
 
 def _cap(lad, group, n_groups: int, cap: float, rounds: int = 20):
@@ -142,8 +157,10 @@ def combine(fine, coarse, k: int, placement: str = "even"):
     from voxlidar.scene import Scene
 
     g, cg = fine.grid, coarse.grid
-    if not (np.allclose(cg.lower, g.lower) and abs(cg.voxel_size - k * g.voxel_size) < 1e-9 * cg.voxel_size):
-        raise InputError("the coarse grid does not line up with the fine one (internal error: report it)")
+    if not (np.allclose(cg.lower, g.lower) and abs(cg.voxel_size - k * g.voxel_size) < 1e-9 * cg.voxel_size
+            and tuple(g.shape) == tuple(k * n for n in cg.shape)):
+        raise InputError(f"the coarse grid {cg.shape} x {cg.voxel_size:g} m does not cover the fine one {g.shape} x "
+                         f"{g.voxel_size:g} m voxel for voxel (internal error: please report it)")
     cs = coarse.scene
     c_keys = cg.flat(cs.ijk)
     order = np.argsort(c_keys)
@@ -162,7 +179,7 @@ def combine(fine, coarse, k: int, placement: str = "even"):
     if placement == "echoes":
         # fine voxels holding leaf echoes: their parent's leaf area in proportion to their echo weight
         a_ijk, f_w = _leaf_weights(fine.stats)
-        parent = cg.flat(np.minimum(a_ijk // k, np.array(cg.shape) - 1))
+        parent = cg.flat(a_ijk // k)
         p_keys, p_inv = np.unique(parent, return_inverse=True)
         share = f_w / np.bincount(p_inv, weights=f_w)[p_inv] * k**3
         p_lad = lookup(parent, c_lad)
@@ -171,7 +188,7 @@ def combine(fine, coarse, k: int, placement: str = "even"):
         a_occ = lookup(parent, c_occ)
         # the coarse voxels with leaf area and no fine leaf echo, and what the cap left of the others
         # (their leaf echoes' voxels all opaque): spread evenly over their children
-        bare = (c_lad > 0) & ~np.isin(c_keys, p_keys)
+        bare = ((c_lad > 0) | c_occ) & ~np.isin(c_keys, p_keys)
         over = left > 0
         n_over = int(over.sum())
         b_keys = np.concatenate([c_keys[bare], p_keys[over]])
@@ -182,7 +199,7 @@ def combine(fine, coarse, k: int, placement: str = "even"):
         n_even = int(bare.sum())
     elif placement == "even":
         a_ijk, a_lad, a_std, a_occ = np.zeros((0, 3), np.int64), np.zeros(0), np.zeros(0), np.zeros(0, bool)
-        sel = c_lad > 0
+        sel = (c_lad > 0) | c_occ  # occluded ones too: their children were not seen either
         b_keys, b_lad, b_std, b_occ = c_keys[sel], c_lad[sel], c_std[sel], c_occ[sel]
         n_even = int(sel.sum())
     else:
@@ -213,7 +230,7 @@ def combine(fine, coarse, k: int, placement: str = "even"):
         free &= ~found
     if len(w_ijk) and len(b_keys):
         b_order = np.argsort(b_keys)
-        pk = cg.flat(np.minimum(w_ijk // k, np.array(cg.shape) - 1))
+        pk = cg.flat(w_ijk // k)
         i = np.minimum(np.searchsorted(b_keys[b_order], pk), len(b_keys) - 1)
         found = free & (b_keys[b_order][i] == pk)
         local = w_ijk % k
@@ -233,9 +250,19 @@ def combine(fine, coarse, k: int, placement: str = "even"):
         lad[below] = 0.0
         std[below] = 0.0
         occ &= ~below
-    keep &= (lad > 0) | (wood > 0)
+    keep &= (lad > 0) | (wood > 0) | occ
     if not keep.all():
         ijk, lad, std, occ, wood = ijk[keep], lad[keep], std[keep], occ[keep], wood[keep]
+    if placement == "echoes":  # a capped coarse voxel's rest went to all its children: one row per voxel
+        keys, first, inv = np.unique(g.flat(ijk), return_index=True, return_inverse=True)
+        if len(keys) < len(ijk):
+            n = len(keys)
+            lad, std = np.bincount(inv, weights=lad, minlength=n), np.bincount(inv, weights=std, minlength=n)
+            merged = np.zeros(n)
+            np.maximum.at(merged, inv, wood)
+            wood = merged
+            occ = np.bincount(inv, weights=occ, minlength=n) > 0
+            ijk = ijk[first]
     area_fine = float(lad.sum() * g.voxel_volume)
     area_coarse = float(cs.lad.sum() * cg.voxel_volume)
 
@@ -258,11 +285,15 @@ def combine(fine, coarse, k: int, placement: str = "even"):
     if fs.meta.get("occluded_bricks") is not None:
         meta["occluded_bricks"] = fs.meta["occluded_bricks"]
     # LAD in small voxels holding a leaf is large by nature: the plausibility gate applies to the coarse grid
-    meta["warnings"] = list(coarse.scene.meta.get("warnings", []))
+    meta["warnings"] = [w if "narrower than two leaves" not in w else
+                        f"lad_voxel_size={cg.voxel_size:g} m is itself narrower than two leaves: the estimate there "
+                        "loses leaf area; use a coarser lad_voxel_size (docs/voxelize.md, leaf-scale voxels)"
+                        for w in coarse.scene.meta.get("warnings", [])]
     scene = Scene(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape, ijk=ijk, lad=lad, wood=wood,
                   wood_kind=fs.wood_kind, occluded=occ, lad_std=std, leaf_angle=cs.leaf_angle,
                   leaf_azimuth=cs.leaf_azimuth, crown_center=cs.crown_center, ground_z=fs.ground_z, meta=meta)
-    timings = {**{f"fine_{k}": v for k, v in fine.timings.items()},
-               **{f"coarse_{k}": v for k, v in coarse.timings.items()},
+    timings = {**{f"fine_{name}": v for name, v in fine.timings.items()},
+               **{f"coarse_{name}": v for name, v in coarse.timings.items()},
+               "trace": fine.timings.get("trace", 0.0) + coarse.timings.get("trace", 0.0),
                "total": fine.timings.get("total", 0.0) + coarse.timings.get("total", 0.0)}
     return VoxelizeResult(scene, g, fine.stats, fine.lad, fine.wood, fine.ground, fine.scans, timings, coarse=coarse)

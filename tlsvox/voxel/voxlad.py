@@ -190,11 +190,13 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         tqdm progress bars.
     lad_voxel_size : float, metres, optional
         Estimate the leaf area density on a grid this much coarser (a whole
-        multiple of ``voxel_size``, e.g. 0.1 for 2 cm voxels) and place each
-        coarse voxel's leaf area on its fine voxels in proportion to their
-        leaf echo weight (:mod:`tlsvox.voxel.coarse`): for voxels smaller than
-        the leaves, where the turbid estimators fail.  ``fill`` and
-        ``undetected`` then act on the coarse grid; wood and ground stay fine.
+        multiple of ``voxel_size``, e.g. 0.1 for 2 cm voxels) and put it on
+        the fine voxels (``lad_placement``; :mod:`tlsvox.voxel.coarse`): for
+        voxels narrower than two leaves, where the turbid estimators fail.  ``fill`` and
+        ``undetected`` then act on the coarse grid (its layout chosen by
+        size, ``layout`` is the fine grid's); wood and ground stay fine.  The
+        fine grid covers the coarse one's voxels whole (the coarse grid comes
+        from ``bounds`` as usual).
         Stated in ``scene.meta["lad_voxel_size"]``; the coarse run is the
         result's ``coarse``.
     lad_placement : {"even", "echoes"}
@@ -210,6 +212,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     -------
     VoxelizeResult (or MemoryPlan with ``plan_only``)
     """
+    if lad_voxel_size is None and str(lad_placement).lower() != "even":
+        raise InputError(f"lad_placement={lad_placement!r} needs lad_voxel_size (it says how the coarse grid's LAD "
+                         "goes onto the fine one)")
     if lad_voxel_size is not None:
         call = dict(locals())  # every argument, for the fine and the coarse run
         from tlsvox.voxel.coarse import voxelize_coarse_lad
@@ -429,6 +434,12 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     timings["estimate"] = time.perf_counter() - t3
     timings["total"] = time.perf_counter() - t0
     warnings = quality_warnings(lad_v, occ_v, infos)
+    if leaf_size is not None and grid.voxel_size < 2.0 * leaf_size:
+        suggest = grid.voxel_size * int(np.ceil(2.0 * leaf_size / grid.voxel_size - 1e-9))
+        warnings.append(f"voxels of {grid.voxel_size:g} m are narrower than two leaves ({leaf_size:g} m each): the "
+                        "turbid estimators lose most of the leaf area in them (docs/voxelize.md, leaf-scale "
+                        f"voxels); estimate the LAD on a coarser grid with lad_voxel_size={suggest:g} "
+                        f"(CLI --lad-voxel-size {suggest:g})")
     meta = {
         "estimator": est.value, "options": lad.options, "flags": lad.counts(), "wood_method": wood_m.value,
         "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,

@@ -96,12 +96,52 @@ def test_bad_options_are_one_line_errors(box_scans):  # noqa: F811
         voxelize(box_scans, voxel_size=0.2, lad_voxel_size=0.5, **KW)
     with pytest.raises(InputError, match="lad_placement='nearest'"):
         voxelize(box_scans, voxel_size=0.25, lad_voxel_size=0.5, lad_placement="nearest", **KW)
+    with pytest.raises(InputError, match="needs lad_voxel_size"):
+        voxelize(box_scans, voxel_size=0.25, lad_placement="echoes", **KW)
+    with pytest.raises(InputError, match="must be a number"):
+        ratio_of(0.1, "ten")
+    # a generator of scans serves both runs
+    res = voxelize((s for s in box_scans), voxel_size=0.25, lad_voxel_size=0.5, **KW)
+    assert res.scene.total_leaf_area() > 0
 
 
 def test_plan_only_gives_the_larger_runs_plan(box_scans):  # noqa: F811
-    plan = voxelize(box_scans, voxel_size=0.1, lad_voxel_size=0.5, plan_only=True, **KW)
-    fine = voxelize(box_scans, voxel_size=0.1, plan_only=True, **KW)
-    assert isinstance(plan, MemoryPlan) and plan.need >= fine.need
+    plan = voxelize(box_scans, voxel_size=0.1, lad_voxel_size=0.3, plan_only=True, **KW)
+    coarse = voxelize(box_scans, voxel_size=0.3, plan_only=True, **KW)
+    cg = coarse.grid
+    fine = voxelize(box_scans, voxel_size=0.1, plan_only=True, **{**KW, "bounds": [cg.lower, cg.upper]})
+    assert isinstance(plan, MemoryPlan) and fine.grid.shape == tuple(3 * n for n in cg.shape)
+    assert plan.need == max(coarse.need, fine.need)
+
+
+@pytest.mark.parametrize("placement", ["even", "echoes"])
+def test_coarse_voxels_past_the_bounds_are_kept_whole(box_scans, placement):  # noqa: F811
+    # 0.3 m voxels do not divide the 2 m box: the coarse grid ends past it, and the fine grid covers
+    # its voxels whole, so the fine scene holds exactly the coarse run's leaf area, one row per voxel,
+    # and the coarse run's occluded voxels (k^3 fine ones each, evenly placed)
+    res = voxelize(box_scans, voxel_size=0.1, lad_voxel_size=0.3, lad_placement=placement, n_min=96, **KW)
+    s, c = res.scene, res.coarse.scene
+    assert res.grid.shape == tuple(3 * n for n in res.coarse.grid.shape)
+    np.testing.assert_allclose(res.grid.upper, res.coarse.grid.upper)
+    assert s.total_leaf_area() == pytest.approx(c.total_leaf_area(), rel=1e-12)
+    assert len(np.unique(res.grid.flat(s.ijk))) == s.n_voxels
+    assert c.occluded.any()
+    if placement == "even":
+        assert int(s.occluded.sum()) == 27 * int(c.occluded.sum())
+
+
+def test_echo_placement_caps_and_merges(box_scans, monkeypatch):  # noqa: F811
+    # a cap far below the box's LAD forces every path of the cap: excess to siblings, then the rest of a
+    # fully capped coarse voxel spread over all its children (some of which hold echoes): one row per
+    # voxel, the coarse voxel's leaf area kept
+    import tlsvox.voxel.coarse as coarse
+
+    monkeypatch.setattr(coarse, "opaque_lad", lambda h: 1.0)
+    res = voxelize(box_scans, voxel_size=0.1, lad_voxel_size=0.5, lad_placement="echoes", **KW)
+    s = res.scene
+    assert s.meta["lad_voxel_size"]["opaque_spread"] > 0
+    assert len(np.unique(res.grid.flat(s.ijk))) == s.n_voxels
+    assert s.total_leaf_area() == pytest.approx(res.coarse.scene.total_leaf_area(), rel=1e-9)
 
 
 def test_cli_lad_voxel_size(box_scans, tmp_path, capsys):  # noqa: F811
@@ -125,3 +165,14 @@ def test_cli_lad_voxel_size(box_scans, tmp_path, capsys):  # noqa: F811
     assert tlsvox_main([*common, "-o", str(tmp_path / "c.npz"), "--lad-placement", "echoes"]) == 2
     assert "needs --lad-voxel-size" in capsys.readouterr().err
     assert not (tmp_path / "b.npz").exists() and not (tmp_path / "c.npz").exists()
+
+
+def test_voxels_narrower_than_two_leaves_warn_with_the_fix(box_scans):  # noqa: F811
+    small = voxelize(box_scans, voxel_size=0.05, **KW)
+    said = [w for w in small.scene.meta["warnings"] if "narrower than two leaves" in w]
+    assert len(said) == 1 and "lad_voxel_size=0.1" in said[0] and "--lad-voxel-size 0.1" in said[0]
+    fixed = voxelize(box_scans, voxel_size=0.05, lad_voxel_size=0.25, **KW)
+    assert not any("narrower than two leaves" in w for w in fixed.scene.meta["warnings"])
+    assert not any("narrower" in w for w in voxelize(box_scans, voxel_size=0.1, **KW).scene.meta["warnings"])
+    assert not any("narrower" in w for w in voxelize(box_scans, voxel_size=0.05, leaf_size=None,
+                                                     **KW).scene.meta["warnings"])
