@@ -314,9 +314,8 @@ def main(argv=None) -> int:
                 n_mesh=n_mesh, ref_time=ref_time, ref_noise=ref_noise, n_vox=n_vox, scan_s=scan_s,
                 tls_sizes=tls_sizes, tls_skipped=tls_skipped, rows=rows, n_ref=n_ref, vref_time=vref_time,
                 prow=prow)
-    if cache_dir is not None:
-        Path(cache_dir).mkdir(parents=True, exist_ok=True)
-        (Path(cache_dir) / "pipeline_last.json").write_text(json.dumps(data, indent=1))
+    Path(args.cache).mkdir(parents=True, exist_ok=True)  # also with --no-cache: --replot reads it
+    (Path(args.cache) / "pipeline_last.json").write_text(json.dumps(data, indent=1))
     report(data, Path(args.out), Path(args.png))
     log(f"wrote {args.out} and {args.png} in {total_s:.0f} s")
     return 0
@@ -397,7 +396,7 @@ def report(d: dict, out: Path, png: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 2, figsize=(14, 5.6))
+    fig, ax = plt.subplots(1, 2, figsize=(16, 6.4))
     sources = list(dict.fromkeys(r["source"] for r in rows))
     colors = dict(zip(sources, ["tab:green", "tab:blue", "tab:orange", "tab:brown", "tab:purple", "tab:olive"]))
     marks = dict(zip(pn, ["o", "^", "s", "D"]))
@@ -408,8 +407,7 @@ def report(d: dict, out: Path, png: Path) -> None:
                 continue
             xs = [r["scene_s"] + r["per"][n]["time"] for r in rr]
             ys = [r["per"][n]["nrmse"] for r in rr]
-            ax[0].loglog(xs, ys, "-", marker=marks[n], color=colors[src], mec="k", ms=7, lw=0.8,
-                         label=f"{src}, {n}")
+            ax[0].loglog(xs, ys, "-", marker=marks[n], color=colors[src], mec="k", ms=7, lw=0.8)
             for r, x, y in zip(rr, xs, ys):
                 ax[0].annotate(f"{r['h'] * 100:g} cm", (x, y), textcoords="offset points", xytext=(5, 4),
                                fontsize=7)
@@ -422,7 +420,13 @@ def report(d: dict, out: Path, png: Path) -> None:
     ax[0].axhline(floor, color="grey", ls=":", lw=1, label="mesh reference's own MC noise")
     ax[0].set(xlabel="scene building + one simulation (s)", ylabel="waveform NRMSE vs mesh",
               title=f"Voxel size ({d['n_vox']:,} photons; open markers: hot spot off)")
-    ax[0].legend(fontsize=7, loc="lower right")
+    from matplotlib.lines import Line2D
+
+    handles = ([Line2D([], [], color=colors[src], lw=2, label=src) for src in sources]
+               + [Line2D([], [], color="k", marker=marks[n], ls="", label=n) for n in pn]
+               + [Line2D([], [], color="grey", ls=":", label="mesh reference's own MC noise")])
+    ax[0].legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0),
+                 title="scene (colour), pulse (marker)", title_fontsize=7)
     ax[0].grid(alpha=0.3, which="both")
     for n in pn:
         xs = [r["per"][n]["time"] for r in prow]
