@@ -63,7 +63,7 @@ def ratio_of(voxel_size, lad_voxel_size) -> int:
 
 
 def voxelize_coarse_lad(call: dict):
-    """:func:`~tlsvox.voxel.voxlad.voxelize` with ``lad_voxel_size``: the fine run, the coarse run, combined.
+    """:func:`~tlsvox.voxel.voxlad.voxelize` with ``lad_voxel_size``: the coarse run, the fine run, combined.
 
     ``call`` holds voxelize's arguments.  Returns a VoxelizeResult whose
     ``coarse`` is the coarse run's (its LadEstimate, stats and scene), or the
