@@ -74,10 +74,7 @@ def voxelize_coarse_lad(call: dict):
     from tlsvox.voxel.voxlad import voxelize
 
     k = ratio_of(call["voxel_size"], call["lad_voxel_size"])
-    placement = str(call.pop("lad_placement")).lower()
-    if placement not in PLACEMENTS:
-        raise InputError(f"lad_placement={placement!r} must be 'even' (each coarse voxel's LAD on all its fine "
-                         "voxels) or 'echoes' (its leaf area in proportion to their leaf echo weight)")
+    placement = _placement(call.pop("lad_placement"))  # before either run
     scans = call.pop("scans")
     scans = [scans] if isinstance(scans, Scan) else list(scans)  # two runs read them
     H = float(call["lad_voxel_size"])
@@ -97,6 +94,15 @@ def voxelize_coarse_lad(call: dict):
     fine = voxelize(scans, **dict(fine_call, bounds=np.array([cg.lower, cg.upper]), ground=coarse.ground,
                                   crown_center=coarse.scene.crown_center if outward else call["crown_center"]))
     return combine(fine, coarse, k, placement)
+
+
+def _placement(value) -> str:
+    """``lad_placement`` checked: one of :data:`PLACEMENTS`."""
+    placement = str(value).lower()
+    if placement not in PLACEMENTS:
+        raise InputError(f"lad_placement={value!r} must be 'even' (each coarse voxel's LAD on all its fine "
+                         "voxels) or 'echoes' (its leaf area in proportion to their leaf echo weight)")
+    return placement
 
 
 #: optical depth across a voxel (G = 0.5) above which no beam crosses it (e^-10): leaf area beyond it
@@ -153,9 +159,10 @@ def _leaf_weights(stats):
 
 def combine(fine, coarse, k: int, placement: str = "even"):
     """The fine run's scene with the coarse run's leaf area placed on it (module docstring)."""
-    from tlsvox.voxel.voxlad import VoxelizeResult
+    from tlsvox.voxel.voxlad import VoxelizeResult, below_ground
     from voxlidar.scene import Scene
 
+    placement = _placement(placement)
     g, cg = fine.grid, coarse.grid
     if not (np.allclose(cg.lower, g.lower) and abs(cg.voxel_size - k * g.voxel_size) < 1e-9 * cg.voxel_size
             and tuple(g.shape) == tuple(k * n for n in cg.shape)):
@@ -197,14 +204,11 @@ def combine(fine, coarse, k: int, placement: str = "even"):
             lookup(p_keys[over], c_lad) * k**3, 1e-300)])
         b_occ = np.concatenate([c_occ[bare], lookup(p_keys[over], c_occ)])
         n_even = int(bare.sum())
-    elif placement == "even":
+    else:  # even
         a_ijk, a_lad, a_std, a_occ = np.zeros((0, 3), np.int64), np.zeros(0), np.zeros(0), np.zeros(0, bool)
         sel = (c_lad > 0) | c_occ  # occluded ones too: their children were not seen either
         b_keys, b_lad, b_std, b_occ = c_keys[sel], c_lad[sel], c_std[sel], c_occ[sel]
         n_even = int(sel.sum())
-    else:
-        raise InputError(f"lad_placement={placement!r} must be 'even' (each coarse voxel's LAD on all its fine "
-                         "voxels) or 'echoes' (its leaf area in proportion to their leaf echo weight)")
     # the evenly spread coarse voxels' children, child c of parent p at row p * k^3 + c
     off = np.stack(np.meshgrid(*(np.arange(k),) * 3, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.int32)
     b_ijk = (cg.unflat(b_keys).astype(np.int32)[:, None, :] * k + off[None, :, :]).reshape(-1, 3)
@@ -244,13 +248,12 @@ def combine(fine, coarse, k: int, placement: str = "even"):
     occ = np.concatenate([a_occ.astype(bool), b_occ_f, np.zeros(int(free.sum()), bool)])
     wood = np.concatenate([a_wood, b_wood, w_val[free]])
     del b_lad_f, b_std_f, b_occ_f, b_wood
-    keep = np.all(ijk < np.array(g.shape), axis=1)
     if fine.ground is not None:  # nothing below the ground plane (as voxelize stores it)
-        below = g.lower[2] + (ijk[:, 2] + 1) * g.voxel_size <= fine.ground.z_center
+        below = below_ground(g, ijk, fine.ground)
         lad[below] = 0.0
         std[below] = 0.0
         occ &= ~below
-    keep &= (lad > 0) | (wood > 0) | occ
+    keep = (lad > 0) | (wood > 0) | occ
     if not keep.all():
         ijk, lad, std, occ, wood = ijk[keep], lad[keep], std[keep], occ[keep], wood[keep]
     if placement == "echoes":  # a capped coarse voxel's rest went to all its children: one row per voxel
@@ -266,12 +269,15 @@ def combine(fine, coarse, k: int, placement: str = "even"):
     area_fine = float(lad.sum() * g.voxel_volume)
     area_coarse = float(cs.lad.sum() * cg.voxel_volume)
 
+    timings = {**{f"fine_{name}": v for name, v in fine.timings.items()},
+               **{f"coarse_{name}": v for name, v in coarse.timings.items()},
+               "trace": fine.timings.get("trace", 0.0) + coarse.timings.get("trace", 0.0),
+               "total": fine.timings.get("total", 0.0) + coarse.timings.get("total", 0.0)}
     meta = dict(coarse.scene.meta)
     meta.update(
         wood_method=fs.meta.get("wood_method"), wood_scale=fs.meta.get("wood_scale"), layout=fs.meta.get("layout"),
         memory_plan=fs.meta.get("memory_plan"), tracer=fs.meta.get("tracer"), beams=fs.meta.get("beams"),
-        voxel_steps=fs.meta.get("voxel_steps"),
-        timings={"fine": fs.meta.get("timings"), "coarse": cs.meta.get("timings")},
+        voxel_steps=fs.meta.get("voxel_steps"), timings=timings,
         lad_voxel_size={"size": cg.voxel_size, "ratio": k, "placement": placement, "layout": cs.meta.get("layout"),
                         "memory_plan": cs.meta.get("memory_plan"),
                         "rule": ("LAD estimated on the coarse grid, each coarse voxel's LAD on all its fine voxels"
@@ -284,16 +290,10 @@ def combine(fine, coarse, k: int, placement: str = "even"):
     meta.pop("occluded_bricks", None)
     if fs.meta.get("occluded_bricks") is not None:
         meta["occluded_bricks"] = fs.meta["occluded_bricks"]
-    # LAD in small voxels holding a leaf is large by nature: the plausibility gate applies to the coarse grid
-    meta["warnings"] = [w if "narrower than two leaves" not in w else
-                        f"lad_voxel_size={cg.voxel_size:g} m is itself narrower than two leaves: the estimate there "
-                        "loses leaf area; use a coarser lad_voxel_size (docs/voxelize.md, leaf-scale voxels)"
-                        for w in coarse.scene.meta.get("warnings", [])]
+    # LAD in small voxels holding a leaf is large by nature: the quality gates apply to the coarse grid
+    # (whose own narrow-voxel warning, if any, names a coarser lad_voxel_size)
+    meta["warnings"] = list(coarse.scene.meta.get("warnings", []))
     scene = Scene(origin=g.lower, voxel_size=g.voxel_size, shape=g.shape, ijk=ijk, lad=lad, wood=wood,
                   wood_kind=fs.wood_kind, occluded=occ, lad_std=std, leaf_angle=cs.leaf_angle,
                   leaf_azimuth=cs.leaf_azimuth, crown_center=cs.crown_center, ground_z=fs.ground_z, meta=meta)
-    timings = {**{f"fine_{name}": v for name, v in fine.timings.items()},
-               **{f"coarse_{name}": v for name, v in coarse.timings.items()},
-               "trace": fine.timings.get("trace", 0.0) + coarse.timings.get("trace", 0.0),
-               "total": fine.timings.get("total", 0.0) + coarse.timings.get("total", 0.0)}
     return VoxelizeResult(scene, g, fine.stats, fine.lad, fine.wood, fine.ground, fine.scans, timings, coarse=coarse)

@@ -522,6 +522,12 @@ def _box_of(grid, ijk):
     return np.array([grid.lower + ijk.min(axis=0) * grid.voxel_size, grid.lower + (ijk.max(axis=0) + 1) * grid.voxel_size])
 
 
+def below_ground(grid, ijk, plane) -> np.ndarray:
+    """(K,) bool: the voxels ``ijk`` whose top lies at or below the ground plane's centre height
+    (a scene stores no leaf area or occlusion there)."""
+    return grid.lower[2] + (np.asarray(ijk)[:, 2] + 1) * grid.voxel_size <= plane.z_center
+
+
 def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):
     """The voxels a scene stores (LAD, wood or occluded), nothing below the ground plane.
 
@@ -540,8 +546,7 @@ def _stored_voxels(grid, lad: LadEstimate, wood: WoodEstimate, plane):
         occluded = np.concatenate([lad.occluded, np.ones(len(extra), bool)])
         std = np.concatenate([lad.lad_std, pad])
     if plane is not None:
-        top = grid.lower[2] + (ijk[:, 2] + 1) * grid.voxel_size
-        below = top <= plane.z_center
+        below = below_ground(grid, ijk, plane)
         values = np.where(below, 0.0, values)
         occluded = occluded & ~below
     keep = (values > 0) | (wood_v > 0) | occluded
