@@ -35,6 +35,14 @@ same occlusion rule (the default oak and the same oak from seed 2); written to
 docs/bench/lad_terms-area.md.  ``--area-only`` runs just these (about 10 min):
 
     .venv/bin/python benchmarks/bench_lad_terms.py --area-only
+
+The fills of occluded voxels side by side (``neighbourhood`` and ``calibrated``, whose ratio the
+scans measure where one of them is hidden and the other sees) on the default oak from seeds 1
+and 2 (where the occlusion work was done), seed 3 and the uniform-azimuth oak (held out), at the
+VZ-400's -20 dB with ``undetected="model"``; written to docs/bench/lad_terms-fill.md.
+``--fill-only`` runs just these (about 15 min):
+
+    .venv/bin/python benchmarks/bench_lad_terms.py --fill-only
 """
 
 from __future__ import annotations
@@ -65,7 +73,13 @@ def main(argv=None):
                     help="only the table of what is left at the floor and of the filled totals "
                          "(docs/bench/lad_terms-area.md)")
     ap.add_argument("--area-out", default=str(ROOT / "docs" / "bench" / "lad_terms-area.md"))
+    ap.add_argument("--fill-only", action="store_true",
+                    help="only the table of the fills side by side (docs/bench/lad_terms-fill.md)")
+    ap.add_argument("--fill-out", default=str(ROOT / "docs" / "bench" / "lad_terms-fill.md"))
     args = ap.parse_args(argv)
+    if args.fill_only:
+        fill_table(args)
+        return
     if args.area_only:
         area_table(args)
         return
@@ -389,6 +403,55 @@ def area_table(args):
                      f"{occ_true:.1f} m2 | {occ_given:.1f} m2 | {gb} | {sec:.0f} s |")
     lines += ["", "Reading: see docs/voxelize.md, *What is left*.", ""]
     write_page(args.area_out, lines)
+
+
+def fill_table(args):
+    """The neighbourhood and calibrated fills on four oaks (two held out), -20 dB, detection model."""
+    from tlsvox.voxel.trace import Tracer
+    from tlsvox.voxel.voxlad import voxelize
+
+    load0 = os.getloadavg()
+    t_all = time.perf_counter()
+    tracer = Tracer()
+    rows = []
+    for seed, azimuth, label in ((1, "outward", "default, seed 1"), (2, "outward", "default, seed 2"),
+                                 (3, "outward", "default, seed 3 (held out)"),
+                                 (1, "uniform", "uniform azimuth, seed 1 (held out)")):
+        tree, scans = _oak_scans(azimuth, 0.35, -20.0, seed=seed)
+        for fill in ("neighbourhood", "calibrated"):
+            t0 = time.perf_counter()
+            res = voxelize(scans, voxel_size=0.2, leaf_angle="uniform", leaf_azimuth=azimuth, ground=0.0,
+                           layout="dense", progress=False, tracer=tracer, undetected="model", fill=fill,
+                           undetected_iterations=args.iterations)
+            sec = time.perf_counter() - t0
+            truth = _truth(tree, res)
+            tot, seen = _score(tree, res, truth=truth)
+            occ = res.lad.occluded
+            vol = res.grid.voxel_volume
+            cal = res.lad.options.get("fill_calibration")
+            r = float(np.corrcoef(res.lad.lad[occ], truth[occ])[0, 1]) if occ.sum() > 1 else float("nan")
+            rows.append((label, fill, tot, seen, float(truth[occ].sum() * vol), float(res.lad.lad[occ].sum() * vol), r,
+                         cal, sec))
+            print(f"{label} {fill}: total {100 * tot['area_error']:+.1f} %, seen {100 * seen['area_error']:+.1f} %, "
+                  f"occluded {rows[-1][5]:.1f} of {rows[-1][4]:.1f} m2, ratio "
+                  f"{cal['ratio'] if cal else '-'} [{sec:.0f} s]", flush=True)
+    lines = _section("The fills of occluded voxels side by side (synthetic oaks, 20 cm)", "--fill-only", args, t_all,
+                     load0, _AREA_SETUP + " The VZ-400's -20 dB, `undetected='model'`. Seeds 1 and 2 are the oaks "
+                     "the occlusion work was done on; seed 3 and the uniform-azimuth oak are held out.") + ["",
+             "`calibrated`: the `neighbourhood` fill times the ratio the scans measure on the voxels one of them "
+             "hides and the other sees (their LAD from the other scan against what the hiding scan's own "
+             "neighbourhood fill gives them; `tlsvox.voxel.estimators.cross_scan_ratio`).", "",
+             "| oak | `fill` | total leaf area (error) | seen voxels (error) | occluded voxels: given / true | r of "
+             "their LAD with the truth | ratio (calibration voxels; their leaf area seen / filled) | voxelize time |",
+             "|---|---|---|---|---|---|---|---|"]
+    for label, fill, tot, seen, occ_true, occ_given, r, cal, sec in rows:
+        ratio = (f"{cal['ratio']:.3f} ({cal['voxels']:,}; {cal['seen_m2']:.1f} / {cal['filled_m2']:.1f} m2)"
+                 if cal else "-")
+        lines.append(f"| {label} | {fill} | {tot['total_area']:.1f} of {tot['true_area']:.1f} m2 "
+                     f"({100 * tot['area_error']:+.1f} %) | {100 * seen['area_error']:+.1f} % | {occ_given:.1f} / "
+                     f"{occ_true:.1f} m2 | {r:.2f} | {ratio} | {sec:.0f} s |")
+    lines += ["", "Reading: see docs/voxelize.md, *Occluded voxels*.", ""]
+    write_page(args.fill_out, lines)
 
 
 if __name__ == "__main__":

@@ -301,7 +301,7 @@ def main(argv=None) -> int:
     parser.add_argument("--undetected", choices=["ignore", "model"], default=DEMO_UNDETECTED,
                         help=f"echoes under the scanner's detection threshold (default {DEMO_UNDETECTED}; "
                              "docs/voxelize.md)")
-    parser.add_argument("--fill", choices=["none", "layer", "neighbourhood"], default=DEMO_FILL,
+    parser.add_argument("--fill", choices=["none", "layer", "neighbourhood", "calibrated"], default=DEMO_FILL,
                         help=f"occluded voxels (default {DEMO_FILL}; docs/voxelize.md)")
     parser.add_argument("--photons", type=int, default=500_000, help="photons per voxel simulation")
     parser.add_argument("--photons-mesh", type=int, default=50_000, help="photons per mesh-reference simulation")

@@ -124,8 +124,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                             "the leaf echoes of classified scans there count as wood; truth materials are kept; "
                             "the files are never changed)")
     model.add_argument("--fill", default="none", choices=[f.value for f in FillMode],
-                       help="occluded voxels: leave at 0, fill with their height layer's mean, or with the mean "
-                            "of the nearest seen crown voxels (neighbourhood; dense layout)")
+                       help="occluded voxels: leave at 0, fill with their height layer's mean, with the mean "
+                            "of the nearest seen crown voxels (neighbourhood; dense layout), or with that mean "
+                            "times the ratio the scans measure where one hides what another sees (calibrated; "
+                            "dense layout, two or more scans)")
     model.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
     model.add_argument("--min-explored", type=float, default=0.05,
                        help="explored depth fraction a voxel needs (else occluded; default 0.05)")

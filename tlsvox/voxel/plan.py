@@ -67,7 +67,7 @@ class MemoryPlan:
     limit: int  #: bytes allowed
     layout: Layout  #: the layout chosen
     undetected: int = 0  #: bytes of the ``undetected="model"`` correction on top (0 without it)
-    fill: int = 0  #: bytes of ``fill="neighbourhood"``'s temporaries on top (0 for the other fills)
+    fill: int = 0  #: bytes of ``fill="neighbourhood"``'s temporaries on top (and the per-scan sums of "calibrated")
     build: int = 0  #: peak bytes while the beams are made, joined and their echoes' voxels found
     echoes: int = 0  #: echoes of the beams (voxelize keeps each scan echo's class, 1 byte, through the run)
 
@@ -88,7 +88,7 @@ class MemoryPlan:
         """The grid and what each layout costs."""
         nx, ny, nz = self.grid.shape
         extra = f", undetected='model' {format_bytes(self.undetected)}" if self.undetected else ""
-        extra += f", fill='neighbourhood' {format_bytes(self.fill)}" if self.fill else ""
+        extra += f", the fill {format_bytes(self.fill)}" if self.fill else ""
         return (f"grid {nx} x {ny} x {nz} = {self.grid.n_voxels:,} voxels of {self.grid.voxel_size:g} m; "
                 f"{self.rows:,} hold echoes; dense layout {format_bytes(self.dense)}, sparse "
                 f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}{extra}")
@@ -101,14 +101,17 @@ class MemoryPlan:
 
 
 def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto", voxels=None,
-                max_bytes: int | None = None, check: bool = True, undetected="ignore", fill="none") -> MemoryPlan:
+                max_bytes: int | None = None, check: bool = True, undetected="ignore", fill="none",
+                scans: int = 1) -> MemoryPlan:
     """The bytes each layout would take for ``beams`` on ``grid``, and the layout to use.
 
     With ``check``, raises :class:`InputError` (with the sizes and the fix)
     when the chosen layout does not fit ``max_bytes`` (default: 80 % of the
     available memory).  ``undetected="model"`` adds what the detection
     correction holds on top (:func:`undetected_bytes`), ``fill="neighbourhood"``
-    its box filters' temporaries (``NEIGHBOURHOOD_BYTES`` per voxel; dense only).
+    its box filters' temporaries (``NEIGHBOURHOOD_BYTES`` per voxel; dense only),
+    ``fill="calibrated"`` those and the sums of each of the ``scans`` and of the
+    others beside them (:func:`~tlsvox.voxel.estimators.cross_scan_ratio`).
     """
     layout = Layout.parse(layout, "layout")
     limit = memory_limit(max_bytes)
@@ -125,9 +128,14 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
         fits = dense <= DENSE_AUTO_MAX and with_allocator(held + extra + dense) <= limit
         layout = Layout.DENSE if fits else Layout.SPARSE
     extra = undetected_bytes(grid, beams, beam_bytes, layout, n_rows) if model else 0
-    neighbourhood = FillMode.parse(fill, "fill") is FillMode.NEIGHBOURHOOD and layout is Layout.DENSE
-    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra,
-                      grid.n_voxels * NEIGHBOURHOOD_BYTES if neighbourhood else 0, build_bytes(beams), beams.n_echoes)
+    fill = FillMode.parse(fill, "fill")
+    fill_bytes = 0
+    if layout is Layout.DENSE and fill in (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED):
+        fill_bytes = grid.n_voxels * NEIGHBOURHOOD_BYTES
+        if fill is FillMode.CALIBRATED:
+            fill_bytes += (int(scans) + 1) * dense
+    plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra, fill_bytes, build_bytes(beams),
+                      beams.n_echoes)
     # the check runs once the beams are made (voxelize): what lies ahead is the trace and the estimate
     ahead = with_allocator(plan.run)
     if check and ahead > limit:

@@ -140,6 +140,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         See :func:`tlsvox.voxel.estimators.estimate_lad`.  ``fill="neighbourhood"``
         (occluded crown voxels take the mean LAD of their nearest seen crown
         voxels) needs the dense layout; ``fill="layer"`` works in both.
+        ``fill="calibrated"`` (dense, two or more scans) traces each scan on
+        its own and scales the neighbourhood fill by the ratio measured where
+        one scan is hidden and the others see
+        (:func:`~tlsvox.voxel.estimators.cross_scan_ratio`).
     max_range, angular_grid, socs_rotation
         See :func:`tlsvox.voxel.pulses.beams_from_scan` (real scans without pulse tables);
         ``max_range`` must be positive (metres).
@@ -252,6 +256,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                                              leaf_reflectance=leaf_reflectance, leaf_length=shape[0],
                                              leaf_width=shape[1]) for s in scans]
     fill = FillMode.parse(fill, "fill")
+    if fill is FillMode.CALIBRATED and len(scans) < 2:
+        raise InputError("fill='calibrated' measures its ratio on the voxels one scan hides and another sees: it "
+                         f"needs two or more scans, got {len(scans)}; with one scan use fill='neighbourhood' "
+                         "(CLI --fill neighbourhood)")
     wood_m = WoodMethod.parse(wood, "wood")
     la = LeafAngle.from_dict(leaf_angle)
     poses = []
@@ -327,8 +335,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin, snap=bool(snap))
         del veg, inside
     layout = Layout.parse(layout, "layout")
-    if layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:  # known before the beams are built
-        raise InputError("fill='neighbourhood' needs the dense layout, but layout='sparse' was given; use "
+    if layout is Layout.SPARSE and fill in _DENSE_FILLS:  # known before the beams are built
+        raise InputError(f"fill={fill.value!r} needs the dense layout, but layout='sparse' was given; use "
                          "fill='layer' (per brick layer in the sparse layout), or layout='dense' where memory allows")
     outward = None
     if azimuth is LeafAzimuth.OUTWARD:  # G per voxel, from the beam's angle to the leaves' outward direction
@@ -364,18 +372,19 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         infos.append(info)
     del part  # else the last scan's beams stay held beside the joined ones
     beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
-    if detection is None:
+    per_scan = fill is FillMode.CALIBRATED  # each scan traced on its own: the fill's calibration
+    if detection is None and not per_scan:
         del parts  # the per-scan copies
     timings["pulses"] = time.perf_counter() - t1
 
     if plan_only:
         return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False,
-                           undetected=undetected, fill=fill)
+                           undetected=undetected, fill=fill, scans=len(scans))
     voxels = echo_voxels(grid, beams)
     plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected,
-                       fill=fill)
-    if plan.layout is Layout.SPARSE and fill is FillMode.NEIGHBOURHOOD:
-        raise InputError(f"fill='neighbourhood' needs the dense layout, but this run is sparse ({plan.describe()}); "
+                       fill=fill, scans=len(scans))
+    if plan.layout is Layout.SPARSE and fill in _DENSE_FILLS:
+        raise InputError(f"fill={fill.value!r} needs the dense layout, but this run is sparse ({plan.describe()}); "
                          "use fill='layer' (per brick layer in the sparse layout), a larger voxel_size, or "
                          "layout='dense' where memory allows")
     rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
@@ -383,21 +392,29 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     recorded = grid.flat(voxels) if detection is not None and rows is not None else None
     del voxels
 
+    def trace(joined, separate):
+        """The sums of ``joined``, and each scan's (``separate``) when the fill calibrates on them."""
+        budget = None if max_bytes is None else max_bytes - plan.beams
+        if not per_scan:
+            return tracer.trace(grid, joined, rows=rows, outward=outward, progress=progress, max_bytes=budget), None
+        own = [tracer.trace(grid, b, rows=rows, outward=outward, progress=progress, max_bytes=budget)
+               for b in separate]
+        return sum(own[1:], own[0]), own
+
     t2 = time.perf_counter()
-    stats = tracer.trace(grid, beams, rows=rows, outward=outward, progress=progress,
-                         max_bytes=None if max_bytes is None else max_bytes - plan.beams)
+    stats, scan_stats = trace(beams, parts if per_scan else None)
     timings["trace"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
     lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
-                       small_voxel_factor=small_voxel_factor, fill=fill)
+                       small_voxel_factor=small_voxel_factor, fill=fill, scan_stats=scan_stats)
     undetected_meta = {"rule": undetected.value}
     if detection is not None:
         rounds = []
         leaf_weight = float(beams.echo_weight[beams.echo_kind == EchoKind.LEAF].sum())
         for _ in range(int(undetected_iterations)):
             lookup, box = _lad_lookup(grid, lad, stats)
-            stats = beams = None  # the last round's sums and beams: not needed again (memory_plan counts on it)
+            stats = beams = scan_stats = None  # the last round's sums and beams: not needed again (memory_plan)
             fixed, given, added = [], 0.0, []
             for part, model in zip(parts, detection):
                 b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box)
@@ -408,14 +425,16 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                     added.append(grid.flat(voxels_along(grid, part.origin[pulse], part.direction[pulse], ranges)))
             del lookup
             beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
-            del fixed
+            if not per_scan:
+                del fixed
             if recorded is not None:  # what echo_voxels(grid, beams) gives, from the given-back echoes alone
                 rows = Bricks.from_ijk(grid, grid.unflat(np.union1d(recorded, np.concatenate(added))))
-            stats = tracer.trace(grid, beams, rows=rows, outward=outward, progress=progress,
-                                 max_bytes=None if max_bytes is None else max_bytes - plan.beams)
+            stats, scan_stats = trace(beams, fixed if per_scan else None)
+            fixed = None
             # a voxel reached only by what the model leaves of pulse tails is not seen: count beams by weight
             lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
-                               small_voxel_factor=small_voxel_factor, fill=fill, weighted_count=True)
+                               small_voxel_factor=small_voxel_factor, fill=fill, weighted_count=True,
+                               scan_stats=scan_stats)
             rounds.append(round(given / leaf_weight, 5) if leaf_weight > 0 else 0.0)
         undetected_meta.update(models=[m.to_dict() for m in detection], iterations=int(undetected_iterations),
                                given_back_share=rounds,
@@ -423,6 +442,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                                     "over the recorded leaf echo weight")
         del parts
     else:
+        parts = scan_stats = None
         thr = [(s.meta.get("preset") or {}).get("min_reflectance_db") for s in scans]
         undetected_meta["detection_threshold_db"] = thr
     wood_est = estimate_wood(stats, method=wood_m, percentile=wood_percentile, n_min=n_min)
@@ -458,6 +478,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
 
 
+#: fills that need every voxel's own sums
+_DENSE_FILLS = (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED)
+
+
 def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
     """LAD at flat voxel indices, where the detection model puts the unrecorded interception; and
     the box (2, 3) of the voxels above 0 (None when there is none).
@@ -477,8 +501,9 @@ def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
     seen = np.where(occ, 0.0, raw)
     if lad.rows is None:
         crown = hull_mask(seen > 0, grid)
-        if lad.options.get("fill") == "neighbourhood":
-            raw, _ = fill_neighbourhood(seen, occ, crown)
+        if lad.options.get("fill") in ("neighbourhood", "calibrated"):
+            raw, filled = fill_neighbourhood(seen, occ, crown)
+            raw = np.where(filled, raw * float(lad.options.get("fill_ratio", 1.0)), raw)
         else:
             raw, _ = fill_layers(seen, occ, crown)
         ijk = np.argwhere(raw > 0)

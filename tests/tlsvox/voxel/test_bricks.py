@@ -155,6 +155,19 @@ def test_sparse_layer_fill_recovers_the_box(box_scans):  # noqa: F811
     assert res.scene.lad.sum() * 0.1**3 == pytest.approx(truth, rel=0.1)
     with pytest.raises(InputError, match="fill='neighbourhood' needs the dense layout"):
         voxelize(box_scans, layout="sparse", **{**kw, "fill": "neighbourhood"})
+    # the calibrated fill: in a homogeneous box what one scan hides holds what its neighbours do;
+    # the scans' own ratio (measured 1.11, from two per-scan ratios of 0.88 and 1.54 over ~500
+    # voxels each at the box's edges) stays near 1 and the total as close
+    res = voxelize(box_scans, layout="dense", **{**kw, "fill": "calibrated"})
+    cal = res.scene.meta["options"]["fill_calibration"]
+    assert cal["voxels"] > 1000 and len(cal["per_scan"]) == 2
+    assert 0.8 < res.scene.meta["options"]["fill_ratio"] < 1.25
+    assert res.scene.lad.sum() * 0.1**3 == pytest.approx(truth, rel=0.1)
+    with pytest.raises(InputError, match="fill='calibrated' needs the dense layout"):
+        voxelize(box_scans, layout="sparse", **{**kw, "fill": "calibrated"})
+    one_scan = "needs two or more scans, got 1; with one scan use fill='neighbourhood' \\(CLI --fill neighbourhood\\)"
+    with pytest.raises(InputError, match=one_scan):
+        voxelize(box_scans[:1], layout="dense", **{**kw, "fill": "calibrated"})
 
 
 def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
@@ -203,7 +216,7 @@ def test_memory_plan_counts_the_neighbourhood_fill(box_scans, tracer, rng):  # n
     import tracemalloc
 
     from tlsvox.voxel.estimators import fill_neighbourhood
-    from tlsvox.voxel.plan import NEIGHBOURHOOD_BYTES
+    from tlsvox.voxel.plan import NEIGHBOURHOOD_BYTES, format_bytes
     from tlsvox.voxel.pulses import beams_from_scan
 
     grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)
@@ -211,8 +224,11 @@ def test_memory_plan_counts_the_neighbourhood_fill(box_scans, tracer, rng):  # n
     plain = memory_plan(grid, beams, tracer, layout="dense")
     filled = memory_plan(grid, beams, tracer, layout="dense", fill="neighbourhood")
     assert filled.fill == grid.n_voxels * NEIGHBOURHOOD_BYTES and filled.run == plain.run + filled.fill
-    assert "fill='neighbourhood'" in filled.describe()
+    assert f"the fill {format_bytes(filled.fill)}" in filled.describe()
     assert memory_plan(grid, beams, tracer, layout="sparse", fill="neighbourhood").fill == 0  # refused later
+    # the calibrated fill holds each scan's sums and the others' beside the pooled ones
+    calibrated = memory_plan(grid, beams, tracer, layout="dense", fill="calibrated", scans=2)
+    assert calibrated.fill == filled.fill + 3 * plain.dense
     shape = (60, 60, 60)
     lad, occ, crown = rng.random(shape), rng.random(shape) < 0.3, rng.random(shape) < 0.8
     fill_neighbourhood(lad[:4, :4, :4], occ[:4, :4, :4], crown[:4, :4, :4])
@@ -273,3 +289,24 @@ def test_outward_g_table_averages_to_g():
         c = np.linspace(-1, 1, 4001)
         mean = np.array([np.trapezoid(np.interp(np.cos(phi), c, row), phi) / np.pi for row in table])
         np.testing.assert_allclose(mean, la.G(np.linspace(0, np.pi, 7)), atol=2e-3)
+
+
+def test_cli_calibrated_fill(box_scans, tmp_path, capsys):  # noqa: F811
+    """--fill calibrated: the ratio is in the scene; one scan gets one line naming the fix, and no file."""
+    from tlsvox.cli.app import main as tlsvox_main
+    from voxlidar.scene import Scene
+
+    paths = []
+    for s in box_scans:
+        paths.append(str(tmp_path / f"{s.name}.laz"))
+        s.write(paths[-1])
+    common = ["--voxel-size", "0.1", "--ground", "none", "--leaf-angle", "spherical", "--n-min", "12",
+              "--layout", "dense", "--fill", "calibrated"]
+    assert tlsvox_main(["voxelize", *paths, "-o", str(tmp_path / "two.npz"), *common]) == 0
+    scene = Scene.load(tmp_path / "two.npz")
+    assert scene.meta["options"]["fill"] == "calibrated" and scene.meta["options"]["fill_ratio"] > 0
+    capsys.readouterr()
+    assert tlsvox_main(["voxelize", paths[0], "-o", str(tmp_path / "one.npz"), *common]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "two or more scans" in err[0] and "fill='neighbourhood'" in err[0]
+    assert not (tmp_path / "one.npz").exists()
