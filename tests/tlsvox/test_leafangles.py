@@ -88,3 +88,71 @@ def test_cli_voxelize_leaf_angle_measured(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "--leaf-angle-layers" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_deconvolve_recovers_p_from_rows_of_different_kernels():
+    """The crown inverts the rows of every scan, layer and zenith group together: one p explains them all."""
+    from tlsvox.leafangles import _deconvolve
+
+    rng = np.random.default_rng(0)
+    n = 8
+    p_true = rng.dirichlet(np.ones(n))
+    rows = []
+    for scale in (1.0, 30.0, 500.0):  # rows of very different leaf areas
+        K = np.eye(n) * 2.0 + rng.random((n, n))
+        K /= K.sum(axis=1, keepdims=True)
+        rows.append((scale * p_true @ K, K))
+    rows.append((np.ones(n), np.zeros((n, n))))  # a row without a kernel must not count (nor give nan)
+    p = _deconvolve(rows[:3], n, 3000)
+    np.testing.assert_allclose(p, p_true, atol=2e-3)
+    assert np.isfinite(_deconvolve(rows, n, 10)).all()
+
+
+def _grid_plane(spacing=0.005, n=11):
+    g = (np.arange(n) - n // 2) * spacing
+    x, y = np.meshgrid(g, g)
+    return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+
+
+def test_edge_on_fits_are_dropped():
+    """A fit whose normal is nearer edge-on to its beam than |cos a| = cap is dropped; facing ones kept."""
+    from tlsvox.leafangles import _fit_scan
+
+    xyz = _grid_plane()
+    kw = dict(radius=0.012, min_points=5, min_spread=0.0, n_bins=18, cap=0.2)
+    facing = _fit_scan(xyz, np.array([0.0, 0.0, 5.0]), **kw)
+    grazing = _fit_scan(xyz, np.array([5.0, 0.0, 0.5]), **kw)  # |cos a| = 0.1
+    assert facing.ok.all() and (facing.meas_bin == 0).all()
+    assert not grazing.ok.any()
+    assert _fit_scan(xyz, np.array([5.0, 0.0, 0.5]), **{**kw, "cap": 0.05}).ok.all()
+
+
+def test_occlusion_levels_hide_more_of_the_leaf_in_order():
+    """Simulated neighbour counts: the whole leaf > one cut > the same cut on two sides."""
+    from tlsvox.leafangles import _CUTS, _MAX_COUNT, _simulate_kernel
+
+    rng = np.random.default_rng(3)
+    n = 60
+    d = rng.normal(size=(n, 3)) * [0.2, 0.2, 0.0] + [1.0, 0.0, 0.6]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    _, counts = _simulate_kernel(np.full(n, 8.0), d, np.zeros(n, int), step=(np.radians(0.06),) * 2,
+                                 leaf_size=0.05, radius=0.025, min_points=5, min_spread=0.0, n_bins=6, n_groups=1,
+                                 range_noise=0.005, samples=4, cap=0.2, rng=rng)
+    mean = (counts.mean(axis=1) * np.arange(_MAX_COUNT)).sum(axis=1) / counts.mean(axis=1).sum(axis=1)
+    one_side = [lev for lev in range(len(_CUTS)) if _CUTS[lev, 2] > 1e8 and _CUTS[lev, 0] < 1e8]
+    for lev in range(len(_CUTS)):
+        if _CUTS[lev, 2] < 1e8:  # two cuts: fewer echoes than the same single cut
+            single = next(k for k in one_side if np.allclose(_CUTS[k, :2], _CUTS[lev, :2]))
+            assert mean[lev] < mean[single], (lev, mean)
+    assert mean[0] == mean.max() and np.all(np.diff(mean[[0] + one_side]) < 0), mean
+
+
+def test_kernels_and_occlusion_are_fitted_per_scan_and_layer():
+    slab, scan = _scan_of("planophile", noise=0.005)
+    res = measure_leaf_angles([scan], layers=2, samples=1, max_simulated=300)
+    mixes = res.params["occlusion_mix"]
+    assert len(mixes) == 1 and len(mixes[0]) == 2  # one scan, two layers
+    for mix in mixes[0]:
+        assert mix is not None and abs(sum(mix) - 1) < 0.01 and min(mix) >= 0
+    with pytest.raises(InputError, match="cap"):
+        measure_leaf_angles([scan], cap=1.5)
