@@ -132,3 +132,9 @@ def test_pipeline_refuses_what_it_cannot_do(tree_and_scans):
         scene_from_scans([])
     with pytest.raises(InputError, match="georeference"):
         scene_from_scans(scans, georeference="gnss")
+
+
+def test_calibrated_fill_with_one_scan_is_refused_before_any_work():
+    """Said at entry, before registration, classification and the cylinder fit run."""
+    with pytest.raises(InputError, match="two or more scans, got 1"):
+        scene_from_scans([object()], voxelize_kwargs={"fill": "calibrated"})

@@ -86,7 +86,7 @@ from voxlidar.choices import Choice
 from tlsvox.voxel.trace import VoxelStats
 
 __all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "brick_layer_means", "brick_occlusion", "estimate_lad",
-           "fill_layers", "fill_neighbourhood", "cross_scan_ratio", "hull_mask"]
+           "cross_scan_ratio", "fill_layers", "fill_neighbourhood", "hull_mask"]
 
 _TINY = 1e-12
 
@@ -232,12 +232,13 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     """
     est = Estimator.parse(estimator, "estimator")
     fill = FillMode.parse(fill, "fill")
-    if fill is FillMode.CALIBRATED and (scan_stats is None or len(scan_stats) < 2):
-        raise InputError("fill='calibrated' measures its ratio on the voxels one scan hides and another sees: it "
-                         "needs two or more scans (voxelize passes each scan's sums); with one scan use "
-                         "fill='neighbourhood'")
     if not isinstance(stats, VoxelStats):
         raise InputError(f"stats must be the VoxelStats of a trace, got {type(stats).__name__}")
+    if fill is FillMode.CALIBRATED:
+        if scan_stats is None:
+            raise InputError("fill='calibrated' needs each scan's own sums (scan_stats=[...]; voxelize passes them)"
+                             "; with one scan use fill='neighbourhood'")
+        scan_stats = _scan_stats_list(scan_stats, stats)
     if int(n_min) < 1:
         raise InputError(f"n_min={n_min!r} must be an integer >= 1 (beams per voxel), e.g. 5")
     if not 0.0 <= float(min_explored) <= 1.0:
@@ -500,7 +501,7 @@ def fill_neighbourhood(lad, occluded, mask, *, radii=FILL_RADII, min_seen: int =
     return lad, filled
 
 
-#: ``fill="calibrated"``: fewer calibration voxels than this leave the ratio at 1
+#: ``fill="calibrated"``: fewer calibration voxels than this leave the ratio at 1 (and say so)
 CALIBRATION_MIN_VOXELS = 20
 
 
@@ -508,25 +509,28 @@ def cross_scan_ratio(scan_stats, mask, *, estimator="bcmle", n_min: int = 5, min
                      weighted_count: bool = False) -> dict:
     """How much leaf area hidden voxels hold against the neighbourhood fill, measured on the scans themselves.
 
-    A voxel that one scan cannot see but the others can is a hidden voxel
-    whose LAD is known.  For each scan ``b``: the voxels of ``mask`` that
-    ``b`` alone leaves occluded and the other scans together see; their LAD
-    from the other scans' sums, against what :func:`fill_neighbourhood` gives
-    them from ``b``'s sums alone.  The ratio of the two leaf areas, pooled
-    over the scans, is the factor the fill of the voxels that no scan sees
-    is multiplied by (``fill="calibrated"``).
+    A voxel that the other scans cannot see but one scan can is a hidden
+    voxel whose LAD is known.  For each scan ``b`` (leave one out): the
+    voxels of ``mask`` that all the scans but ``b`` leave occluded, that
+    their neighbourhood fill reaches (:func:`fill_neighbourhood` of their
+    pooled sums) and that ``b`` sees; their LAD from ``b``'s sums, against
+    what that fill gives them.  The ratio of the two leaf areas, pooled over
+    the scans, is the factor the fill of the voxels that no scan sees is
+    multiplied by (``fill="calibrated"``).  With two scans, "all the scans
+    but b" is the other scan.  Only the two-scan case is measured on known
+    answers (docs/voxelize.md, *Occluded voxels*).
 
     Why: the voxels that stay hidden are mostly the cores of dense leaf
     clusters, denser than the seen voxels around them whose mean the
-    neighbourhood fill takes (on the synthetic oak it gives them 55-71 % of
-    their leaf area; docs/voxelize.md, *Occluded voxels*).  What one scan
-    cannot see and another can is hidden for the same reason, so the scans
-    themselves say how much to scale the fill; no truth and no fitted
-    constant enters.
+    neighbourhood fill takes (on the synthetic oak it gives them 64-71 % of
+    their leaf area).  What some scans cannot see and another can is hidden
+    for the same reason, so the scans themselves say how to scale the fill;
+    no truth enters.  The one constant is the floor of
+    ``CALIBRATION_MIN_VOXELS`` voxels under which no ratio is taken.
 
     Parameters
     ----------
-    scan_stats : list of VoxelStats
+    scan_stats : sequence of VoxelStats
         Each scan's own sums on one dense grid (two or more).
     mask : (nx, ny, nz) bool
         The crown (the fill's mask).
@@ -537,9 +541,11 @@ def cross_scan_ratio(scan_stats, mask, *, estimator="bcmle", n_min: int = 5, min
     -------
     dict
         ``ratio`` (1.0 when fewer than ``CALIBRATION_MIN_VOXELS`` voxels
-        calibrate), ``voxels`` (calibration voxels over all scans),
-        ``seen_m2`` (their leaf area from the other scans) and ``filled_m2``
-        (what the fill gave them), and ``per_scan`` (the same per hidden scan).
+        calibrate, with ``calibrated`` False), ``calibrated``, ``measured`` (the
+        ratio of the voxels found, NaN when the fill gave them nothing), ``voxels``
+        (calibration voxels over all scans), ``seen_m2`` (their leaf area
+        from the scan that sees them) and ``filled_m2`` (what the fill of the
+        others gave them), and ``per_scan`` (the same per seeing scan).
 
     Examples
     --------
@@ -547,18 +553,15 @@ def cross_scan_ratio(scan_stats, mask, *, estimator="bcmle", n_min: int = 5, min
     >>> from tlsvox.voxel.stats import NF
     >>> g = VoxelGrid((0, 0, 0), 1.0, (2, 1, 1))
     >>> empty = VoxelStats(g, np.zeros((2, NF)))
-    >>> cross_scan_ratio([empty, empty], np.ones((2, 1, 1), bool))["ratio"]
-    1.0
+    >>> r = cross_scan_ratio([empty, empty], np.ones((2, 1, 1), bool))
+    >>> r["ratio"], r["calibrated"]
+    (1.0, False)
     """
-    stats = list(scan_stats)
-    if len(stats) < 2:
-        raise InputError(f"cross_scan_ratio needs the sums of two or more scans, got {len(stats)}")
-    if any(s.sparse for s in stats):
-        raise InputError("cross_scan_ratio needs dense sums (every voxel's own): use layout='dense'")
+    stats = _scan_stats_list(scan_stats, None)
     grid = stats[0].grid
-    if any(s.grid != grid for s in stats):
-        raise InputError("cross_scan_ratio: the scans' sums lie on different grids; trace them on one grid")
     mask = np.asarray(mask, bool)
+    if mask.shape != grid.shape:
+        raise InputError(f"cross_scan_ratio: mask has shape {mask.shape}, the grid {grid.shape}")
     kw = dict(estimator=estimator, n_min=n_min, min_explored=min_explored, leaf_size=None,
               weighted_count=weighted_count)
     vol = grid.voxel_volume
@@ -567,17 +570,39 @@ def cross_scan_ratio(scan_stats, mask, *, estimator="bcmle", n_min: int = 5, min
         others = VoxelStats(grid, sum(s.acc for k, s in enumerate(stats) if k != b))
         lad_b = estimate_lad(own, **kw)
         lad_o = estimate_lad(others, **kw)
-        filled_b, _ = fill_neighbourhood(lad_b.lad, lad_b.occluded, mask)
-        sel = lad_b.occluded & ~lad_o.occluded & mask
-        seen_m2 = float(lad_o.lad[sel].sum() * vol)
-        filled_m2 = float(filled_b[sel].sum() * vol)
+        filled_o, reached = fill_neighbourhood(lad_o.lad, lad_o.occluded, mask)
+        sel = lad_o.occluded & reached & ~lad_b.occluded & mask
+        seen_m2 = float(lad_b.lad[sel].sum() * vol)
+        filled_m2 = float(filled_o[sel].sum() * vol)
         per_scan.append({"voxels": int(sel.sum()), "seen_m2": round(seen_m2, 3), "filled_m2": round(filled_m2, 3)})
         seen_total += seen_m2
         filled_total += filled_m2
         voxels += int(sel.sum())
-    ok = voxels >= CALIBRATION_MIN_VOXELS and filled_total > 0 and seen_total > 0
-    return {"ratio": float(seen_total / filled_total) if ok else 1.0, "voxels": voxels,
+    measured = float(seen_total / filled_total) if filled_total > 0 else float("nan")
+    ok = voxels >= CALIBRATION_MIN_VOXELS and filled_total > 0
+    return {"ratio": measured if ok else 1.0, "calibrated": bool(ok), "measured": measured, "voxels": voxels,
             "seen_m2": round(seen_total, 3), "filled_m2": round(filled_total, 3), "per_scan": per_scan}
+
+
+def _scan_stats_list(scan_stats, stats) -> list:
+    """``scan_stats`` as a list of two or more dense VoxelStats on one grid (``stats``'s, when given)."""
+    try:
+        out = list(scan_stats)
+    except TypeError:
+        raise InputError(f"scan_stats must be a list of VoxelStats (one per scan), got {type(scan_stats).__name__}")
+    if len(out) < 2:
+        raise InputError("fill='calibrated' measures its ratio on the voxels one scan sees and the others hide: it "
+                         f"needs the sums of two or more scans, got {len(out)}; with one scan use "
+                         "fill='neighbourhood'")
+    bad = [type(s).__name__ for s in out if not isinstance(s, VoxelStats)]
+    if bad:
+        raise InputError(f"scan_stats must hold VoxelStats (one per scan), got {', '.join(sorted(set(bad)))}")
+    if any(s.sparse for s in out):
+        raise InputError("fill='calibrated' needs dense sums (every voxel's own): use layout='dense'")
+    grid = out[0].grid if stats is None else stats.grid
+    if any(s.grid != grid for s in out):
+        raise InputError("scan_stats lie on a different grid from the run's; trace every scan on the run's grid")
+    return out
 
 
 def fill_layers(lad, occluded, mask):

@@ -38,7 +38,7 @@ from tlsvox.voxel.stats import NF
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, echo_voxels
 from voxlidar.choices import Choice
 
-__all__ = ["DENSE_AUTO_MAX", "NEIGHBOURHOOD_BYTES", "Layout", "MemoryPlan", "beams_bytes", "build_bytes", "memory_plan",
+__all__ = ["CALIBRATED_BYTES", "DENSE_AUTO_MAX", "NEIGHBOURHOOD_BYTES", "Layout", "MemoryPlan", "beams_bytes", "build_bytes", "memory_plan",
            "row_bytes", "ALLOCATOR_SHARE", "undetected_bytes", "with_allocator"]
 
 #: estimator work arrays, bytes per voxel (dense) or row (sparse), beside the traced sums
@@ -110,8 +110,9 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
     available memory).  ``undetected="model"`` adds what the detection
     correction holds on top (:func:`undetected_bytes`), ``fill="neighbourhood"``
     its box filters' temporaries (``NEIGHBOURHOOD_BYTES`` per voxel; dense only),
-    ``fill="calibrated"`` those and the sums of each of the ``scans`` and of the
-    others beside them (:func:`~tlsvox.voxel.estimators.cross_scan_ratio`).
+    ``fill="calibrated"`` those, each of the ``scans``' own sums and the
+    ratio's work arrays (``CALIBRATED_BYTES`` per voxel;
+    :func:`~tlsvox.voxel.estimators.cross_scan_ratio`).
     """
     layout = Layout.parse(layout, "layout")
     limit = memory_limit(max_bytes)
@@ -133,7 +134,10 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
     if layout is Layout.DENSE and fill in (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED):
         fill_bytes = grid.n_voxels * NEIGHBOURHOOD_BYTES
         if fill is FillMode.CALIBRATED:
-            fill_bytes += (int(scans) + 1) * dense
+            if int(scans) < 2:
+                raise InputError(f"fill='calibrated' needs two or more scans, got scans={scans!r}; with one scan "
+                                 "use fill='neighbourhood'")
+            fill_bytes += grid.n_voxels * (CALIBRATED_BYTES + int(scans) * NF * 8)
     plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra, fill_bytes, build_bytes(beams),
                       beams.n_echoes)
     # the check runs once the beams are made (voxelize): what lies ahead is the trace and the estimate
@@ -145,6 +149,9 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
                if layout is Layout.DENSE and sparse_need <= limit else "")
         if model and with_allocator(plan.run - plan.undetected) <= limit:
             fix += "undetected='ignore', "
+        if fill is FillMode.CALIBRATED and with_allocator(
+                plan.run - plan.fill + grid.n_voxels * NEIGHBOURHOOD_BYTES) <= limit:
+            fix += "fill='neighbourhood', "
         factor = (ahead / max(limit, 1)) ** (1 / 3)
         raise InputError(f"{plan.sizes()}; tracing and estimating with the {layout.value} layout need "
                          f"{format_bytes(ahead)} but only "
@@ -224,6 +231,10 @@ def build_bytes(beams: Beams) -> int:
 #: ``fill="neighbourhood"`` (:func:`~tlsvox.voxel.estimators.fill_neighbourhood`): bytes per voxel of its
 #: copies and box-filter temporaries (60 measured with tracemalloc; a margin for scipy's buffers)
 NEIGHBOURHOOD_BYTES = 96
+#: ``fill="calibrated"``: bytes per voxel of the ratio's work beyond the neighbourhood fill's (the others'
+#: sums and two estimates at a time; 282 measured with tracemalloc on a 60^3 grid, and a margin); each
+#: scan's own sums (NF x 8 bytes a voxel) are counted beside it
+CALIBRATED_BYTES = 320
 #: bytes per sample of the detection model's walk along the beams (:func:`unrecorded_echoes`: sample
 #: positions, voxel indices, LAD, masks and their subsets), times its chunk of samples
 _SAMPLE_BYTES = 112

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tlsvox.errors import InputError
-from tlsvox.voxel.estimators import (Estimator, FillMode, LadEstimate, brick_layer_means, estimate_lad, fill_layers,
-                                     fill_neighbourhood, hull_mask)
+from tlsvox.voxel.estimators import (CALIBRATION_MIN_VOXELS, Estimator, FillMode, LadEstimate, brick_layer_means,
+                                     estimate_lad, fill_layers, fill_neighbourhood, hull_mask)
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
@@ -391,6 +391,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     # the sparse rounds of the detection model list the recorded echoes' voxels again, and the given-back ones
     recorded = grid.flat(voxels) if detection is not None and rows is not None else None
     del voxels
+    if per_scan and detection is None:
+        beams = None  # each scan's beams are traced on their own: the joined copy is not needed again
 
     def trace(joined, separate):
         """The sums of ``joined``, and each scan's (``separate``) when the fill calibrates on them."""
@@ -424,8 +426,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                     pulse, ranges = info["added"]
                     added.append(grid.flat(voxels_along(grid, part.origin[pulse], part.direction[pulse], ranges)))
             del lookup
-            beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
-            if not per_scan:
+            if per_scan:  # traced scan by scan: no joined copy
+                beams = None
+            else:
+                beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
                 del fixed
             if recorded is not None:  # what echo_voxels(grid, beams) gives, from the given-back echoes alone
                 rows = Bricks.from_ijk(grid, grid.unflat(np.union1d(recorded, np.concatenate(added))))
@@ -454,6 +458,11 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     timings["estimate"] = time.perf_counter() - t3
     timings["total"] = time.perf_counter() - t0
     warnings = quality_warnings(lad_v, occ_v, infos)
+    calibration = lad.options.get("fill_calibration")
+    if calibration is not None and not calibration["calibrated"]:
+        warnings.append(f"fill='calibrated' found {calibration['voxels']} voxels that one scan sees and the others "
+                        f"hide (it needs {CALIBRATION_MIN_VOXELS}): the occluded voxels took the neighbourhood "
+                        "mean unscaled (ratio 1); scans from more different positions give it voxels to measure on")
     if leaf_size is not None and grid.voxel_size < 2.0 * leaf_size:
         suggest = grid.voxel_size * int(np.ceil(2.0 * leaf_size / grid.voxel_size - 1e-9))
         warnings.append(f"voxels of {grid.voxel_size:g} m are narrower than two leaves ({leaf_size:g} m each): the "
@@ -489,7 +498,8 @@ def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
     The seen voxels' estimates; occluded voxels take a fill, since a beam's optical depth runs
     through them too: dense layout, their height layer's mean inside the crown hull
     (:func:`~tlsvox.voxel.estimators.fill_layers`; with ``fill="neighbourhood"`` that fill,
-    :func:`~tlsvox.voxel.estimators.fill_neighbourhood`); sparse layout (with ``stats``), the pooled
+    :func:`~tlsvox.voxel.estimators.fill_neighbourhood`, and with ``fill="calibrated"`` that fill
+    times the run's ratio); sparse layout (with ``stats``), the pooled
     estimate of their brick layer's seen crown bricks
     (:func:`~tlsvox.voxel.estimators.brick_layer_means`, the brick fill of ``fill="layer"``),
     for occluded rows and the echo-free voxels of occluded crown bricks alike (looked up per
@@ -503,7 +513,8 @@ def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
         crown = hull_mask(seen > 0, grid)
         if lad.options.get("fill") in ("neighbourhood", "calibrated"):
             raw, filled = fill_neighbourhood(seen, occ, crown)
-            raw = np.where(filled, raw * float(lad.options.get("fill_ratio", 1.0)), raw)
+            ratio = float(lad.options.get("fill_ratio", 1.0))  # fill="calibrated"
+            raw = np.where(filled, np.minimum(raw * ratio, LAD_PLAUSIBLE_MAX), raw)
         else:
             raw, _ = fill_layers(seen, occ, crown)
         ijk = np.argwhere(raw > 0)

@@ -180,6 +180,28 @@ def test_the_rule_is_stated_and_the_sparse_layout_gives_back_alike(bench, box_sc
     assert given["sparse"] == pytest.approx(given["dense"], rel=0.1)
 
 
+def test_calibrated_fill_traces_the_corrected_beams_scan_by_scan(bench, box_scans_02):
+    """fill='calibrated' traces each scan on its own, in the detection model's rounds too: the
+    pooled sums hold the given-back interception (leaf echo weight up by the share the model
+    reports, against the same run without the model), not the scans' recorded echoes again; and a
+    run whose scans share too few hidden voxels to calibrate says so."""
+    from tlsvox import voxelize
+
+    _, scans = box_scans_02
+    kw = dict(voxel_size=0.2, leaf_angle="spherical", ground=None, bounds=bench.BOUNDS, progress=False,
+              layout="dense", fill="calibrated", n_min=60)
+    plain = voxelize(scans, **kw)
+    model = voxelize(scans, undetected="model", undetected_iterations=2, **kw)
+    share = model.scene.meta["undetected"]["given_back_share"][-1]
+    assert share > 0.002
+    ratio = model.stats.field("leaf_w").sum() / plain.stats.field("leaf_w").sum()
+    assert ratio == pytest.approx(1 + share, rel=2e-3), (ratio, share)
+    for res in (plain, model):
+        cal = res.scene.meta["options"]["fill_calibration"]
+        said = [w for w in res.scene.meta["warnings"] if "fill='calibrated' found" in w]
+        assert bool(said) == (not cal["calibrated"]), (cal, said)
+
+
 def test_sparse_layout_weighs_its_bricks_and_matches_the_dense_model(bench, box_scans_02):
     """undetected='model' in both layouts, with occlusion (n_min 60 at 20 cm) and air around the box.
 

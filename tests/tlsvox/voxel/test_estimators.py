@@ -289,8 +289,8 @@ def test_calibrated_fill_measures_the_true_ratio(rng):
     field = np.broadcast_to(true[:, None, None], grid.shape)
     num = den = 0.0
     for b, a in ((0, 1), (1, 0)):
-        hidden = own[b].occluded & ~own[a].occluded
-        filled, _ = fill_neighbourhood(np.where(own[b].occluded, 0.0, field), own[b].occluded, mask)
+        filled, reached = fill_neighbourhood(np.where(own[b].occluded, 0.0, field), own[b].occluded, mask)
+        hidden = own[b].occluded & reached & ~own[a].occluded
         num, den = num + field[hidden].sum(), den + filled[hidden].sum()
     expected = num / den
     assert abs(expected - 1) > 0.2  # a ratio the test can tell from 1
@@ -302,10 +302,63 @@ def test_calibrated_fill_measures_the_true_ratio(rng):
     assert cal.options["fill_ratio"] == got["ratio"]
     np.testing.assert_allclose(cal.lad[3], plain.lad[3] * got["ratio"], rtol=1e-12)
     np.testing.assert_array_equal(cal.lad[~cal.occluded], plain.lad[~plain.occluded])
-    with pytest.raises(InputError, match="needs two or more scans"):
+    # bad calls: one line each, never a traceback from numpy
+    with pytest.raises(InputError, match="two or more scans, got 1"):
         estimate_lad(pooled, leaf_size=None, fill="calibrated", fill_mask=mask, scan_stats=scans[:1])
     with pytest.raises(InputError, match="two or more scans"):
         cross_scan_ratio(scans[:1], mask)
+    with pytest.raises(InputError, match="scan_stats="):
+        estimate_lad(pooled, leaf_size=None, fill="calibrated", fill_mask=mask)
+    with pytest.raises(InputError, match="must hold VoxelStats"):
+        estimate_lad(pooled, leaf_size=None, fill="calibrated", fill_mask=mask, scan_stats=[scans[0], "b"])
+    other = trace(VoxelGrid((0, 0, 0), h, (7, 5, 2)), _column_beams(rng, grid, true, g, 10, columns=3))
+    with pytest.raises(InputError, match="different grid"):
+        estimate_lad(pooled, leaf_size=None, fill="calibrated", fill_mask=mask, scan_stats=[scans[0], other])
+    with pytest.raises(InputError, match="mask has shape"):
+        cross_scan_ratio(scans, mask[:, :, :0])
+    gen = (s for s in scans)  # any iterable of sums
+    assert estimate_lad(pooled, leaf_size=None, fill="calibrated", fill_mask=mask, scan_stats=gen).options[
+        "fill_ratio"] == got["ratio"]
+
+
+def _stats_seeing(grid, lad, seen):
+    """Sums whose ``bcmle`` estimate is exactly ``lad`` in the voxels ``seen`` (100 beams, no
+    echo depth term) and which leave every other voxel without a beam (occluded)."""
+    from tlsvox.voxel.stats import FIELDS, NF, VoxelStats
+
+    acc = np.zeros((grid.n_voxels, NF))
+    flat = np.flatnonzero(np.asarray(seen).ravel())
+    col = {name: FIELDS.index(name) for name in FIELDS}
+    acc[flat, col["count"]] = acc[flat, col["n_w"]] = 100.0
+    acc[flat, col["path_wg"]] = 10.0
+    acc[flat, col["path_w"]] = acc[flat, col["chord_w"]] = 20.0
+    acc[flat, col["leaf_w"]] = 10.0 * np.asarray(lad).ravel()[flat]
+    return VoxelStats(grid, acc)
+
+
+def test_calibrated_ratio_counts_only_voxels_the_fill_reaches():
+    """A column of 20 voxels, LAD 1 + (z/10)^2: scan a sees z = 0-5, scan b z = 8-19.  a's
+    neighbourhood fill (at least 5 seen voxels in a cube of half-width 1, 2, 4 or 8) reaches
+    z = 6-9 only, b's z = 4-7; the voxels one scan sees that the other's fill reaches are z = 8, 9
+    (b sees) and z = 4, 5 (a sees).  By hand: ratio = (u8 + u9 + u4 + u5) / (mean u0..5 + mean
+    u1..5 + mean u8..12 + mean u8..13); the voxels b sees above z = 9, which a's fill never
+    reaches, must not count."""
+    from tlsvox.voxel.estimators import cross_scan_ratio
+
+    grid = VoxelGrid((0, 0, 0), 1.0, (1, 1, 20))
+    z = np.arange(20)
+    u = 1.0 + (z / 10.0) ** 2
+    lad = u.reshape(grid.shape)
+    a = _stats_seeing(grid, lad, (z <= 5).reshape(grid.shape))
+    b = _stats_seeing(grid, lad, (z >= 8).reshape(grid.shape))
+    np.testing.assert_allclose(estimate_lad(a, leaf_size=None).lad.ravel()[:6], u[:6], rtol=1e-12)
+    got = cross_scan_ratio([a, b], np.ones(grid.shape, bool))
+    seen = u[8] + u[9] + u[4] + u[5]
+    filled = u[0:6].mean() + u[1:6].mean() + u[8:13].mean() + u[8:14].mean()
+    assert got["voxels"] == 4 and got["measured"] == pytest.approx(seen / filled, rel=1e-12)
+    # four voxels: under CALIBRATION_MIN_VOXELS, so the fill is not scaled
+    assert not got["calibrated"] and got["ratio"] == 1.0
+    assert [p["voxels"] for p in got["per_scan"]] == [2, 2]
 
 
 def test_bad_options_rejected(rng):
