@@ -86,7 +86,7 @@ def section_devices(args, lines, img):
         if r["mode"] == "exact" and r["detect"] == "nee" and r["uniform"]:
             lines.append(f"| {r['device']} | {r['photons_per_s'] / ops:.1f} x |")
     lines.append("")
-    lines += [f"Goals: at least 20 x the oracle (issue 5); at least 150 M voxel steps/s on 2 cores on the best "
+    lines += ["Goals: at least 20 x the oracle (issue 5); at least 150 M voxel steps/s on 2 cores on the best "
               "CPU runtime (issue 11).", "",
               chart_devices(rows, ops, img), ""]
     return rows, ops

@@ -65,7 +65,8 @@ def test_bad_input_names_the_parameter():
 
 
 def test_cli_voxelize_leaf_angle_measured(tmp_path, capsys):
-    """`tlsvox voxelize --leaf-angle measured`: the fitted model drives G and the scene states it."""
+    """`tlsvox voxelize --leaf-angle measured --leaf-angle-by-layer`: the fitted models drive G (the
+    whole crown's is the scene's, each layer's in its voxels) and the scene states them."""
     from tlsvox.cli.voxelize import main as cli_main
     from voxlidar.scene import Scene
 
@@ -75,7 +76,7 @@ def test_cli_voxelize_leaf_angle_measured(tmp_path, capsys):
     scan.write(path)
     out = tmp_path / "scene.npz"
     rc = cli_main([str(path), "--voxel-size", "0.5", "--ground", "none", "--leaf-angle", "measured",
-                   "--leaf-angle-layers", "2", "-o", str(out)])
+                   "--leaf-angle-layers", "2", "--leaf-angle-by-layer", "-o", str(out)])
     text = capsys.readouterr().out
     assert rc == 0 and '"measured"' in text
     scene = Scene.load(out)
@@ -83,6 +84,13 @@ def test_cli_voxelize_leaf_angle_measured(tmp_path, capsys):
     measured = scene.meta["leaf_angle_measured"]
     assert len(measured["layers"]) == 2 and measured["crown"]["leaf_angle"] == scene.leaf_angle.to_dict()
     assert abs(measured["crown"]["mean_inclination_deg"] - np.degrees(LeafAngle("erectophile").mean_angle())) < 5
+    by_layer = scene.meta["leaf_angle_layers"]
+    assert [lay["leaf_angle"] for lay in by_layer] == [lay["leaf_angle"] for lay in measured["layers"]]
+    assert by_layer[0]["z_low"] is None and by_layer[1]["z_low"] == pytest.approx(measured["layers"][1]["z_range_m"][0])
+    rc = cli_main([str(path), "--leaf-angle", "spherical", "--leaf-angle-by-layer", "-o", str(tmp_path / "y.npz")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "needs --leaf-angle measured" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "y.npz").exists()
     rc = cli_main([str(path), "--leaf-angle", "measured", "--leaf-angle-layers", "0", "-o",
                    str(tmp_path / "x.npz"), "-q"])
     err = capsys.readouterr().err

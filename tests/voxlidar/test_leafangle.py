@@ -68,3 +68,18 @@ def test_unknown_kind_lists_choices():
     with pytest.raises(InputError, match="planophile, erectophile"):
         LeafAngle("flat")
     assert LeafAngleKind.parse("Spherical", "leaf_angle") is LeafAngleKind.SPHERICAL
+
+
+@pytest.mark.parametrize("mu,nu", [(0.7, 0.6), (0.5, 2.0), (2.0, 0.5)])
+def test_beta_with_a_density_infinite_at_an_end_has_finite_g(mu, nu):
+    """A beta distribution with mu or nu < 1 (as fitted to measured leaf angles) has an infinite density at
+    0 or pi/2; G at the zenith angles 0, pi/2 and pi, where one quadrature part has zero width there, is
+    finite and equals the mean projection of sampled leaves (|cos t| at 0, 2/pi sin t at pi/2) within 3
+    standard errors of 400,000 samples and the quadrature's error, which the singular end raises from
+    1e-10 to under 1 % (measured 0.75 % at mu or nu = 0.5)."""
+    la = LeafAngle("beta", mu=mu, nu=nu)
+    g = la.G(np.array([0.0, np.pi / 2, np.pi]))
+    assert np.all(np.isfinite(g))
+    t = la.ppf(np.random.default_rng(0).random(400_000))
+    for got, proj in ((g[0], np.cos(t)), (g[1], 2 / np.pi * np.sin(t)), (g[2], np.cos(t))):
+        assert abs(got - proj.mean()) < 3 * proj.std() / np.sqrt(len(t)) + 0.01 * got, (got, proj.mean())

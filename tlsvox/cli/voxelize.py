@@ -107,6 +107,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                             "histograms kept in the scene's meta")
     model.add_argument("--leaf-angle-layers", type=int, default=4,
                        help="crown layers of --leaf-angle measured (default 4)")
+    model.add_argument("--leaf-angle-by-layer", action="store_true",
+                       help="with --leaf-angle measured: each crown layer's own distribution gives G(theta) in "
+                            "its voxels (the scene keeps the whole crown's for the simulator)")
     model.add_argument("--leaf-azimuth", default="uniform", choices=[a.value for a in LeafAzimuth],
                        help="leaf normal azimuths: any (default), or facing away from the crown axis, which then "
                             "gives each voxel the G of outward leaves for each beam (and the simulator uses it)")
@@ -296,7 +299,11 @@ def run(args) -> int:
             raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
         measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
         leaf_angle = measured.leaf_angle
-    res = voxelize(scans, leaf_angle=leaf_angle, **options)
+    elif args.leaf_angle_by_layer:
+        raise InputError("--leaf-angle-by-layer needs --leaf-angle measured (the layers' distributions come from "
+                         "the scans)")
+    res = voxelize(scans, leaf_angle=leaf_angle, leaf_angle_layers=measured if args.leaf_angle_by_layer else None,
+                   **options)
     if args.qsm:
         from tlsvox.qsm import apply_cylinders, wood_points
 

@@ -80,10 +80,11 @@
     const int nx, const int ny, const int nz, const double fx_scale, \
     __global const int *brick_start, __global const ushort *brick_key, \
     __global const double *gout, const int gout_nt, const int gout_nc, \
-    const double ccx, const double ccy, const int outward
+    const double ccx, const double ccy, const int outward, __global const int *g_layer
 #define TRACE_INPUT_NAMES \
     origin, direction, echo_start, echo_range, echo_weight, echo_kind, tail, max_range, gval, \
-    lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key, gout, gout_nt, gout_nc, ccx, ccy, outward
+    lx, ly, lz, h, nx, ny, nz, fx_scale, brick_start, brick_key, gout, gout_nt, gout_nc, ccx, ccy, outward, \
+    g_layer
 
 inline void trace_one(const long b, TRACE_INPUTS,
                       __global double *acc, __global double *bacc, __global ulong *steps)
@@ -151,7 +152,10 @@ inline void trace_one(const long b, TRACE_INPUTS,
     /* outward-facing leaves: G depends on the beam's zenith and on the cosine c of the
      * angle between its horizontal direction and the voxel's outward direction from the
      * crown axis; gout is G on a (gout_nt zenith rows over [0, pi]) x (gout_nc c over
-     * [-1, 1]) table, interpolated bilinearly (the per-beam g where c is undefined) */
+     * [-1, 1]) table, interpolated bilinearly (the per-beam g where c is undefined).
+     * outward & 2: one such table per crown layer (leaf angles per layer), stacked, the
+     * layer of each voxel z index in g_layer; where c is undefined the layer's table
+     * is read at c = 0 (a table for azimuthally uniform leaves is the same in every c) */
     const double dh = sqrt(dx * dx + dy * dy);
     int t_i = 0;
     double t_f = 0.0;
@@ -202,14 +206,23 @@ inline void trace_one(const long b, TRACE_INPUTS,
             __global double *row = acc + v * NF;
 #endif
             double gv = g;
-            if (outward && dh > 1e-9) {
-                const double rx = lx + (ijk[0] + 0.5) * h - ccx, ry = ly + (ijk[1] + 0.5) * h - ccy;
-                const double rr = sqrt(rx * rx + ry * ry);
-                if (rr > 1e-9) {
-                    const double v = (clamp((rx * dx + ry * dy) / (rr * dh), -1.0, 1.0) + 1.0) * 0.5 * (gout_nc - 1);
+            if (outward) {
+                double v = 0.5 * (gout_nc - 1);  /* c = 0 */
+                int defined = 0;
+                if (dh > 1e-9) {
+                    const double rx = lx + (ijk[0] + 0.5) * h - ccx, ry = ly + (ijk[1] + 0.5) * h - ccy;
+                    const double rr = sqrt(rx * rx + ry * ry);
+                    if (rr > 1e-9) {
+                        v = (clamp((rx * dx + ry * dy) / (rr * dh), -1.0, 1.0) + 1.0) * 0.5 * (gout_nc - 1);
+                        defined = 1;
+                    }
+                }
+                if (defined || (outward & 2)) {
+                    const int layer = (outward & 2) ? g_layer[ijk[2]] : 0;
                     const int c_i = min((int)floor(v), gout_nc - 2);
                     const double c_f = v - c_i;
-                    __global const double *r0 = gout + (long)t_i * gout_nc + c_i, *r1 = r0 + gout_nc;
+                    __global const double *r0 = gout + ((long)layer * gout_nt + t_i) * gout_nc + c_i,
+                                          *r1 = r0 + gout_nc;
                     gv = fmax((1.0 - t_f) * ((1.0 - c_f) * r0[0] + c_f * r0[1])
                               + t_f * ((1.0 - c_f) * r1[0] + c_f * r1[1]), 1e-6);
                 }

@@ -318,6 +318,27 @@ def outward_g_table(leaf_angle, *, n_theta: int = 181, n_c: int = 129, nodes: in
     return out
 
 
+def layer_g_tables(models, *, outward: bool, n_theta: int = 181, n_c: int = 129) -> np.ndarray:
+    """One G table per crown layer, (layers, n_theta, n_c), as the tracer reads them (``g_layer``).
+
+    ``outward``: :func:`outward_g_table` of each layer's model; else the
+    model's usual G(theta) (azimuthally uniform leaves), the same in every
+    column (two columns).
+
+    Examples
+    --------
+    >>> from voxlidar.leafangle import LeafAngle
+    >>> t = layer_g_tables([LeafAngle("horizontal"), LeafAngle("vertical")], outward=False, n_theta=3)
+    >>> np.round(t[:, 1, 0], 6).tolist()   # a horizontal beam: flat leaves 0, upright ones 2/pi
+    [0.0, 0.63662]
+    """
+    models = list(models)
+    if outward:
+        return np.stack([outward_g_table(m, n_theta=n_theta, n_c=n_c) for m in models])
+    theta = np.linspace(0.0, np.pi, n_theta)
+    return np.stack([np.repeat(np.asarray(m.G(theta), dtype=np.float64)[:, None], 2, axis=1) for m in models])
+
+
 def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_range: float | None = None,
                     angular_grid: AngularGrid | None = None, socs_rotation=None,
                     reconstruct: bool = True, echo_weights="auto",

@@ -177,7 +177,8 @@ class Tracer:
         return len(BRICK_FIELDS) * 8 * (self.copies + 1) + 4
 
     def trace(self, grid: VoxelGrid, beams: Beams, *, rows: Bricks | None = None, outward=None,
-              chunk: int = 262144, progress: bool = False, max_bytes: int | None = None) -> VoxelStats:
+              g_layer=None, chunk: int = 262144, progress: bool = False,
+              max_bytes: int | None = None) -> VoxelStats:
         """Trace ``beams`` through ``grid``; see the module docstring.
 
         Parameters
@@ -194,6 +195,13 @@ class Tracer:
             (:func:`tlsvox.voxel.pulses.outward_g_table`) at the beam's zenith
             and the cosine between its horizontal direction and the voxel
             centre's outward direction, instead of the beam's ``g``.
+        g_layer : (nz,) int, optional
+            Leaf angles per crown layer: ``outward``'s table is then
+            (layers, n_theta, n_c), one table per layer, and ``g_layer[k]`` the
+            layer of the voxels of z index ``k``; where the cosine is undefined
+            (a vertical beam, a voxel on the axis) the layer's table is read at
+            c = 0.  Azimuthally uniform leaves: a table the same in every c
+            (:func:`tlsvox.voxel.pulses.layer_g_tables`).
         chunk : int
             Beams per kernel launch (the progress bar advances per chunk).
         progress : bool
@@ -226,14 +234,23 @@ class Tracer:
                 "use a larger voxel_size or a smaller region"
             )
         gout = None
+        if g_layer is not None and outward is None:
+            raise InputError("g_layer (leaf angles per layer) needs outward=(tables, centre): one G table per layer")
         if outward is not None:
             table, centre = outward
             gout = np.ascontiguousarray(np.maximum(np.asarray(table, dtype=np.float64), 1e-6))
             centre = np.asarray(centre, dtype=np.float64).reshape(-1)
-            if gout.ndim != 2 or min(gout.shape) < 2 or not np.all(np.isfinite(gout)) or centre.shape != (2,) \
-                    or not np.all(np.isfinite(centre)):
-                raise InputError("outward must be (table of G, at least 2 x 2, finite; crown centre x, y)")
-            outward = (gout, centre)
+            dims = 2 if g_layer is None else 3
+            if gout.ndim != dims or min(gout.shape[-2:]) < 2 or not np.all(np.isfinite(gout)) \
+                    or centre.shape != (2,) or not np.all(np.isfinite(centre)):
+                raise InputError("outward must be (table of G, at least 2 x 2 (per layer with g_layer), finite; "
+                                 "crown centre x, y)")
+            if g_layer is not None:
+                g_layer = np.ascontiguousarray(np.asarray(g_layer).reshape(-1), dtype=np.int32)
+                if g_layer.shape != (grid.shape[2],) or g_layer.min() < 0 or g_layer.max() >= gout.shape[0]:
+                    raise InputError(f"g_layer must give a layer in 0..{gout.shape[0] - 1} for each of the grid's "
+                                     f"{grid.shape[2]} z indices")
+            outward = (gout, centre, g_layer)
         bound = beams
         if self.atomics and gout is not None:  # the smallest G bounds leaf_w / G
             bound = Beams(beams.origin, beams.direction, beams.echo_start, beams.echo_range, beams.echo_weight,
@@ -272,9 +289,10 @@ class Tracer:
         n_bricks = rows.n_bricks if sparse else 1
         layout = [buf(rows.start if sparse else np.zeros(2, np.int32)),
                   buf(rows.key if sparse else np.zeros(1, np.uint16))]
-        gout, centre = outward if outward is not None else (np.zeros((2, 2)), np.zeros(2))
-        leaves = [buf(gout), np.int32(gout.shape[0]), np.int32(gout.shape[1]), np.float64(centre[0]),
-                  np.float64(centre[1]), np.int32(outward is not None)]
+        gout, centre, g_layer = outward if outward is not None else (np.zeros((2, 2)), np.zeros(2), None)
+        mode = 0 if outward is None else (1 if g_layer is None else 3)
+        leaves = [buf(gout), np.int32(gout.shape[-2]), np.int32(gout.shape[-1]), np.float64(centre[0]),
+                  np.float64(centre[1]), np.int32(mode), buf(np.zeros(1, np.int32) if g_layer is None else g_layer)]
 
         def accumulators(shape):
             """Zeroed sums: on the device (atomics), or host memory the CPU kernel writes in place."""

@@ -36,7 +36,8 @@ from tlsvox.voxel.estimators import (CALIBRATION_MIN_VOXELS, Estimator, FillMode
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
-from tlsvox.voxel.pulses import beams_from_scan, kinds_from_material, kinds_from_pointclass, outward_g_table
+from tlsvox.voxel.pulses import (beams_from_scan, kinds_from_material, kinds_from_pointclass, layer_g_tables,
+                                 outward_g_table)
 from tlsvox.scan import AngularGrid, Scan
 from voxlidar.scene import Scene
 from tlsvox.voxel.bricks import BRICK, Bricks
@@ -96,7 +97,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
              undetected="ignore", detection_threshold_db: float | None = None, leaf_shape=(0.05, 0.025),
              undetected_iterations: int = 4, layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
              lad_voxel_size: float | None = None, lad_placement: str = "even", progress: bool = True,
-             plan_only: bool = False) -> VoxelizeResult:
+             plan_only: bool = False, leaf_angle_layers=None) -> VoxelizeResult:
     """Build the voxel scene from registered scans.
 
     Parameters
@@ -113,6 +114,12 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     class_codes : {"pointclass", "material"}
     leaf_angle : str, dict or LeafAngle
         Leaf inclination model used for G(theta) (default uniform, the paper).
+    leaf_angle_layers : LeafAngleMeasurement or sequence of (z_low, z_high, LeafAngle), optional
+        Leaf angles per crown layer for the estimators' G(theta) (e.g.
+        ``tlsvox.leafangles.measure_leaf_angles(scans).layers``): each voxel
+        takes the model of the layer its centre's height lies in (the lowest
+        layer below them all, the highest above).  ``leaf_angle`` stays the
+        scene's one model (the simulator's) and the detection model's.
     leaf_azimuth : {"uniform", "outward"}
         The leaves' azimuth, stored in the scene for the simulator.
         ``outward`` (leaves facing away from a vertical crown axis through
@@ -262,6 +269,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                          "(CLI --fill neighbourhood)")
     wood_m = WoodMethod.parse(wood, "wood")
     la = LeafAngle.from_dict(leaf_angle)
+    layers = _leaf_angle_layers(leaf_angle_layers)
     poses = []
     for s in scans:
         if s.pose is not None:
@@ -348,6 +356,13 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                             if len(leaves) else 0.5 * (grid.lower + grid.upper)[:2])
             del leaves
         outward = (outward_g_table(la), np.asarray(crown_center, dtype=np.float64).reshape(2))
+    g_tables, g_layer = outward, None  # what the tracer reads G from (None: each beam's g)
+    if layers is not None:
+        cuts = np.array([z for z, _ in layers[1:]])  # each layer's lower bound above the first
+        g_layer = np.searchsorted(cuts, grid.lower[2] + (np.arange(grid.shape[2]) + 0.5) * grid.voxel_size,
+                                  side="right").astype(np.int32)
+        g_tables = (layer_g_tables([m for _, m in layers], outward=outward is not None),
+                    outward[1] if outward is not None else np.zeros(2))
 
     del world  # the echoes' world positions: not held through the beams and the trace
     tracer = tracer or Tracer()
@@ -398,8 +413,10 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         """The sums of ``joined``, and each scan's (``separate``) when the fill calibrates on them."""
         budget = None if max_bytes is None else max_bytes - plan.beams
         if not per_scan:
-            return tracer.trace(grid, joined, rows=rows, outward=outward, progress=progress, max_bytes=budget), None
-        own = [tracer.trace(grid, b, rows=rows, outward=outward, progress=progress, max_bytes=budget)
+            return tracer.trace(grid, joined, rows=rows, outward=g_tables, g_layer=g_layer, progress=progress,
+                                max_bytes=budget), None
+        own = [tracer.trace(grid, b, rows=rows, outward=g_tables, g_layer=g_layer, progress=progress,
+                            max_bytes=budget)
                for b in separate]
         return sum(own[1:], own[0]), own
 
@@ -473,7 +490,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         "estimator": est.value, "options": lad.options, "flags": lad.counts(), "wood_method": wood_m.value,
         "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,
         "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
-        "leaf_angle": la.to_dict(), "layout": plan.layout.value, "memory_plan": plan.describe(),
+        "leaf_angle": la.to_dict(), "layout": plan.layout.value,
+        "leaf_angle_layers": None if layers is None else [
+            {"z_low": None if not np.isfinite(z) else float(z), "leaf_angle": m.to_dict()} for z, m in layers], "memory_plan": plan.describe(),
         "echo_weights": [i["echo_weights"] for i in infos], "undetected": undetected_meta,
         "ground": None if plane is None else {"coefficients": list(plane.coefficients),
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
@@ -489,6 +508,37 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
 
 #: fills that need every voxel's own sums
 _DENSE_FILLS = (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED)
+
+
+def _leaf_angle_layers(given):
+    """``leaf_angle_layers`` as [(z_low, LeafAngle), ...] from the lowest layer up (the first z_low
+    -inf), or None."""
+    if given is None:
+        return None
+    items = getattr(given, "layers", given)  # a LeafAngleMeasurement
+    try:
+        items = list(items)
+    except TypeError:
+        raise InputError("leaf_angle_layers must be a LeafAngleMeasurement (tlsvox.leafangles) or a list of "
+                         "(z_low, z_high, LeafAngle), lowest layer first")
+    out = []
+    for item in items:
+        if hasattr(item, "z_range") and hasattr(item, "leaf_angle"):  # a LayerLeafAngles
+            z0, z1, model = float(item.z_range[0]), float(item.z_range[1]), item.leaf_angle
+        else:
+            try:
+                z0, z1, model = item
+                z0, z1 = float(z0), float(z1)
+                model = LeafAngle.from_dict(model)
+            except (TypeError, ValueError, InputError):
+                raise InputError(f"leaf_angle_layers: {item!r} is not (z_low, z_high, LeafAngle)")
+        out.append((z0, z1, model))
+    if not out:
+        raise InputError("leaf_angle_layers is empty: give at least one layer, or leave it out")
+    lows = [z0 for z0, _, _ in out]
+    if not all(np.isfinite(lows)) or any(b <= a for a, b in zip(lows, lows[1:])):
+        raise InputError(f"leaf_angle_layers must go up in height (lower bounds {lows}); lowest layer first")
+    return [(-np.inf if k == 0 else z0, m) for k, (z0, _, m) in enumerate(out)]
 
 
 def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):

@@ -241,3 +241,29 @@ def test_cli_plan_layout_and_leaf_angle_note(box_files, tmp_path, capsys):
     assert '"note": "the default; set it with --leaf-angle"' in summary and '"name": "uniform"' in summary
     scene = Scene.load(out)
     assert scene.meta["layout"] == "sparse" and scene.leaf_azimuth == "outward"
+
+
+def test_leaf_angle_layers_reach_the_estimate(box_scans):
+    """leaf_angle_layers: the same model in every layer gives the one-model run's leaf area (the
+    tables are read where the beams' own G is exact); planophile leaves in the lower half change
+    it there only; the layers are stated in the scene; bad layers get one line."""
+    kw = dict(voxel_size=0.5, leaf_angle="spherical", ground=None, bounds=[BOX_LO, BOX_HI], progress=False)
+    plain = voxelize(box_scans, **kw)
+    mid = 0.5 * (BOX_LO[2] + BOX_HI[2])
+    same = voxelize(box_scans, leaf_angle_layers=[(BOX_LO[2], mid, "spherical"), (mid, BOX_HI[2], "spherical")],
+                    **kw)
+    np.testing.assert_allclose(same.lad.lad, plain.lad.lad, rtol=1e-6, atol=1e-9)
+    mixed = voxelize(box_scans, leaf_angle_layers=[(BOX_LO[2], mid, "planophile"), (mid, BOX_HI[2], "spherical")],
+                     **kw)
+    nz = plain.grid.shape[2]
+    lower = plain.grid.lower[2] + (np.arange(nz) + 0.5) * 0.5 < mid
+    np.testing.assert_allclose(mixed.lad.lad[:, :, ~lower], plain.lad.lad[:, :, ~lower], rtol=1e-6, atol=1e-9)
+    assert np.abs(mixed.lad.lad[:, :, lower] - plain.lad.lad[:, :, lower]).max() > 0.05
+    said = mixed.scene.meta["leaf_angle_layers"]
+    assert said[0]["z_low"] is None and said[1]["z_low"] == pytest.approx(mid)
+    assert said[0]["leaf_angle"]["name"] == "planophile" and plain.scene.meta["leaf_angle_layers"] is None
+    for bad, what in (([(1.0, 2.0, "spherical"), (0.0, 1.0, "spherical")], "go up in height"),
+                      ([(0.0, 1.0)], "is not \\(z_low, z_high, LeafAngle\\)"), ([], "is empty"),
+                      (3, "must be a LeafAngleMeasurement")):
+        with pytest.raises(InputError, match=what):
+            voxelize(box_scans, leaf_angle_layers=bad, **kw)
