@@ -43,6 +43,15 @@ VZ-400's -20 dB with ``undetected="model"``; written to docs/bench/lad_terms-fil
 ``--fill-only`` runs just these (about 15 min):
 
     .venv/bin/python benchmarks/bench_lad_terms.py --fill-only
+
+The classifier's term: the default oak of seed 1 at -20 dB with ``undetected="model"`` and
+``fill="calibrated"``, voxelised with the echo classes of the demo's classifier (``classify_scan``,
+then the bark on fitted cylinders relabelled, as ``scene_from_scans`` does; true poses), with the
+true classes, and with the true classes but one of the classifier's two errors (bark labelled leaf,
+leaves labelled wood or other) put in; written to docs/bench/lad_terms-classes.md.
+``--classes-only`` runs just these (about 8 min):
+
+    .venv/bin/python benchmarks/bench_lad_terms.py --classes-only
 """
 
 from __future__ import annotations
@@ -76,7 +85,13 @@ def main(argv=None):
     ap.add_argument("--fill-only", action="store_true",
                     help="only the table of the fills side by side (docs/bench/lad_terms-fill.md)")
     ap.add_argument("--fill-out", default=str(ROOT / "docs" / "bench" / "lad_terms-fill.md"))
+    ap.add_argument("--classes-only", action="store_true",
+                    help="only the table of the classifier's errors (docs/bench/lad_terms-classes.md)")
+    ap.add_argument("--classes-out", default=str(ROOT / "docs" / "bench" / "lad_terms-classes.md"))
     args = ap.parse_args(argv)
+    if args.classes_only:
+        classes_table(args)
+        return
     if args.fill_only:
         fill_table(args)
         return
@@ -403,6 +418,69 @@ def area_table(args):
                      f"{occ_true:.1f} m2 | {occ_given:.1f} m2 | {gb} | {sec:.0f} s |")
     lines += ["", "Reading: see docs/voxelize.md, *What is left*.", ""]
     write_page(args.area_out, lines)
+
+
+def classes_table(args):
+    """The default oak (seed 1) with the classifier's labels, the true ones, and each error alone."""
+    from tlsvox.classify import PointClass, classify_scan
+    from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+    from tlsvox.voxel.trace import Tracer
+    from tlsvox.voxel.voxlad import voxelize
+    from voxlidar.materials import Material
+
+    load0 = os.getloadavg()
+    t_all = time.perf_counter()
+    tree, scans = _oak_scans("outward", 0.35, -20.0, seed=1)
+    classes = [classify_scan(s, refine=True) for s in scans]
+    model = fit_cylinders(wood_points(scans, [c.labels for c in classes], class_codes="pointclass"))
+    barks = bark_echoes(scans, model, [c.labels for c in classes])
+    labels = [np.where(b, np.uint8(PointClass.WOOD), c.labels).astype(np.uint8) for c, b in zip(classes, barks)]
+    code = {Material.LEAF: PointClass.LEAF, Material.BARK: PointClass.WOOD, Material.GROUND: PointClass.GROUND,
+            Material.TARGET: PointClass.TARGET}
+    true = []
+    for s in scans:
+        m = np.asarray(s.truth_material)
+        t = np.full(len(m), PointClass.NOISE, np.uint8)
+        for mat, pc in code.items():
+            t[m == mat] = pc
+        true.append(t)
+    mats = [np.asarray(s.truth_material) for s in scans]
+    bark_as_leaf = [(m == Material.BARK) & (c == PointClass.LEAF) for m, c in zip(mats, labels)]
+    leaf_as_other = [(m == Material.LEAF) & (c != PointClass.LEAF) for m, c in zip(mats, labels)]
+    counts = {"bark labelled leaf": sum(int(b.sum()) for b in bark_as_leaf),
+              "leaves labelled wood or other": sum(int(b.sum()) for b in leaf_as_other),
+              "leaf echoes (truth)": sum(int((m == Material.LEAF).sum()) for m in mats),
+              "leaf-labelled echoes": sum(int((c == PointClass.LEAF).sum()) for c in labels)}
+    variants = (("true classes", true), ("the classifier's (the demo's pipeline)", labels),
+                ("true classes, bark labelled leaf as the classifier does",
+                 [np.where(b, np.uint8(PointClass.LEAF), t) for b, t in zip(bark_as_leaf, true)]),
+                ("true classes, leaves labelled wood or other as the classifier does",
+                 [np.where(b, c, t) for b, c, t in zip(leaf_as_other, labels, true)]))
+    tracer = Tracer()
+    rows = []
+    for name, lab in variants:
+        t0 = time.perf_counter()
+        res = voxelize(scans, voxel_size=0.2, classes=lab, class_codes="pointclass", leaf_angle="uniform",
+                       leaf_azimuth="outward", ground=0.0, layout="dense", progress=False, tracer=tracer,
+                       undetected="model", fill="calibrated", undetected_iterations=args.iterations)
+        tot, seen = _score(tree, res)
+        rows.append((name, tot, seen, res.lad.options["fill_ratio"], time.perf_counter() - t0))
+        print(f"{name}: total {100 * tot['area_error']:+.1f} %, seen {100 * seen['area_error']:+.1f} %", flush=True)
+    lines = _section("The classifier's term (the default oak, seed 1, 20 cm)", "--classes-only", args, t_all, load0,
+                     "Two VZ-400 scans, true poses, echoes weighted by their beam share, `bcmle`, uniform leaf "
+                     "inclination (the truth), outward G per voxel, the VZ-400's -20 dB, `undetected='model'`, "
+                     "`fill='calibrated'`, dense layout. The classifier's labels: `classify_scan(refine=True)`, "
+                     "then the leaf-classed echoes on the bark of trusted fitted cylinders relabelled wood "
+                     "(`tlsvox.qsm.bark_echoes`), as `scene_from_scans` does.") + ["",
+             "Echoes: " + "; ".join(f"{k} {v:,}" for k, v in counts.items()) + ".", "",
+             "| echo classes | total leaf area (error) | seen voxels (error) | fill ratio | voxelize time |",
+             "|---|---|---|---|---|"]
+    for name, tot, seen, ratio, sec in rows:
+        lines.append(f"| {name} | {tot['total_area']:.1f} of {tot['true_area']:.1f} m2 ({100 * tot['area_error']:+.1f} %)"
+                     f" | {seen['total_area']:.1f} of {seen['true_area']:.1f} m2 ({100 * seen['area_error']:+.1f} %)"
+                     f" | {ratio:.3f} | {sec:.0f} s |")
+    lines += ["", "Reading: see docs/voxelize.md, *Occluded voxels*.", ""]
+    write_page(args.classes_out, lines)
 
 
 def fill_table(args):
