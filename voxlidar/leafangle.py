@@ -280,8 +280,8 @@ class LeafAngle:
         # a part of zero width adds nothing, also where the density is infinite at its one point (a beta
         # distribution with mu or nu < 1 at 0 or pi/2, for a beam at zenith pi/2 or 0)
         with np.errstate(invalid="ignore"):
-            part_lo = np.where(w_lo > 0, w_lo * self.pdf(lo) * ross_kernel(thc, lo), 0.0)
-            part_hi = np.where(w_hi > 0, w_hi * self.pdf(hi) * ross_kernel(thc, hi), 0.0)
+            part_lo = np.where(w_lo != 0, w_lo * self.pdf(lo) * ross_kernel(thc, lo), 0.0)  # NaN stays NaN
+            part_hi = np.where(w_hi != 0, w_hi * self.pdf(hi) * ross_kernel(thc, hi), 0.0)
         return part_lo.sum(axis=1) + part_hi.sum(axis=1)
 
     def to_dict(self) -> dict:

@@ -80,6 +80,7 @@ def test_beta_with_a_density_infinite_at_an_end_has_finite_g(mu, nu):
     la = LeafAngle("beta", mu=mu, nu=nu)
     g = la.G(np.array([0.0, np.pi / 2, np.pi]))
     assert np.all(np.isfinite(g))
+    assert np.isnan(la.G(np.array([np.nan]))[0])  # a bad angle stays visible
     t = la.ppf(np.random.default_rng(0).random(400_000))
     for got, proj in ((g[0], np.cos(t)), (g[1], 2 / np.pi * np.sin(t)), (g[2], np.cos(t))):
         assert abs(got - proj.mean()) < 3 * proj.std() / np.sqrt(len(t)) + 0.01 * got, (got, proj.mean())

@@ -154,8 +154,8 @@ inline void trace_one(const long b, TRACE_INPUTS,
      * crown axis; gout is G on a (gout_nt zenith rows over [0, pi]) x (gout_nc c over
      * [-1, 1]) table, interpolated bilinearly (the per-beam g where c is undefined).
      * outward & 2: one such table per crown layer (leaf angles per layer), stacked, the
-     * layer of each voxel z index in g_layer; where c is undefined the layer's table
-     * is read at c = 0 (a table for azimuthally uniform leaves is the same in every c) */
+     * layer of each voxel z index in g_layer, each row ending in the layer's azimuth-
+     * averaged G (read where c is undefined) */
     const double dh = sqrt(dx * dx + dy * dy);
     int t_i = 0;
     double t_f = 0.0;
@@ -207,7 +207,7 @@ inline void trace_one(const long b, TRACE_INPUTS,
 #endif
             double gv = g;
             if (outward) {
-                double v = 0.5 * (gout_nc - 1);  /* c = 0 */
+                double v = 0.0;
                 int defined = 0;
                 if (dh > 1e-9) {
                     const double rx = lx + (ijk[0] + 0.5) * h - ccx, ry = ly + (ijk[1] + 0.5) * h - ccy;
@@ -217,14 +217,19 @@ inline void trace_one(const long b, TRACE_INPUTS,
                         defined = 1;
                     }
                 }
-                if (defined || (outward & 2)) {
-                    const int layer = (outward & 2) ? g_layer[ijk[2]] : 0;
+                /* per layer (outward & 2): each row holds gout_nc columns in c and then the layer's
+                 * azimuth-averaged G, read where c is undefined (the per-beam g of the one-table mode) */
+                const int stride = (outward & 2) ? gout_nc + 1 : gout_nc;
+                __global const double *r0 = gout + ((long)((outward & 2) ? g_layer[ijk[2]] : 0) * gout_nt + t_i)
+                                                   * stride;
+                __global const double *r1 = r0 + stride;
+                if (defined) {
                     const int c_i = min((int)floor(v), gout_nc - 2);
                     const double c_f = v - c_i;
-                    __global const double *r0 = gout + ((long)layer * gout_nt + t_i) * gout_nc + c_i,
-                                          *r1 = r0 + gout_nc;
-                    gv = fmax((1.0 - t_f) * ((1.0 - c_f) * r0[0] + c_f * r0[1])
-                              + t_f * ((1.0 - c_f) * r1[0] + c_f * r1[1]), 1e-6);
+                    gv = fmax((1.0 - t_f) * ((1.0 - c_f) * r0[c_i] + c_f * r0[c_i + 1])
+                              + t_f * ((1.0 - c_f) * r1[c_i] + c_f * r1[c_i + 1]), 1e-6);
+                } else if (outward & 2) {
+                    gv = fmax((1.0 - t_f) * r0[gout_nc] + t_f * r1[gout_nc], 1e-6);
                 }
             }
             const double w_in = w;

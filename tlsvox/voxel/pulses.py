@@ -318,25 +318,32 @@ def outward_g_table(leaf_angle, *, n_theta: int = 181, n_c: int = 129, nodes: in
     return out
 
 
-def layer_g_tables(models, *, outward: bool, n_theta: int = 181, n_c: int = 129) -> np.ndarray:
-    """One G table per crown layer, (layers, n_theta, n_c), as the tracer reads them (``g_layer``).
+def layer_g_tables(models, *, outward: bool, n_theta: int | None = None, n_c: int = 129) -> np.ndarray:
+    """One G table per crown layer, (layers, n_theta, n_c + 1), as the tracer reads them (``g_layer``).
 
-    ``outward``: :func:`outward_g_table` of each layer's model; else the
-    model's usual G(theta) (azimuthally uniform leaves), the same in every
-    column (two columns).
+    Each row (a beam zenith in [0, pi]) holds G at ``n_c`` cosines c in
+    [-1, 1] (``outward``: :func:`outward_g_table` of the layer's model, 181
+    zenith rows by default; else the model's usual G(theta), the same in two
+    columns, 2049 rows) and then the model's azimuth-averaged G(theta), which
+    the tracer reads where c is undefined (a vertical beam, a voxel on the
+    crown axis), as the one-table mode reads each beam's own G there.
 
     Examples
     --------
     >>> from voxlidar.leafangle import LeafAngle
     >>> t = layer_g_tables([LeafAngle("horizontal"), LeafAngle("vertical")], outward=False, n_theta=3)
-    >>> np.round(t[:, 1, 0], 6).tolist()   # a horizontal beam: flat leaves 0, upright ones 2/pi
-    [0.0, 0.63662]
+    >>> np.round(t[:, 1, :], 6).tolist()   # a horizontal beam: flat leaves 0, upright ones 2/pi
+    [[0.0, 0.0, 0.0], [0.63662, 0.63662, 0.63662]]
     """
     models = list(models)
-    if outward:
-        return np.stack([outward_g_table(m, n_theta=n_theta, n_c=n_c) for m in models])
-    theta = np.linspace(0.0, np.pi, n_theta)
-    return np.stack([np.repeat(np.asarray(m.G(theta), dtype=np.float64)[:, None], 2, axis=1) for m in models])
+    rows = int(n_theta if n_theta is not None else (181 if outward else 2049))
+    theta = np.linspace(0.0, np.pi, rows)
+    out = []
+    for m in models:
+        g = np.asarray(m.G(theta), dtype=np.float64)[:, None]
+        table = outward_g_table(m, n_theta=rows, n_c=n_c) if outward else np.repeat(g, 2, axis=1)
+        out.append(np.concatenate([table, g], axis=1))
+    return np.stack(out)
 
 
 def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_range: float | None = None,

@@ -197,10 +197,11 @@ class Tracer:
             centre's outward direction, instead of the beam's ``g``.
         g_layer : (nz,) int, optional
             Leaf angles per crown layer: ``outward``'s table is then
-            (layers, n_theta, n_c), one table per layer, and ``g_layer[k]`` the
-            layer of the voxels of z index ``k``; where the cosine is undefined
-            (a vertical beam, a voxel on the axis) the layer's table is read at
-            c = 0.  Azimuthally uniform leaves: a table the same in every c
+            (layers, n_theta, n_c + 1), one table per layer whose rows end in
+            the layer's azimuth-averaged G (read where the cosine is undefined:
+            a vertical beam, a voxel on the axis), and ``g_layer[k]`` the layer
+            of the voxels of z index ``k``.  Azimuthally uniform leaves: a
+            table the same in every c
             (:func:`tlsvox.voxel.pulses.layer_g_tables`).
         chunk : int
             Beams per kernel launch (the progress bar advances per chunk).
@@ -240,16 +241,18 @@ class Tracer:
             table, centre = outward
             gout = np.ascontiguousarray(np.maximum(np.asarray(table, dtype=np.float64), 1e-6))
             centre = np.asarray(centre, dtype=np.float64).reshape(-1)
-            dims = 2 if g_layer is None else 3
-            if gout.ndim != dims or min(gout.shape[-2:]) < 2 or not np.all(np.isfinite(gout)) \
+            dims, cols = (2, 2) if g_layer is None else (3, 3)
+            if gout.ndim != dims or gout.shape[-2] < 2 or gout.shape[-1] < cols or not np.all(np.isfinite(gout)) \
                     or centre.shape != (2,) or not np.all(np.isfinite(centre)):
-                raise InputError("outward must be (table of G, at least 2 x 2 (per layer with g_layer), finite; "
-                                 "crown centre x, y)")
+                raise InputError("outward must be (table of G, at least 2 x 2, or layers x 2 x 3 with g_layer "
+                                 "(layer_g_tables), finite; crown centre x, y)")
             if g_layer is not None:
-                g_layer = np.ascontiguousarray(np.asarray(g_layer).reshape(-1), dtype=np.int32)
-                if g_layer.shape != (grid.shape[2],) or g_layer.min() < 0 or g_layer.max() >= gout.shape[0]:
-                    raise InputError(f"g_layer must give a layer in 0..{gout.shape[0] - 1} for each of the grid's "
-                                     f"{grid.shape[2]} z indices")
+                raw = np.asarray(g_layer)
+                if raw.shape != (grid.shape[2],) or raw.dtype.kind not in "iu" or raw.min() < 0 \
+                        or raw.max() >= gout.shape[0]:
+                    raise InputError(f"g_layer must give an integer layer in 0..{gout.shape[0] - 1} for each of "
+                                     f"the grid's {grid.shape[2]} z indices")
+                g_layer = np.ascontiguousarray(raw, dtype=np.int32)
             outward = (gout, centre, g_layer)
         bound = beams
         if self.atomics and gout is not None:  # the smallest G bounds leaf_w / G
@@ -291,7 +294,8 @@ class Tracer:
                   buf(rows.key if sparse else np.zeros(1, np.uint16))]
         gout, centre, g_layer = outward if outward is not None else (np.zeros((2, 2)), np.zeros(2), None)
         mode = 0 if outward is None else (1 if g_layer is None else 3)
-        leaves = [buf(gout), np.int32(gout.shape[-2]), np.int32(gout.shape[-1]), np.float64(centre[0]),
+        n_c = gout.shape[-1] - (1 if g_layer is not None else 0)  # per layer: the last column is G averaged
+        leaves = [buf(gout), np.int32(gout.shape[-2]), np.int32(n_c), np.float64(centre[0]),
                   np.float64(centre[1]), np.int32(mode), buf(np.zeros(1, np.int32) if g_layer is None else g_layer)]
 
         def accumulators(shape):

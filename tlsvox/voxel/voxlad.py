@@ -492,7 +492,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
         "leaf_angle": la.to_dict(), "layout": plan.layout.value,
         "leaf_angle_layers": None if layers is None else [
-            {"z_low": None if not np.isfinite(z) else float(z), "leaf_angle": m.to_dict()} for z, m in layers], "memory_plan": plan.describe(),
+            {"z_low": None if not np.isfinite(z) else float(z), "leaf_angle": m.to_dict()} for z, m in layers],
+        "memory_plan": plan.describe(),
         "echo_weights": [i["echo_weights"] for i in infos], "undetected": undetected_meta,
         "ground": None if plane is None else {"coefficients": list(plane.coefficients),
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
@@ -512,15 +513,16 @@ _DENSE_FILLS = (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED)
 
 def _leaf_angle_layers(given):
     """``leaf_angle_layers`` as [(z_low, LeafAngle), ...] from the lowest layer up (the first z_low
-    -inf), or None."""
+    -inf), or None.  Only the lower bounds count: each layer reaches up to the next one's (z_high is
+    read for the shape of the rows, and the highest layer takes everything above)."""
     if given is None:
         return None
     items = getattr(given, "layers", given)  # a LeafAngleMeasurement
     try:
         items = list(items)
-    except TypeError:
+    except TypeError as err:
         raise InputError("leaf_angle_layers must be a LeafAngleMeasurement (tlsvox.leafangles) or a list of "
-                         "(z_low, z_high, LeafAngle), lowest layer first")
+                         "(z_low, z_high, LeafAngle), lowest layer first") from err
     out = []
     for item in items:
         if hasattr(item, "z_range") and hasattr(item, "leaf_angle"):  # a LayerLeafAngles
@@ -529,9 +531,9 @@ def _leaf_angle_layers(given):
             try:
                 z0, z1, model = item
                 z0, z1 = float(z0), float(z1)
-                model = LeafAngle.from_dict(model)
-            except (TypeError, ValueError, InputError):
-                raise InputError(f"leaf_angle_layers: {item!r} is not (z_low, z_high, LeafAngle)")
+            except (TypeError, ValueError) as err:
+                raise InputError(f"leaf_angle_layers: {item!r} is not (z_low, z_high, LeafAngle)") from err
+            model = LeafAngle.from_dict(model)  # its own error names the valid models
         out.append((z0, z1, model))
     if not out:
         raise InputError("leaf_angle_layers is empty: give at least one layer, or leave it out")

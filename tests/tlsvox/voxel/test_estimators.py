@@ -387,8 +387,9 @@ def test_leaf_angles_per_layer_recover_both_layers(tracer, rng):
         got, se = float(per_layer.lad[0, 0, k]), float(per_layer.lad_std[0, 0, k])
         assert abs(got - lad) < 3 * se, (k, got, se)
         assert abs(float(one.lad[0, 0, k]) - lad) > 5 * se, (k, float(one.lad[0, 0, k]), se)
-    with pytest.raises(InputError, match="g_layer must give a layer"):
-        tracer.trace(grid, beams, outward=(tables, (0.0, 0.0)), g_layer=[0, 2])
+    for bad in ([0, 2], [0.9, 1.0], [[0, 1]], ["a", "b"]):
+        with pytest.raises(InputError, match="g_layer must give an integer layer"):
+            tracer.trace(grid, beams, outward=(tables, (0.0, 0.0)), g_layer=bad)
     with pytest.raises(InputError, match="needs outward"):
         tracer.trace(grid, beams, g_layer=[0, 1])
 

@@ -262,8 +262,18 @@ def test_leaf_angle_layers_reach_the_estimate(box_scans):
     said = mixed.scene.meta["leaf_angle_layers"]
     assert said[0]["z_low"] is None and said[1]["z_low"] == pytest.approx(mid)
     assert said[0]["leaf_angle"]["name"] == "planophile" and plain.scene.meta["leaf_angle_layers"] is None
+    # one model in every layer reads as that model alone (the per-layer tables within their
+    # interpolation error): planophile leaves, azimuthally uniform and outward; the outward run has its
+    # crown axis through a voxel centre, where the cosine to the outward direction is undefined and
+    # the layer's azimuth-averaged G is read, as the one-model run reads the beam's own
+    for azimuth in ("uniform", "outward"):
+        kw_a = {**kw, "leaf_angle": "planophile", "leaf_azimuth": azimuth, "crown_center": (0.25, 0.25)}
+        one = voxelize(box_scans, **kw_a)
+        layered = voxelize(box_scans, leaf_angle_layers=[(BOX_LO[2], mid, "planophile"),
+                                                         (mid, BOX_HI[2], "planophile")], **kw_a)
+        np.testing.assert_allclose(layered.lad.lad, one.lad.lad, rtol=2e-3, atol=1e-9, err_msg=azimuth)
     for bad, what in (([(1.0, 2.0, "spherical"), (0.0, 1.0, "spherical")], "go up in height"),
                       ([(0.0, 1.0)], "is not \\(z_low, z_high, LeafAngle\\)"), ([], "is empty"),
-                      (3, "must be a LeafAngleMeasurement")):
+                      ([(0.0, 1.0, "flat")], "spherical"), (3, "must be a LeafAngleMeasurement")):
         with pytest.raises(InputError, match=what):
             voxelize(box_scans, leaf_angle_layers=bad, **kw)
