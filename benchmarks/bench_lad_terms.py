@@ -283,6 +283,11 @@ def _score(tree, res, lad=None, occluded=None, truth=None):
             score_lad(np.where(occ, 0, est), np.where(occ, 0, truth), voxel_volume=g.voxel_volume))
 
 
+def _area(score) -> str:
+    """A table cell: ``E of T m2 (+e %)`` from a score_lad dict."""
+    return f"{score['total_area']:.1f} of {score['true_area']:.1f} m2 ({100 * score['area_error']:+.1f} %)"
+
+
 def _subvoxel_ratio(scans, res, azimuth, tracer):
     """Parent LAD times k = (mean of the seen children's estimates) / (the estimate of their pooled
     sums), children at half the voxel size (the heterogeneity inside a voxel that the turbid
@@ -476,9 +481,7 @@ def classes_table(args):
              "| echo classes | total leaf area (error) | seen voxels (error) | fill ratio | voxelize time |",
              "|---|---|---|---|---|"]
     for name, tot, seen, ratio, sec in rows:
-        lines.append(f"| {name} | {tot['total_area']:.1f} of {tot['true_area']:.1f} m2 ({100 * tot['area_error']:+.1f} %)"
-                     f" | {seen['total_area']:.1f} of {seen['true_area']:.1f} m2 ({100 * seen['area_error']:+.1f} %)"
-                     f" | {ratio:.3f} | {sec:.0f} s |")
+        lines.append(f"| {name} | {_area(tot)} | {_area(seen)} | {ratio:.3f} | {sec:.0f} s |")
     lines += ["", "Reading: see docs/voxelize.md, *Occluded voxels*.", ""]
     write_page(args.classes_out, lines)
 
@@ -525,8 +528,7 @@ def fill_table(args):
     for label, fill, tot, seen, occ_true, occ_given, r, cal, sec in rows:
         ratio = (f"{cal['ratio']:.3f} ({cal['voxels']:,}; {cal['seen_m2']:.1f} / {cal['filled_m2']:.1f} m2)"
                  if cal else "-")
-        lines.append(f"| {label} | {fill} | {tot['total_area']:.1f} of {tot['true_area']:.1f} m2 "
-                     f"({100 * tot['area_error']:+.1f} %) | {100 * seen['area_error']:+.1f} % | {occ_given:.1f} / "
+        lines.append(f"| {label} | {fill} | {_area(tot)} | {100 * seen['area_error']:+.1f} % | {occ_given:.1f} / "
                      f"{occ_true:.1f} m2 | {r:.2f} | {ratio} | {sec:.0f} s |")
     lines += ["", "Reading: see docs/voxelize.md, *Occluded voxels*.", ""]
     write_page(args.fill_out, lines)
