@@ -341,7 +341,7 @@ def run(args) -> int:
                    "undetected": {k: v for k, v in s.meta["undetected"].items() if k != "models"},
                    "flags": s.meta["flags"], "beams": s.meta["beams"],
                    **({} if "lad_voxel_size" not in s.meta else {"lad_voxel_size": {
-                       k: s.meta["lad_voxel_size"][k] for k in ("size", "placement", "rule")}}),
+                       k: s.meta["lad_voxel_size"][k] for k in ("size", "placement", "rule", "flags")}}),
                    **({} if qsm is None else {"qsm": s.meta.get("qsm", qsm)}),
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))

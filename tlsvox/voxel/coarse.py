@@ -286,6 +286,7 @@ def combine(fine, coarse, k: int, placement: str = "even"):
                                  "voxels in proportion to their leaf echo weight (evenly where it has none), at "
                                  f"most {cap:g} m2/m3 (opaque) each"),
                         "spread_evenly": n_even, "opaque_spread": n_over,
+                        "flags": "meta['flags'] counts the coarse grid's voxels, where the LAD was estimated",
                         "leaf_area_coarse": area_coarse, "leaf_area_fine": area_fine})
     meta.pop("occluded_bricks", None)
     if fs.meta.get("occluded_bricks") is not None:

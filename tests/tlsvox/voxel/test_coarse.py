@@ -158,6 +158,7 @@ def test_cli_lad_voxel_size(box_scans, tmp_path, capsys):  # noqa: F811
     summary = json.loads(capsys.readouterr().out)
     assert summary["lad_voxel_size"]["size"] == pytest.approx(0.5)
     assert summary["lad_voxel_size"]["placement"] == "even"
+    assert "coarse grid" in summary["lad_voxel_size"]["flags"]  # the summary's flags are the coarse voxels'
     scene = Scene.load(tmp_path / "a.npz")
     assert scene.voxel_size == pytest.approx(0.1) and scene.meta["lad_voxel_size"]["ratio"] == 5
     assert tlsvox_main([*common, "-o", str(tmp_path / "b.npz"), "--lad-voxel-size", "0.25"]) == 2
