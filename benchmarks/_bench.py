@@ -12,7 +12,31 @@ import statistics
 import time
 from pathlib import Path
 
-__all__ = ["machine_line", "median_time", "write_page", "write_section"]
+__all__ = ["machine_line", "median_time", "with_leaves", "write_page", "write_section"]
+
+
+def with_leaves(tree, centers, normals, rng):
+    """``tree`` with its leaves rebuilt at ``centers`` facing ``normals`` (same count, size and total
+    area; bark, targets and ground kept): the benchmarks' variants of the synthetic oak."""
+    import numpy as np
+
+    from tlsvox.truth._mesh import leaf_mesh, polygon_area_factor
+    from tlsvox.truth.synthetic import SyntheticTree
+    from voxlidar.materials import Material
+
+    p = tree.params
+    scale = np.sqrt(p.total_leaf_area / (len(centers) * polygon_area_factor() * 0.25 * p.leaf_length * p.leaf_width))
+    lv, lt = leaf_mesh(centers, normals, p.leaf_length * scale, p.leaf_width * scale, rng)
+    keep = tree.material != Material.LEAF
+    tris = tree.triangles[keep]
+    used = np.unique(tris)
+    remap = np.full(len(tree.vertices), -1)
+    remap[used] = np.arange(len(used))
+    return SyntheticTree(vertices=np.concatenate([tree.vertices[used], lv]),
+                         triangles=np.concatenate([remap[tris], lt + len(used)]).astype(np.int64),
+                         material=np.concatenate([tree.material[keep], np.full(len(lt), Material.LEAF, np.uint8)]),
+                         leaf_normals=normals, leaf_centers=centers, cylinders=tree.cylinders, targets=tree.targets,
+                         ground_z=tree.ground_z, crown_center=tree.crown_center, params=p, seed=tree.seed)
 
 
 def median_time(fn, repeats: int):

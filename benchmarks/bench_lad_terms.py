@@ -63,7 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _bench import machine_line, write_page
+from _bench import machine_line, with_leaves, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -222,27 +222,10 @@ def _unclumped(tree, h, seed=7):
     """The same tree with every leaf moved to a uniform random place inside its own voxel of a grid of
     ``h`` on multiples of ``h`` (voxelize's grid): each voxel keeps its leaves (and so its leaf area,
     but for leaves that cross a face), their normals and its LAD, and loses their arrangement inside."""
-    from tlsvox.truth._mesh import leaf_mesh, polygon_area_factor
-    from tlsvox.truth.synthetic import SyntheticTree
-    from voxlidar.materials import Material
-
     rng = np.random.default_rng(seed)
     c = tree.leaf_centers
     new = (np.floor(c / h) + rng.random(c.shape)) * h
-    p = tree.params
-    scale = np.sqrt(p.total_leaf_area / (len(c) * polygon_area_factor() * 0.25 * p.leaf_length * p.leaf_width))
-    lv, lt = leaf_mesh(new, tree.leaf_normals, p.leaf_length * scale, p.leaf_width * scale, rng)
-    keep = tree.material != Material.LEAF
-    tris = tree.triangles[keep]
-    used = np.unique(tris)
-    remap = np.full(len(tree.vertices), -1)
-    remap[used] = np.arange(len(used))
-    return SyntheticTree(vertices=np.concatenate([tree.vertices[used], lv]),
-                         triangles=np.concatenate([remap[tris], lt + len(used)]).astype(np.int64),
-                         material=np.concatenate([tree.material[keep], np.full(len(lt), Material.LEAF, np.uint8)]),
-                         leaf_normals=tree.leaf_normals, leaf_centers=new, cylinders=tree.cylinders,
-                         targets=tree.targets, ground_z=tree.ground_z, crown_center=tree.crown_center, params=p,
-                         seed=tree.seed)
+    return with_leaves(tree, new, tree.leaf_normals, rng)
 
 
 #: the set-up the threshold section's page states

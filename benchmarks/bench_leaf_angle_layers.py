@@ -32,17 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
-from _bench import machine_line, write_page
+from _bench import machine_line, with_leaves, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def layered_oak(seed: int, lower: str, upper: str):
     """The oak with ``lower`` leaf normals below the crown's middle height and ``upper`` above it."""
-    from tlsvox.truth._mesh import leaf_mesh, polygon_area_factor
-    from tlsvox.truth.synthetic import SyntheticTree, TreeParams, make_tree
+    from tlsvox.truth.synthetic import TreeParams, make_tree
     from voxlidar.leafangle import LeafAngle, sample_leaf_normals
-    from voxlidar.materials import Material
 
     tree = make_tree(TreeParams(leaf_angle=lower), seed=seed)
     p = tree.params
@@ -53,19 +51,7 @@ def layered_oak(seed: int, lower: str, upper: str):
     normals = tree.leaf_normals.copy()
     normals[up] = sample_leaf_normals(int(up.sum()), LeafAngle(upper), rng, azimuth=p.leaf_azimuth,
                                       positions=c[up], crown_center=np.asarray(p.crown_center)[:2])
-    scale = np.sqrt(p.total_leaf_area / (len(c) * polygon_area_factor() * 0.25 * p.leaf_length * p.leaf_width))
-    lv, lt = leaf_mesh(c, normals, p.leaf_length * scale, p.leaf_width * scale, rng)
-    keep = tree.material != Material.LEAF
-    tris = tree.triangles[keep]
-    used = np.unique(tris)
-    remap = np.full(len(tree.vertices), -1)
-    remap[used] = np.arange(len(used))
-    out = SyntheticTree(vertices=np.concatenate([tree.vertices[used], lv]),
-                        triangles=np.concatenate([remap[tris], lt + len(used)]).astype(np.int64),
-                        material=np.concatenate([tree.material[keep], np.full(len(lt), Material.LEAF, np.uint8)]),
-                        leaf_normals=normals, leaf_centers=c, cylinders=tree.cylinders, targets=tree.targets,
-                        ground_z=tree.ground_z, crown_center=tree.crown_center, params=p, seed=tree.seed)
-    return out, z_mid
+    return with_leaves(tree, c, normals, rng), z_mid
 
 
 def main(argv=None):

@@ -98,12 +98,10 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
         raise InputError("scans is empty: pass the scans of one tree")
     if georeference not in ("true", "none"):
         raise InputError(f"georeference={georeference!r} must be 'true' or 'none'")
-    from tlsvox.voxel.estimators import FillMode
+    from tlsvox.voxel.estimators import FillMode, check_calibration_scans
 
-    if FillMode.parse((voxelize_kwargs or {}).get("fill", "none"), "fill") is FillMode.CALIBRATED and len(scans) < 2:
-        # said before registration, classification and the cylinders run
-        raise InputError("fill='calibrated' measures its ratio on the voxels one scan sees and the others hide: it "
-                         f"needs two or more scans, got {len(scans)}; with one scan use fill='neighbourhood'")
+    if FillMode.parse((voxelize_kwargs or {}).get("fill", "none"), "fill") is FillMode.CALIBRATED:
+        check_calibration_scans(len(scans))  # said before registration, classification and the cylinders run
     timings = {}
     ref = scans[0]
     if georeference == "true":

@@ -272,6 +272,9 @@ def run(args) -> int:
         options.update(lad_voxel_size=args.lad_voxel_size, lad_placement=args.lad_placement)
     elif args.lad_placement != "even":
         raise InputError("--lad-placement needs --lad-voxel-size (it says how the coarse LAD is put on the fine grid)")
+    if args.leaf_angle_by_layer and args.leaf_angle != "measured":  # before any fitting or measuring
+        raise InputError("--leaf-angle-by-layer needs --leaf-angle measured (the layers' distributions come from "
+                         "the scans)")
     if args.qsm_keep_labels and not args.qsm:
         raise InputError("--qsm-keep-labels needs --qsm (it keeps the leaf labels on the fitted cylinders' bark)")
     if args.plan:  # the same run's plan (the leaf angle model does not change what it holds)
@@ -299,9 +302,6 @@ def run(args) -> int:
             raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
         measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
         leaf_angle = measured.leaf_angle
-    elif args.leaf_angle_by_layer:
-        raise InputError("--leaf-angle-by-layer needs --leaf-angle measured (the layers' distributions come from "
-                         "the scans)")
     res = voxelize(scans, leaf_angle=leaf_angle, leaf_angle_layers=measured if args.leaf_angle_by_layer else None,
                    **options)
     if args.qsm:

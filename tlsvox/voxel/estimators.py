@@ -112,6 +112,17 @@ class FillMode(str, Choice):
     CALIBRATED = "calibrated"
 
 
+#: fills that need every voxel's own sums (the dense layout)
+DENSE_FILLS = (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED)
+
+
+def check_calibration_scans(n: int) -> None:
+    """Raise the one-line error of ``fill="calibrated"`` when fewer than two scans are given."""
+    if int(n) < 2:
+        raise InputError("fill='calibrated' measures its ratio on the voxels one scan sees and the others hide: it "
+                         f"needs two or more scans, got {n}; with one scan use fill='neighbourhood' "
+                         "(CLI --fill neighbourhood)")
+
 
 class Flag(enum.IntFlag):
     """Per-voxel quality flags (bit mask, uint8)."""
@@ -310,7 +321,7 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     if stats.sparse:
         sparse = dict(rows=stats.rows, brick_occluded=brick_occlusion(stats, n_min=n_min, min_explored=min_explored,
                                                                       weighted_count=weighted_count))
-        if fill in (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED):
+        if fill in DENSE_FILLS:
             raise InputError(f"fill={fill.value!r} needs every voxel's own sums (the dense layout): use "
                              "layout='dense' (CLI --layout dense), or fill='layer', which the sparse layout "
                              "does per brick layer")
@@ -339,7 +350,7 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     options = dict(n_min=int(n_min), min_explored=float(min_explored), leaf_size=leaf_size,
                    large_leaf_ratio=float(large_leaf_ratio), small_voxel_factor=float(small_voxel_factor),
                    fill=fill.value, weighted_count=bool(weighted_count))
-    if fill in (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED):
+    if fill in DENSE_FILLS:
         options.update(fill_radii=list(FILL_RADII), fill_min_seen=FILL_MIN_SEEN)
     if fill is FillMode.CALIBRATED:
         options.update(fill_ratio=calibration["ratio"], fill_calibration=calibration)
@@ -566,10 +577,11 @@ def cross_scan_ratio(scan_stats, mask, *, estimator="bcmle", n_min: int = 5, min
               weighted_count=weighted_count)
     vol = grid.voxel_volume
     per_scan, seen_total, filled_total, voxels = [], 0.0, 0.0, 0
-    for b, own in enumerate(stats):
-        others = VoxelStats(grid, sum(s.acc for k, s in enumerate(stats) if k != b))
-        lad_b = estimate_lad(own, **kw)
-        lad_o = estimate_lad(others, **kw)
+    own = [estimate_lad(s, **kw) for s in stats]
+    for b, lad_b in enumerate(own):
+        # all the scans but b: with two, the other scan's own estimate
+        lad_o = own[1 - b] if len(stats) == 2 else estimate_lad(
+            VoxelStats(grid, sum(s.acc for k, s in enumerate(stats) if k != b)), **kw)
         filled_o, reached = fill_neighbourhood(lad_o.lad, lad_o.occluded, mask)
         sel = lad_o.occluded & reached & ~lad_b.occluded & mask
         seen_m2 = float(lad_b.lad[sel].sum() * vol)
@@ -590,10 +602,7 @@ def _scan_stats_list(scan_stats, stats) -> list:
         out = list(scan_stats)
     except TypeError:
         raise InputError(f"scan_stats must be a list of VoxelStats (one per scan), got {type(scan_stats).__name__}")
-    if len(out) < 2:
-        raise InputError("fill='calibrated' measures its ratio on the voxels one scan sees and the others hide: it "
-                         f"needs the sums of two or more scans, got {len(out)}; with one scan use "
-                         "fill='neighbourhood'")
+    check_calibration_scans(len(out))
     bad = [type(s).__name__ for s in out if not isinstance(s, VoxelStats)]
     if bad:
         raise InputError(f"scan_stats must hold VoxelStats (one per scan), got {', '.join(sorted(set(bad)))}")

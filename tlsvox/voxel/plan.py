@@ -32,7 +32,7 @@ import numpy as np
 from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import Bricks
 from tlsvox.voxel.detection import Undetected
-from tlsvox.voxel.estimators import FillMode
+from tlsvox.voxel.estimators import FillMode, check_calibration_scans
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 from tlsvox.voxel.stats import NF
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, echo_voxels
@@ -134,9 +134,7 @@ def memory_plan(grid: VoxelGrid, beams: Beams, tracer: Tracer, *, layout="auto",
     if layout is Layout.DENSE and fill in (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED):
         fill_bytes = grid.n_voxels * NEIGHBOURHOOD_BYTES
         if fill is FillMode.CALIBRATED:
-            if int(scans) < 2:
-                raise InputError(f"fill='calibrated' needs two or more scans, got scans={scans!r}; with one scan "
-                                 "use fill='neighbourhood'")
+            check_calibration_scans(scans)
             fill_bytes += grid.n_voxels * (CALIBRATED_BYTES + int(scans) * NF * 8)
     plan = MemoryPlan(grid, dense, sparse, beam_bytes, n_rows, limit, layout, extra, fill_bytes, build_bytes(beams),
                       beams.n_echoes)

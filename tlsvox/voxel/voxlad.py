@@ -31,8 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tlsvox.errors import InputError
-from tlsvox.voxel.estimators import (CALIBRATION_MIN_VOXELS, Estimator, FillMode, LadEstimate, brick_layer_means,
-                                     estimate_lad, fill_layers, fill_neighbourhood, hull_mask)
+from tlsvox.voxel.estimators import (CALIBRATION_MIN_VOXELS, DENSE_FILLS, Estimator, FillMode, LadEstimate,
+                                     brick_layer_means, check_calibration_scans, estimate_lad, fill_layers,
+                                     fill_neighbourhood, hull_mask)
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
@@ -263,10 +264,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                                              leaf_reflectance=leaf_reflectance, leaf_length=shape[0],
                                              leaf_width=shape[1]) for s in scans]
     fill = FillMode.parse(fill, "fill")
-    if fill is FillMode.CALIBRATED and len(scans) < 2:
-        raise InputError("fill='calibrated' measures its ratio on the voxels one scan hides and another sees: it "
-                         f"needs two or more scans, got {len(scans)}; with one scan use fill='neighbourhood' "
-                         "(CLI --fill neighbourhood)")
+    if fill is FillMode.CALIBRATED:
+        check_calibration_scans(len(scans))
     wood_m = WoodMethod.parse(wood, "wood")
     la = LeafAngle.from_dict(leaf_angle)
     layers = _leaf_angle_layers(leaf_angle_layers)
@@ -343,7 +342,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin, snap=bool(snap))
         del veg, inside
     layout = Layout.parse(layout, "layout")
-    if layout is Layout.SPARSE and fill in _DENSE_FILLS:  # known before the beams are built
+    if layout is Layout.SPARSE and fill in DENSE_FILLS:  # known before the beams are built
         raise InputError(f"fill={fill.value!r} needs the dense layout, but layout='sparse' was given; use "
                          "fill='layer' (per brick layer in the sparse layout), or layout='dense' where memory allows")
     outward = None
@@ -398,7 +397,7 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     voxels = echo_voxels(grid, beams)
     plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected,
                        fill=fill, scans=len(scans))
-    if plan.layout is Layout.SPARSE and fill in _DENSE_FILLS:
+    if plan.layout is Layout.SPARSE and fill in DENSE_FILLS:
         raise InputError(f"fill={fill.value!r} needs the dense layout, but this run is sparse ({plan.describe()}); "
                          "use fill='layer' (per brick layer in the sparse layout), a larger voxel_size, or "
                          "layout='dense' where memory allows")
@@ -507,10 +506,6 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
 
 
-#: fills that need every voxel's own sums
-_DENSE_FILLS = (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED)
-
-
 def _leaf_angle_layers(given):
     """``leaf_angle_layers`` as [(z_low, LeafAngle), ...] from the lowest layer up (the first z_low
     -inf), or None.  Only the lower bounds count: each layer reaches up to the next one's (z_high is
@@ -563,7 +558,7 @@ def _lad_lookup(grid, lad: LadEstimate, stats: VoxelStats | None = None):
     seen = np.where(occ, 0.0, raw)
     if lad.rows is None:
         crown = hull_mask(seen > 0, grid)
-        if lad.options.get("fill") in ("neighbourhood", "calibrated"):
+        if lad.options.get("fill") in {f.value for f in DENSE_FILLS}:
             raw, filled = fill_neighbourhood(seen, occ, crown)
             ratio = float(lad.options.get("fill_ratio", 1.0))  # fill="calibrated"
             raw = np.where(filled, np.minimum(raw * ratio, LAD_PLAUSIBLE_MAX), raw)
