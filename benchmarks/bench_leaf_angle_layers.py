@@ -21,6 +21,13 @@ centre below or above the switch height) and of the whole crown.  Writes
 docs/bench/leaf_angle_layers.md.
 
     .venv/bin/python benchmarks/bench_leaf_angle_layers.py [--seed 0]
+
+With the scanner's own floor and the detection model (whose unrecorded interception depends on the
+leaf angles too, so it takes each layer's G and distribution where the estimators do), written to
+docs/bench/leaf_angle_layers-detection.md:
+
+    .venv/bin/python benchmarks/bench_leaf_angle_layers.py --threshold-db -20 --undetected model \
+        --out docs/bench/leaf_angle_layers-detection.md
 """
 
 from __future__ import annotations
@@ -61,6 +68,9 @@ def main(argv=None):
     ap.add_argument("--upper", default="erectophile")
     ap.add_argument("--threshold-db", type=float, default=-60.0,
                     help="the scanner's detection threshold (the VZ-400 preset: -20 dB)")
+    ap.add_argument("--undetected", default="ignore", choices=("ignore", "model"),
+                    help="voxelize's undetected rule: 'model' gives back the interception a threshold above the "
+                         "floor leaves unrecorded, with each layer's G and leaf angles in the per-layer runs")
     ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "leaf_angle_layers.md"))
     args = ap.parse_args(argv)
     from tlsvox.leafangles import measure_leaf_angles
@@ -90,7 +100,8 @@ def main(argv=None):
                            float((zc[sel] >= z_mid).mean())))
     truth_layers = [(-1e3, z_mid, LeafAngle(args.lower)), (z_mid, 1e3, LeafAngle(args.upper))]
     tracer = Tracer()
-    kw = dict(voxel_size=0.2, leaf_azimuth="outward", ground=0.0, layout="dense", progress=False, tracer=tracer)
+    kw = dict(voxel_size=0.2, leaf_azimuth="outward", ground=0.0, layout="dense", progress=False, tracer=tracer,
+              undetected=args.undetected)
     runs = {}
     for name, extra in (("crown", {}), ("per layer", {"leaf_angle_layers": m}),
                         ("truth", {"leaf_angle_layers": truth_layers})):
@@ -109,12 +120,13 @@ def main(argv=None):
         print(name, {k: f"{100 * (e / t - 1):+.1f} %" for k, (e, t) in scores.items()}, flush=True)
     lines = [f"## Leaf angles per crown layer in the estimators' G (an oak whose layers differ, seed {args.seed})", "",
              f"Command: `.venv/bin/python benchmarks/bench_leaf_angle_layers.py --seed {args.seed} --threshold-db "
-             f"{args.threshold_db:g}` "
+             f"{args.threshold_db:g}"
+             + ("" if args.undetected == "ignore" else f" --undetected {args.undetected}") + "` "
              f"({(time.perf_counter() - t_all) / 60:.1f} min). " + machine_line(load0) + " "
              f"The synthetic oak with {args.lower} leaves below its crown's middle height ({z_mid:.2f} m) and "
              f"{args.upper} leaves above (same places and areas, outward azimuths); two VZ-400 scans keeping "
              f"echoes down to {args.threshold_db:g} dB, true poses "
-             "and classes; 20 cm voxels, `undetected='ignore'`, no fill, outward G per voxel. Leaf angles "
+             f"and classes; 20 cm voxels, `undetected='{args.undetected}'`, no fill, outward G per voxel. Leaf angles "
              f"measured with `measure_leaf_angles(scans, layers=4)` ({t_measure:.0f} s).", "",
              "| layer | z (m) | share of its leaves above the switch | true mean inclination (deg) | measured (deg) |",
              "|---|---|---|---|---|"]

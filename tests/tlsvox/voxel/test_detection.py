@@ -306,3 +306,83 @@ def test_added_echoes_are_returned_with_their_voxels():
     both = np.union1d(grid.flat(echo_voxels(grid, beams)),
                       grid.flat(voxels_along(grid, beams.origin[pulse], beams.direction[pulse], ranges)))
     assert np.array_equal(both, grid.flat(echo_voxels(grid, new)))
+
+
+def _level_beams(n=300, seed=9):
+    """Level beams along +x through a 6 m cube of the 0.5 m grid, half the pulses with a recorded echo."""
+    from tlsvox.voxel.beams import Beams
+    from tlsvox.voxel.grid import VoxelGrid
+
+    rng = np.random.default_rng(seed)
+    grid = VoxelGrid((0.0, 0.0, 0.0), 0.5, (12, 12, 12))
+    origin = np.column_stack([np.full(n, -5.0), rng.uniform(0.5, 5.5, n), rng.uniform(0.1, 5.9, n)])
+    d = np.column_stack([np.ones(n), rng.normal(0, 0.05, n), np.zeros(n)])  # level: each stays in its z layer
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hits = rng.random(n) < 0.5
+    rays = Beams.from_rays(origin, d, hit_range=np.where(hits, rng.uniform(6.0, 10.0, n), np.inf))
+    return grid, rays, hits
+
+
+def _with_g(rays, hits, model):
+    from tlsvox.voxel.beams import Beams
+
+    g = np.asarray(model.G(rays.zenith()), dtype=np.float64)
+    return Beams(rays.origin, rays.direction, rays.echo_start, rays.echo_range, 0.6 * rays.echo_weight,
+                 rays.echo_kind, np.where(hits, 0.4, 1.0), np.full(len(hits), 20.0), g=g)
+
+
+@pytest.mark.parametrize("outward", [False, True])
+def test_each_crown_layer_gives_back_what_its_own_model_does(outward):
+    """With leaf angles per layer (a planophile lower half, an erectophile upper half), every level
+    beam loses, in its layer, the tail the one-model run of that layer's distribution gives it: the
+    detection model reads G and H per layer as the tracer reads G (the crown's model was read before)."""
+    from tlsvox.voxel.detection import unrecorded_echoes
+    from tlsvox.voxel.pulses import layer_g_tables, outward_g_table
+    from voxlidar.leafangle import LeafAngle
+
+    grid, rays, hits = _level_beams()
+    low, high = LeafAngle("planophile"), LeafAngle("erectophile")
+    model = DetectionModel(**VZ400)
+    lad = lambda flat: np.full(np.shape(flat), 1.0)  # noqa: E731
+    centre = np.array([-100.0, -100.0])  # off the grid: the outward cosine is defined everywhere
+    layer_of_z = (np.arange(grid.shape[2]) >= 6).astype(np.int32)  # z >= 3 m: the upper layer
+    layers = ([low, high], layer_g_tables([low, high], outward=outward), layer_of_z)
+    crown = LeafAngle("uniform")
+    out_crown = (outward_g_table(crown), centre) if outward else None
+    mixed, _ = unrecorded_echoes(_with_g(rays, hits, crown), grid, lad, model, crown, outward=out_crown,
+                                 layers=layers)
+    upper = rays.origin[:, 2] >= 3.0
+    for part, m in ((~upper, low), (upper, high)):
+        one, _ = unrecorded_echoes(_with_g(rays, hits, m), grid, lad, model, m,
+                                   outward=(outward_g_table(m), centre) if outward else None)
+        lost_one = 1.0 - one.tail[part] / np.where(hits, 0.4, 1.0)[part]
+        lost_mixed = 1.0 - mixed.tail[part] / np.where(hits, 0.4, 1.0)[part]
+        assert lost_one.mean() > 0.01  # something is given back
+        # the same walk on G and H tables of 2049 (181 outward) rows instead of G(theta) itself
+        np.testing.assert_allclose(lost_mixed, lost_one, rtol=2e-3, atol=1e-6)
+    # and the two halves differ: the crown's single model could not give both
+    assert abs((1 - mixed.tail[upper] / np.where(hits, 0.4, 1.0)[upper]).mean()
+               - (1 - mixed.tail[~upper] / np.where(hits, 0.4, 1.0)[~upper]).mean()) > 0.01
+
+
+def test_voxelize_gives_each_layer_its_own_unrecorded_interception(bench, box_scans_02):
+    """voxelize(leaf_angle_layers=..., undetected="model"): the same model in every layer gives back
+    what the one-model run does; planophile leaves in both layers (the crown's model spherical) give
+    back what the planophile run does, not the spherical one: the detection model reads the layers."""
+    from tlsvox import voxelize
+
+    _, scans = box_scans_02
+    lo, hi = np.asarray(bench.BOUNDS[0], float), np.asarray(bench.BOUNDS[1], float)
+    mid = 0.5 * (lo[2] + hi[2])
+    kw = dict(voxel_size=0.5, ground=None, bounds=bench.BOUNDS, progress=False, undetected="model",
+              undetected_iterations=1)
+
+    def given(**extra):
+        return voxelize(scans, **kw, **extra).scene.meta["undetected"]["given_back_share"][-1]
+
+    spherical, planophile = given(leaf_angle="spherical"), given(leaf_angle="planophile")
+    assert abs(planophile - spherical) > 0.05 * spherical  # the leaf angles matter to the model
+    both = [(lo[2], mid, "planophile"), (mid, hi[2], "planophile")]
+    assert given(leaf_angle="spherical", leaf_angle_layers=both) == pytest.approx(planophile, rel=0.01)
+    same = [(lo[2], mid, "spherical"), (mid, hi[2], "spherical")]
+    assert given(leaf_angle="spherical", leaf_angle_layers=same) == pytest.approx(spherical, rel=0.01)
