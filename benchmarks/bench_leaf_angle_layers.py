@@ -22,9 +22,8 @@ docs/bench/leaf_angle_layers.md.
 
     .venv/bin/python benchmarks/bench_leaf_angle_layers.py [--seed 0]
 
-With the scanner's own floor and the detection model (whose unrecorded interception depends on the
-leaf angles too, so it takes each layer's G and distribution where the estimators do), written to
-docs/bench/leaf_angle_layers-detection.md:
+With the scanner's own floor and the detection model (which takes the crown's one distribution, also
+in the per-layer runs), written to docs/bench/leaf_angle_layers-detection.md:
 
     .venv/bin/python benchmarks/bench_leaf_angle_layers.py --threshold-db -20 --undetected model \
         --out docs/bench/leaf_angle_layers-detection.md
@@ -42,6 +41,13 @@ import numpy as np
 from _bench import machine_line, with_leaves, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = ROOT / "docs" / "bench" / "leaf_angle_layers.md"
+
+
+def _shown(path) -> str:
+    """``path`` as the page's command gives it: relative to the repository where it lies inside."""
+    p = Path(path).resolve()
+    return str(p.relative_to(ROOT)) if p.is_relative_to(ROOT) else str(p)
 
 
 def layered_oak(seed: int, lower: str, upper: str):
@@ -70,8 +76,8 @@ def main(argv=None):
                     help="the scanner's detection threshold (the VZ-400 preset: -20 dB)")
     ap.add_argument("--undetected", default="ignore", choices=("ignore", "model"),
                     help="voxelize's undetected rule: 'model' gives back the interception a threshold above the "
-                         "floor leaves unrecorded, with each layer's G and leaf angles in the per-layer runs")
-    ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "leaf_angle_layers.md"))
+                         "floor leaves unrecorded (with the crown's leaf angles)")
+    ap.add_argument("--out", default=str(DEFAULT_OUT))
     args = ap.parse_args(argv)
     from tlsvox.leafangles import measure_leaf_angles
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
@@ -121,7 +127,8 @@ def main(argv=None):
     lines = [f"## Leaf angles per crown layer in the estimators' G (an oak whose layers differ, seed {args.seed})", "",
              f"Command: `.venv/bin/python benchmarks/bench_leaf_angle_layers.py --seed {args.seed} --threshold-db "
              f"{args.threshold_db:g}"
-             + ("" if args.undetected == "ignore" else f" --undetected {args.undetected}") + "` "
+             + ("" if args.undetected == "ignore" else f" --undetected {args.undetected}")
+             + ("" if Path(args.out).resolve() == DEFAULT_OUT.resolve() else f" --out {_shown(args.out)}") + "` "
              f"({(time.perf_counter() - t_all) / 60:.1f} min). " + machine_line(load0) + " "
              f"The synthetic oak with {args.lower} leaves below its crown's middle height ({z_mid:.2f} m) and "
              f"{args.upper} leaves above (same places and areas, outward azimuths); two VZ-400 scans keeping "

@@ -387,7 +387,7 @@ def _interp_h(h, w_nodes, theta, c, w):
 
 
 def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *, outward=None, box=None,
-                      layers=None, echoes_per_tail: int = ECHOES_PER_TAIL, step: float | None = None,
+                      echoes_per_tail: int = ECHOES_PER_TAIL, step: float | None = None,
                       chunk_samples: int = CHUNK_SAMPLES):
     """The beams with the expected unrecorded leaf interception given back as leaf echoes.
 
@@ -402,13 +402,6 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
     leaf_angle : LeafAngle
     outward : (G table, crown centre (x, y)), optional
         Outward-facing leaves, as given to the tracer.
-    layers : (models, tables, g_layer), optional
-        Leaf angles per crown layer, as the tracer reads them: the layers'
-        LeafAngle models, their G tables
-        (:func:`tlsvox.voxel.pulses.layer_g_tables`, outward where
-        ``outward`` is given: then only its crown centre is read) and the
-        layer of each voxel z index.  Each sample along a beam takes its
-        layer's G and H; default: ``leaf_angle`` (and ``outward``) everywhere.
     echoes_per_tail : int
         Leaf echoes each pulse's unrecorded share is split into.
     box : (2, 3) float, metres, optional
@@ -441,12 +434,8 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
     none = (np.zeros(0, np.int64), np.zeros(0))
     if not len(todo):
         return beams, {"given_back": 0.0, "tail": float(beams.tail.sum()), "pulses": 0, "added": none}
-    span = (float(t0[todo].min()), float(t1[todo].max()))
-    htab, _, w_nodes = projection_tables(model, leaf_angle, ranges=span, outward=outward is not None)
-    if layers is not None:
-        layer_models, layer_tables, g_layer = layers
-        g_layer = np.asarray(g_layer, dtype=np.int64)
-        htabs = [projection_tables(model, m, ranges=span, outward=outward is not None)[0] for m in layer_models]
+    htab, _, w_nodes = projection_tables(model, leaf_angle, ranges=(float(t0[todo].min()), float(t1[todo].max())),
+                                      outward=outward is not None)
     theta_all = beams.zenith()
     given = np.zeros(len(beams))
     new_r, new_b = [], []
@@ -489,11 +478,8 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
         sel_r, sel_c = np.nonzero(u > 0)
         theta = theta_all[sel][sel_r]
         tv = t[sel_r, sel_c]
-        wb = model.beam_radius(tv)
-        ok = np.zeros(len(theta), bool)  # where the beam's cosine c with the outward direction is defined
-        c = np.zeros(len(theta))
         if outward is not None:
-            cc = outward[1]
+            gtab, cc = outward
             centre = grid.centers(ijk[sel_r, sel_c])[:, :2]
             rx, ry = centre[:, 0] - cc[0], centre[:, 1] - cc[1]
             rr = np.hypot(rx, ry)
@@ -501,24 +487,15 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
             dh = np.hypot(dx, dy)
             ok = (rr > 1e-9) & (dh > 1e-9)
             c = np.where(ok, (rx * dx + ry * dy) / np.maximum(rr * dh, 1e-12), 0.0)
-        if layers is None:
-            gv = np.where(ok, _bilinear_g(outward[0], theta, c), beams.g[sel][sel_r]) if outward is not None \
-                else beams.g[sel][sel_r]
-            hv = _interp_h(htab, w_nodes, theta, c, wb)
-        else:  # each sample takes its crown layer's G and H, as the tracer reads G
-            lay = g_layer[ijk[sel_r, sel_c, 2]]
-            gv, hv = np.empty(len(theta)), np.empty(len(theta))
-            for j in np.unique(lay):
-                at = lay == j
-                table = layer_tables[j]
-                g_avg = np.interp(theta[at], np.linspace(0.0, np.pi, len(table)), table[:, -1])
-                gv[at] = (np.where(ok[at], _bilinear_g(table[:, :-1], theta[at], c[at]), g_avg)
-                          if outward is not None else g_avg)
-                hv[at] = _interp_h(htabs[j], w_nodes, theta[at], c[at], wb[at])
+            gv = np.where(ok, _bilinear_g(gtab, theta, c), beams.g[sel][sel_r])
+        else:
+            c = np.zeros(len(theta))
+            gv = beams.g[sel][sel_r]
+        wb = model.beam_radius(tv)
         g = np.zeros(t.shape)
         hh = np.zeros(t.shape)
         g[sel_r, sel_c] = gv
-        hh[sel_r, sel_c] = np.minimum(hv, gv)
+        hh[sel_r, sel_c] = np.minimum(_interp_h(htab, w_nodes, theta, c, wb), gv)
         kappa = g * u * dsb[:, None]
         tau = np.cumsum(kappa, axis=1) - 0.5 * kappa
         lost = hh * u * dsb[:, None] * np.exp(-tau)

@@ -119,10 +119,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         Leaf angles per crown layer for the estimators' G(theta) (e.g.
         ``tlsvox.leafangles.measure_leaf_angles(scans).layers``): each voxel
         takes the model of the layer its centre's height lies in (the lowest
-        layer below them all, the highest above); so does the detection
-        model (``undetected="model"``: each layer's G and unrecorded
-        projection).  ``leaf_angle`` stays the scene's one model (the
-        simulator's).
+        layer below them all, the highest above).  ``leaf_angle`` stays the
+        scene's one model (the simulator's) and the detection model's.
     leaf_azimuth : {"uniform", "outward"}
         The leaves' azimuth, stored in the scene for the simulator.
         ``outward`` (leaves facing away from a vertical crown axis through
@@ -431,16 +429,13 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     undetected_meta = {"rule": undetected.value}
     if detection is not None:
         rounds = []
-        # the unrecorded interception depends on the leaf angles too: each layer's where G is per layer
-        detection_layers = None if layers is None else ([m for _, m in layers], g_tables[0], g_layer)
         leaf_weight = float(beams.echo_weight[beams.echo_kind == EchoKind.LEAF].sum())
         for _ in range(int(undetected_iterations)):
             lookup, box = _lad_lookup(grid, lad, stats)
             stats = beams = scan_stats = None  # the last round's sums and beams: not needed again (memory_plan)
             fixed, given, added = [], 0.0, []
             for part, model in zip(parts, detection):
-                b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box,
-                                            layers=detection_layers)
+                b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box)
                 fixed.append(b)
                 given += info["given_back"]
                 if recorded is not None:
