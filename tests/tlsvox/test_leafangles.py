@@ -155,6 +155,26 @@ def test_occlusion_levels_hide_more_of_the_leaf_in_order():
     assert mean[0] == mean.max() and np.all(np.diff(mean[[0] + one_side]) < 0), mean
 
 
+def test_second_leaf_levels_add_echoes_and_spread_the_normals():
+    """A second leaf behind the first: more neighbours than the same level alone, normals farther off."""
+    from tlsvox.leafangles import _CUTS, _MAX_COUNT, _SECOND_CUTS, _simulate_kernel
+
+    rng = np.random.default_rng(5)
+    n = 80
+    d = rng.normal(size=(n, 3)) * [0.2, 0.2, 0.0] + [1.0, 0.0, 0.6]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    kernel, counts = _simulate_kernel(np.full(n, 8.0), d, np.zeros(n, int), step=(np.radians(0.06),) * 2,
+                                      leaf_size=0.05, radius=0.025, min_points=5, min_spread=0.0, n_bins=6,
+                                      n_groups=1, range_noise=0.005, samples=6, cap=0.2, rng=rng, second_leaf=True)
+    assert kernel.shape[0] == counts.shape[0] == len(_CUTS) + len(_SECOND_CUTS)
+    mean = (counts.mean(axis=1) * np.arange(_MAX_COUNT)).sum(axis=1) / counts.mean(axis=1).sum(axis=1)
+    diag = [np.trace(k[0]) / k[0].sum() for k in kernel]  # share of the fits in their true bin
+    for j, cut in enumerate(_SECOND_CUTS):
+        single = next(k for k in range(len(_CUTS)) if np.allclose(_CUTS[k], cut))
+        assert mean[len(_CUTS) + j] > mean[single], (j, mean)
+        assert diag[len(_CUTS) + j] < diag[single], (j, diag)
+
+
 def test_kernels_and_occlusion_are_fitted_per_scan_and_layer():
     slab, scan = _scan_of("planophile", noise=0.005)
     res = measure_leaf_angles([scan], layers=2, samples=1, max_simulated=300)
