@@ -356,6 +356,14 @@ def _layer_rows(f, sel, *, n_bins, n_groups, max_sim, rng, **sim):
     return rows, mix
 
 
+def _leaf_axes(normal, spin):
+    """The major and minor axes of leaves with unit normals ``normal`` (N, 3), turned by ``spin`` (N,) radians
+    in their plane from a reference axis (horizontal unless the leaf is nearly flat)."""
+    u = np.cross(normal, np.where(np.abs(normal[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]]))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    major = np.cos(spin)[:, None] * u + np.sin(spin)[:, None] * np.cross(normal, u)
+    return major, np.cross(normal, major)
+
 def _simulate_kernel(r, d, group, *, step, leaf_size, radius, min_points, min_spread, n_bins, n_groups, range_noise,
                      samples, cap, rng, second_leaf: bool = False, max_offsets: int = 10):
     """The weighted estimator's histogram for unit leaf area of each true inclination bin.
@@ -411,12 +419,7 @@ def _simulate_kernel(r, d, group, *, step, leaf_size, radius, min_points, min_sp
             nt = np.column_stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.cos(t)])
             cos_true = np.einsum("ij,ij->i", nt, d)
             # the leaf: axes in its plane, the centre echo at a random point of the ellipse
-            u = np.cross(nt, np.where(np.abs(nt[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]]))
-            u /= np.linalg.norm(u, axis=1, keepdims=True)
-            w = np.cross(nt, u)
-            spin = rng.uniform(0.0, 2 * np.pi, n)
-            major = np.cos(spin)[:, None] * u + np.sin(spin)[:, None] * w
-            minor = np.cross(nt, major)
+            major, minor = _leaf_axes(nt, rng.uniform(0.0, 2 * np.pi, n))
             rho, beta = np.sqrt(rng.random(n)), rng.uniform(0.0, 2 * np.pi, n)
             off_a, off_b = rho * np.cos(beta) * half_len, rho * np.sin(beta) * half_wid
             den = np.einsum("spc,sc->sp", rays, nt)
@@ -440,12 +443,7 @@ def _simulate_kernel(r, d, group, *, step, leaf_size, radius, min_points, min_sp
                 phi2 = rng.uniform(0.0, 2 * np.pi, n)
                 n2 = np.column_stack([np.sin(t2) * np.cos(phi2), np.sin(t2) * np.sin(phi2), np.cos(t2)])
                 q = d * (r + rng.uniform(0.0, half_len, n))[:, None]
-                u2 = np.cross(n2, np.where(np.abs(n2[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]]))
-                u2 /= np.linalg.norm(u2, axis=1, keepdims=True)
-                w2 = np.cross(n2, u2)
-                spin2 = rng.uniform(0.0, 2 * np.pi, n)
-                major2 = np.cos(spin2)[:, None] * u2 + np.sin(spin2)[:, None] * w2
-                minor2 = np.cross(n2, major2)
+                major2, minor2 = _leaf_axes(n2, rng.uniform(0.0, 2 * np.pi, n))
                 rho2, beta2 = np.sqrt(rng.random(n)), rng.uniform(0.0, 2 * np.pi, n)
                 den2 = np.einsum("spc,sc->sp", rays, n2)
                 s2 = np.einsum("sc,sc->s", q, n2)[:, None] / np.where(np.abs(den2) > 1e-9, den2, 1.0)
