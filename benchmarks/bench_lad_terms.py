@@ -554,8 +554,10 @@ def fill_table(args):
     write_page(args.fill_out, lines)
 
 
-#: The refinement rules side by side: (name, classify_scan keywords).  The second was chosen on seeds 1
-#: and 2 among k 20, 30 and 50, wood shares 0.3 to 0.6, with and without linearity, one to five rounds.
+#: The refinement rules side by side: (name, classify_scan keywords).  The second was chosen by hand on
+#: seeds 1 and 2 (scripts not kept) among k 20, 30 and 50 and wood shares 0.3 to 0.6, with and without
+#: linearity, the rule applied once or repeated up to five times on its own output (repeating moved more
+#: leaves than bark; refine_geometric applies it once).
 _REFINE_RULES = (("k 20, wood share >= 0.5, linearity >= 0.6 (the default)", {}),
                  ("k 50, wood share >= 0.4, no linearity", {"refine_k": 50, "min_linearity": 0.0,
                                                             "min_wood_fraction": 0.4}))

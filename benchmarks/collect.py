@@ -1,7 +1,8 @@
 """Assemble docs/benchmarks.md from the sections the benchmark scripts write.
 
 Each script in benchmarks/ writes its own section to docs/bench/<topic>.md;
-this script joins them (in a fixed order, then any others) under one page.
+this script joins them (in a fixed order, then any others) under one page, with
+their links up a folder ("../img/...") made relative to docs/.
 
     .venv/bin/python benchmarks/collect.py
 """
@@ -32,7 +33,8 @@ def main() -> int:
     for n in ORDER:  # "devices" also takes its per-machine pages, devices-<machine>.md
         names += [m for m in sorted(by_name) if m == n or m.startswith(n + "-")]
     names += sorted(n for n in by_name if n not in names)
-    text = HEADER + "\n".join(by_name[n].read_text().rstrip() + "\n" for n in names)
+    # the pages live in docs/bench/ and link up ("../img/x.png", "../devices.md"); this page is in docs/
+    text = HEADER + "\n".join(by_name[n].read_text().rstrip().replace("](../", "](") + "\n" for n in names)
     out = ROOT / "docs" / "benchmarks.md"
     tmp = out.with_suffix(".tmp")
     tmp.write_text(text)

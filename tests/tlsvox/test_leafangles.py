@@ -156,23 +156,29 @@ def test_occlusion_levels_hide_more_of_the_leaf_in_order():
 
 
 def test_second_leaf_levels_add_echoes_and_spread_the_normals():
-    """A second leaf behind the first: more neighbours than the same level alone, normals farther off."""
+    """A second leaf behind the first: more neighbours than the same level alone, and fewer fits in their
+    true inclination bin (pooled over the three levels).  On seeds 0-11 the pooled shares were 0.43-0.45
+    against 0.51-0.53, so the 0.03 margin is several times their spread (about 0.006)."""
     from tlsvox.leafangles import _CUTS, _MAX_COUNT, _SECOND_CUTS, _simulate_kernel
 
     rng = np.random.default_rng(5)
-    n = 80
+    n = 600
     d = rng.normal(size=(n, 3)) * [0.2, 0.2, 0.0] + [1.0, 0.0, 0.6]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     kernel, counts = _simulate_kernel(np.full(n, 8.0), d, np.zeros(n, int), step=(np.radians(0.06),) * 2,
                                       leaf_size=0.05, radius=0.025, min_points=5, min_spread=0.0, n_bins=6,
-                                      n_groups=1, range_noise=0.005, samples=6, cap=0.2, rng=rng, second_leaf=True)
+                                      n_groups=1, range_noise=0.005, samples=8, cap=0.2, rng=rng, second_leaf=True)
     assert kernel.shape[0] == counts.shape[0] == len(_CUTS) + len(_SECOND_CUTS)
     mean = (counts.mean(axis=1) * np.arange(_MAX_COUNT)).sum(axis=1) / counts.mean(axis=1).sum(axis=1)
-    diag = [np.trace(k[0]) / k[0].sum() for k in kernel]  # share of the fits in their true bin
-    for j, cut in enumerate(_SECOND_CUTS):
-        single = next(k for k in range(len(_CUTS)) if np.allclose(_CUTS[k], cut))
-        assert mean[len(_CUTS) + j] > mean[single], (j, mean)
-        assert diag[len(_CUTS) + j] < diag[single], (j, diag)
+    twos = list(range(len(_CUTS), len(_CUTS) + len(_SECOND_CUTS)))
+    singles = [next(k for k in range(len(_CUTS)) if np.allclose(_CUTS[k], cut)) for cut in _SECOND_CUTS]
+    for two, single in zip(twos, singles):
+        assert mean[two] > mean[single], (two, mean)
+
+    def in_true_bin(levels):  # share of the fits in their true bin
+        return sum(np.trace(kernel[k, 0]) for k in levels) / sum(kernel[k, 0].sum() for k in levels)
+
+    assert in_true_bin(twos) < in_true_bin(singles) - 0.03, (in_true_bin(twos), in_true_bin(singles))
 
 
 def test_kernels_and_occlusion_are_fitted_per_scan_and_layer():
