@@ -450,6 +450,15 @@ def _true_labels(scans):
     return true
 
 
+def _label_errors(scans, labels):
+    """Per scan, the echoes of bark labelled leaf and of leaves labelled anything else ((N_i,) bool each)."""
+    from tlsvox.classify import PointClass
+    from voxlidar.materials import Material
+
+    mats = [np.asarray(s.truth_material) for s in scans]
+    return ([(m == Material.BARK) & (c == PointClass.LEAF) for m, c in zip(mats, labels)],
+            [(m == Material.LEAF) & (c != PointClass.LEAF) for m, c in zip(mats, labels)])
+
 def classes_table(args):
     """The default oak (seed 1) with the classifier's labels, the true ones, and each error alone."""
     from tlsvox.classify import PointClass
@@ -463,8 +472,7 @@ def classes_table(args):
     labels = _pipeline_labels(scans)
     true = _true_labels(scans)
     mats = [np.asarray(s.truth_material) for s in scans]
-    bark_as_leaf = [(m == Material.BARK) & (c == PointClass.LEAF) for m, c in zip(mats, labels)]
-    leaf_as_other = [(m == Material.LEAF) & (c != PointClass.LEAF) for m, c in zip(mats, labels)]
+    bark_as_leaf, leaf_as_other = _label_errors(scans, labels)
     counts = {"bark labelled leaf": sum(int(b.sum()) for b in bark_as_leaf),
               "leaves labelled wood or other": sum(int(b.sum()) for b in leaf_as_other),
               "leaf echoes (truth)": sum(int((m == Material.LEAF).sum()) for m in mats),
@@ -565,22 +573,18 @@ _REFINE_RULES = (("k 20, wood share >= 0.5, linearity >= 0.6 (the default)", {})
 
 def refine_table(args):
     """The geometric refinement's rules on four oaks (two held out): echo errors and leaf area."""
-    from tlsvox.classify import PointClass
     from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import voxelize
-    from voxlidar.materials import Material
 
     load0 = os.getloadavg()
     t_all = time.perf_counter()
     tracer = Tracer()
     rows = []
     for label, azimuth, tree, scans in _fill_oaks():
-        mats = [np.asarray(s.truth_material) for s in scans]
         variants = [(name, _pipeline_labels(scans, **kw)) for name, kw in _REFINE_RULES]
         variants.append(("true classes", _true_labels(scans)))
         for name, lab in variants:
-            bark = sum(int(((m == Material.BARK) & (c == PointClass.LEAF)).sum()) for m, c in zip(mats, lab))
-            leaves = sum(int(((m == Material.LEAF) & (c != PointClass.LEAF)).sum()) for m, c in zip(mats, lab))
+            bark, leaves = (sum(int(e.sum()) for e in errors) for errors in _label_errors(scans, lab))
             res = voxelize(scans, voxel_size=0.2, classes=lab, class_codes="pointclass", leaf_angle="uniform",
                            leaf_azimuth=azimuth, ground=0.0, layout="dense", progress=False, tracer=tracer,
                            undetected="model", fill="calibrated", undetected_iterations=args.iterations)
