@@ -24,10 +24,13 @@ them against the truth labels of simulated scans.
 1. Per scan (beam footprint, and so partial-hit statistics, differ between
    scan positions), fit two Gaussians to the reflectance distribution of the
    vegetation echoes (EM, maximum likelihood on the samples themselves):
-   leaves are darker than bark at 1550 nm.
-2. Leaf/wood threshold midway between the two means (the paper's rule) or
-   where the two weighted components have equal posterior probability
-   (the Bayes rule for the fitted mixture).
+   leaves are darker than bark at 1550 nm.  When the two overlap (Ashman's
+   D < 2: they have split the leaves' skewed mode), three are fitted instead
+   (``components='auto'``, every method): the brightest Gaussian is the wood,
+   the others together the leaves (``_mixture``).
+2. Leaf/wood threshold midway between the leaf and wood means (the paper's
+   rule) or where the weighted leaf and wood densities are equal (the Bayes
+   rule for the fitted mixture).
 3. Noise: echoes below ``noise_fraction`` (50 %) of the nominal leaf
    reflectance: mostly partial hits on leaf and branch edges (paper: 12.5 %
    for a 25 % leaf).
@@ -62,7 +65,7 @@ Béland, M., Baldocchi, D. D., Widlowski, J.-L., Fournier, R. A., Verstraete,
     size in determining leaf area distribution of forests with terrestrial
     LiDAR. Agric. For. Meteorol. 184, 82-97. doi:10.1016/j.agrformet.2013.09.005
 
-Modules: ``_classes`` (the labels), ``_mixture`` (two Gaussians and the
+Modules: ``_classes`` (the labels), ``_mixture`` (the Gaussians and the
 threshold), ``_geometry`` (geometric features), ``_classify`` (the methods),
 ``_score`` (against truth), ``plots`` (the pictures).
 """
@@ -70,18 +73,21 @@ threshold), ``_geometry`` (geometric features), ``_classify`` (the methods),
 from tlsvox.classify._classes import TRUTH_CLASS, PointClass
 from tlsvox.classify._classify import Classification, ClassifyMethod, classify_scan
 from tlsvox.classify._geometry import incidence_cosine, isolated, linearity, neighbourhood_mean, refine_geometric
-from tlsvox.classify._mixture import GaussianMixture2, ThresholdRule, fit_two_gaussians, leaf_wood_threshold
+from tlsvox.classify._mixture import (GaussianMixture, GaussianMixture2, ThresholdRule, fit_gaussians, fit_two_gaussians,
+                                      leaf_wood_threshold)
 from tlsvox.classify._score import Score, score
 
 __all__ = [
     "Classification",
     "ClassifyMethod",
+    "GaussianMixture",
     "GaussianMixture2",
     "PointClass",
     "Score",
     "TRUTH_CLASS",
     "ThresholdRule",
     "classify_scan",
+    "fit_gaussians",
     "fit_two_gaussians",
     "incidence_cosine",
     "isolated",

@@ -14,7 +14,7 @@ from tlsvox.reflectance import apparent_reflectance
 from tlsvox.scan import Scan
 from tlsvox.classify._classes import PointClass
 from tlsvox.classify._geometry import ground_band_mask, incidence_cosine, isolated, neighbourhood_mean, refine_geometric
-from tlsvox.classify._mixture import GaussianMixture2, ThresholdRule, fit_two_gaussians, leaf_wood_threshold
+from tlsvox.classify._mixture import GaussianMixture, ThresholdRule, fit_gaussians, leaf_wood_threshold, parse_components
 
 
 class ClassifyMethod(Choice):
@@ -42,8 +42,10 @@ class Classification:
         neighbourhood-mean reflectance in dB (``neighbourhood``).
     feature_label : str
         What ``feature`` is, with its unit.
-    mixture : GaussianMixture2
-        Two-Gaussian fit to ``feature`` of the vegetation echoes.
+    mixture : GaussianMixture
+        Gaussians fitted to ``feature`` of the vegetation echoes (two or
+        three, see ``components`` of :func:`classify_scan`); the brightest is
+        the wood, the others the leaves.
     leaf_wood_threshold : float
         In the unit of ``feature``.
     noise_threshold : float
@@ -63,7 +65,7 @@ class Classification:
     scan_name: str
     labels: np.ndarray
     reflectance: np.ndarray
-    mixture: GaussianMixture2
+    mixture: GaussianMixture
     leaf_wood_threshold: float
     noise_threshold: float
     target_threshold: float
@@ -95,7 +97,7 @@ class Classification:
                 "leaf_wood_threshold": self.leaf_wood_threshold,
                 "noise_threshold": float(nt) if np.isfinite(nt) else None,
                 "target_threshold": self.target_threshold,
-                "means": m.means.tolist(), "sigmas": m.sigmas.tolist(), "weights": m.weights.tolist(),
+                "components": m.n_components, "means": m.means.tolist(), "sigmas": m.sigmas.tolist(), "weights": m.weights.tolist(),
                 "refined": self.refined, "moved_to_wood": self.moved_to_wood, "on_cylinders": self.on_cylinders,
                 "counts": self.counts}
 
@@ -113,7 +115,7 @@ def _scan_step_deg(scan: Scan) -> float | None:
 
 
 def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod.NEIGHBOURHOOD,
-                  rule: "str | ThresholdRule" = ThresholdRule.MIDWAY,
+                  rule: "str | ThresholdRule" = ThresholdRule.MIDWAY, components: "int | str" = "auto",
                   incidence_correction: bool = False, fit_single_returns: bool = True,
                   smooth_k: int = 10, normal_k: int = 20,
                   min_cos: float = 0.2, noise_radius_cells: float = 10.0, noise_min_neighbours: int = 1,
@@ -133,7 +135,15 @@ def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod
     method : {'neighbourhood', 'echo', 'paper'}
         See :class:`ClassifyMethod` and the module docstring.
     rule : {'midway', 'equal_posterior'}
-        Leaf/wood threshold rule.
+        Leaf/wood threshold rule, between the wood Gaussian (the brightest)
+        and the leaf Gaussians (the others, pooled).
+    components : int >= 2, 'auto' or 'bic', default 'auto'
+        Gaussians fitted (:func:`fit_gaussians`).  ``'auto'`` keeps the
+        paper's two when they are separated (Ashman's D >= 2) and fits three
+        otherwise: then the two had split the skewed leaf mode, giving its
+        bright tail to the wood (docs/classify_register.md, *Two or three
+        Gaussians*).  ``2`` always fits the paper's two; ``'bic'`` lets the
+        Bayesian information criterion choose between two and three.
     incidence_correction : bool, default False
         Divide each echo's reflectance by its estimated incidence cosine
         (:func:`incidence_cosine`, ``normal_k`` neighbours, clamped at
@@ -178,6 +188,7 @@ def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod
     """
     method = ClassifyMethod.parse(method, "method")
     rule = ThresholdRule.parse(rule, "rule")
+    components = parse_components(components)
     check_scan(scan, min_points=30, require_reflectance=True)
     if method is ClassifyMethod.PAPER:
         if nominal_leaf_reflectance is None:
@@ -232,7 +243,7 @@ def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod
         single = np.asarray(scan.number_of_returns)[idx] == 1
         if np.count_nonzero(single) >= 10:
             fit = single
-    mix = fit_two_gaussians(value[fit])
+    mix = fit_gaussians(value[fit], components=components)
     t = leaf_wood_threshold(mix, rule=rule)
     feature = np.full(len(scan), np.nan)
     feature[idx] = value

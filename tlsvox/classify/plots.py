@@ -71,9 +71,10 @@ def plot_reflectance_histograms(results: list[Classification], path: "str | os.P
                     w = np.full(len(sel), 1.0 / (len(val) * (edges[1] - edges[0])))
                     ax.hist(sel, edges, histtype="step", color=col, weights=w, label=name)
         x = np.linspace(lo, hi, 400)
-        comp = c.mixture.component_pdf(x)
+        comp = c.mixture.leaf_wood_pdf(x)
+        n_leaf = c.mixture.n_components - 1
         scale = float(np.mean(val >= c.noise_threshold)) if paper and len(val) else 1.0
-        ax.plot(x, comp[:, 0] * scale, "g-", lw=1.5, label="leaf Gaussian")
+        ax.plot(x, comp[:, 0] * scale, "g-", lw=1.5, label="leaf Gaussian" if n_leaf == 1 else f"leaf Gaussians ({n_leaf}, summed)")
         ax.plot(x, comp[:, 1] * scale, "-", color="saddlebrown", lw=1.5, label="wood Gaussian")
         if paper:
             ax.axvline(c.noise_threshold, color="k", ls=":", label=f"noise {c.noise_threshold:.3f}")

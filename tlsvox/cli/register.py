@@ -36,8 +36,9 @@ and, for simulated scans, the error against the true pose).
 _CLASSIFY_HELP = """\
 Classify the echoes of each scan as leaf, wood, noise, ground or target.
 
-Per scan: a two-Gaussian fit to the reflectance of the vegetation echoes,
-leaf/wood threshold midway between the means (or at equal posterior),
+Per scan: a two-Gaussian fit to the reflectance of the vegetation echoes
+(three where the two overlap, --components), leaf/wood threshold midway
+between the leaf and wood means (or at equal posterior),
 optional geometric refinement of branch edges.  Methods (--method):
 neighbourhood (default) fits the mean dB reflectance of each echo and its
 10 nearest neighbours, on the echoes of single-echo pulses, and calls an
@@ -75,6 +76,10 @@ def register(subparsers) -> None:
     c.add_argument("-o", "--output", required=True, help="output folder")
     c.add_argument("--rule", default="midway", choices=[r.value for r in ThresholdRule],
                    help="leaf/wood threshold rule (default: midway, the paper's)")
+    c.add_argument("--components", default="auto", type=_components,
+                   help="Gaussians fitted to the reflectances: auto (default: the paper's 2, or 3 when the 2 "
+                        "overlap, Ashman's D < 2), 2, 3, or bic (the better of 2 and 3 by the Bayesian "
+                        "information criterion)")
     c.add_argument("--method", default="neighbourhood", choices=[m.value for m in ClassifyMethod],
                    help="classification method (default: neighbourhood)")
     c.add_argument("--incidence-correction", action="store_true",
@@ -118,6 +123,16 @@ def cmd_register(args) -> int:
     return 0
 
 
+def _components(text: str):
+    """argparse type of ``--components``: an integer >= 2, 'auto' or 'bic'."""
+    from tlsvox.classify._mixture import parse_components
+
+    try:
+        return parse_components(text if text.strip().lower() in ("auto", "bic") else int(text))
+    except (ValueError, InputError) as e:
+        raise argparse.ArgumentTypeError(f"{text!r}: give an integer >= 2, 'auto' or 'bic'") from e
+
+
 def cmd_classify(args) -> int:
     """Handler of ``tlsvox classify``."""
     from tlsvox.classify import classify_scan, score
@@ -133,7 +148,7 @@ def cmd_classify(args) -> int:
                   + [("--plot", args.plot)])
     check_figure_path("--plot", args.plot)
     scans = [read_any(p, scan_id=k, require_reflectance=True) for k, p in enumerate(args.scans)]
-    results = [classify_scan(s, method=args.method, rule=args.rule, refine=args.refine,
+    results = [classify_scan(s, method=args.method, rule=args.rule, components=args.components, refine=args.refine,
                              incidence_correction=args.incidence_correction, ground=not args.no_ground)
                for s in scans]
     doc = {"scans": []}
