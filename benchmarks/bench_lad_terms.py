@@ -85,28 +85,30 @@ ROOT = Path(__file__).resolve().parents[1]
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default="0.2,0.1")
+    only = ap.add_mutually_exclusive_group()  # each --*-only runs one table: two at once would run only the first
     ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "lad_terms.md"))
     ap.add_argument("--threshold-db", type=float, default=-60.0,
                     help="detection threshold of the extra rows that keep weak echoes (the VZ-400 preset: -20 dB)")
-    ap.add_argument("--threshold-only", action="store_true",
+    only.add_argument("--threshold-only", action="store_true",
                     help="only the detection-threshold table (docs/bench/lad_terms-threshold.md)")
     ap.add_argument("--threshold-out", default=str(ROOT / "docs" / "bench" / "lad_terms-threshold.md"))
     ap.add_argument("--iterations", type=int, default=4, help="undetected_iterations of the model rows")
-    ap.add_argument("--area-only", action="store_true",
+    only.add_argument("--area-only", action="store_true",
                     help="only the table of what is left at the floor and of the filled totals "
                          "(docs/bench/lad_terms-area.md)")
     ap.add_argument("--area-out", default=str(ROOT / "docs" / "bench" / "lad_terms-area.md"))
-    ap.add_argument("--fill-only", action="store_true",
+    only.add_argument("--fill-only", action="store_true",
                     help="only the table of the fills side by side (docs/bench/lad_terms-fill.md)")
     ap.add_argument("--fill-out", default=str(ROOT / "docs" / "bench" / "lad_terms-fill.md"))
-    ap.add_argument("--classes-only", action="store_true",
+    only.add_argument("--classes-only", action="store_true",
                     help="only the table of the classifier's errors (docs/bench/lad_terms-classes.md)")
     ap.add_argument("--classes-out", default=str(ROOT / "docs" / "bench" / "lad_terms-classes.md"))
-    ap.add_argument("--refine-only", action="store_true",
+    only.add_argument("--refine-only", action="store_true",
                     help="only the table of the classifier's refinement rules (docs/bench/lad_terms-refine.md)")
     ap.add_argument("--refine-out", default=str(ROOT / "docs" / "bench" / "lad_terms-refine.md"))
-    ap.add_argument("--components-only", action="store_true",
-                    help="only the two- against BIC-chosen Gaussian fits of the classifier (four oaks)")
+    only.add_argument("--components-only", action="store_true",
+                    help="only the classifier's two, auto and BIC-chosen Gaussian fits (five oaks; "
+                         "docs/bench/lad_terms-components.md)")
     ap.add_argument("--components-out", default=str(ROOT / "docs" / "bench" / "lad_terms-components.md"))
     args = ap.parse_args(argv)
     if args.components_only:

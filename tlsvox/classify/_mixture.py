@@ -205,7 +205,7 @@ def fit_gaussians(values, *, components: "int | str" = "auto", max_iter: int = 5
     ----------
     Dempster et al. (1977), doi:10.1111/j.2517-6161.1977.tb01600.x
     Schwarz (1978), doi:10.1214/aos/1176344136
-    Ashman, Bird, Zeileis (1994), doi:10.1080/01621459.1994.10476841
+    Ashman, Bird, Zepf (1994), doi:10.1086/117248
     """
     components = parse_components(components)
     x = _check_values(values)
