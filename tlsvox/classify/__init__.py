@@ -9,13 +9,13 @@ them against the truth labels of simulated scans.
     echo is ``R_material * cos(incidence) * hit_fraction``: two nuisance
     factors that multiply, so they add in dB, and averaging over a
     neighbourhood of one surface (a leaf cluster, a branch) shrinks their
-    spread while the material term stays.  Two Gaussians are fitted to the
+    spread while the material term stays.  Gaussians are fitted to the
     averaged dB values and split by the threshold rule.  Noise is geometric
     (:func:`isolated`): an echo with too few neighbours within a few scan
     grid spacings; dark echoes are partial hits, not noise.  The Gaussians
     are fitted to the echoes of single-echo pulses (full hits).
 ``echo``
-    The same per-echo: two Gaussians on the echo's own reflectance, geometric
+    The same per-echo: Gaussians on the echo's own reflectance, geometric
     noise; optionally divided by an estimated ``cos(incidence)``
     (``incidence_correction=True``, :func:`incidence_cosine`).
 ``paper``
@@ -24,10 +24,10 @@ them against the truth labels of simulated scans.
 1. Per scan (beam footprint, and so partial-hit statistics, differ between
    scan positions), fit two Gaussians to the reflectance distribution of the
    vegetation echoes (EM, maximum likelihood on the samples themselves):
-   leaves are darker than bark at 1550 nm.  When the two overlap (Ashman's
-   D < 2: they have split the leaves' skewed mode), three are fitted instead
-   (``components='auto'``, every method): the brightest Gaussian is the wood,
-   the others together the leaves (``_mixture``).
+   leaves are darker than bark at 1550 nm.  By default (``components='bic'``,
+   every method) three are fitted too and the Bayesian information criterion
+   keeps the better: the brightest Gaussian is the wood, the others together
+   the leaves, whose mode is skewed (``_mixture``).
 2. Leaf/wood threshold midway between the leaf and wood means (the paper's
    rule) or where the weighted leaf and wood densities are equal (the Bayes
    rule for the fitted mixture).

@@ -115,7 +115,7 @@ def _scan_step_deg(scan: Scan) -> float | None:
 
 
 def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod.NEIGHBOURHOOD,
-                  rule: "str | ThresholdRule" = ThresholdRule.MIDWAY, components: "int | str" = "auto",
+                  rule: "str | ThresholdRule" = ThresholdRule.MIDWAY, components: "int | str" = "bic",
                   incidence_correction: bool = False, fit_single_returns: bool = True,
                   smooth_k: int = 10, normal_k: int = 20,
                   min_cos: float = 0.2, noise_radius_cells: float = 10.0, noise_min_neighbours: int = 1,
@@ -137,13 +137,12 @@ def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod
     rule : {'midway', 'equal_posterior'}
         Leaf/wood threshold rule, between the wood Gaussian (the brightest)
         and the leaf Gaussians (the others, pooled).
-    components : int >= 2, 'auto' or 'bic', default 'auto'
-        Gaussians fitted (:func:`fit_gaussians`).  ``'auto'`` keeps the
-        paper's two when they are separated (Ashman's D >= 2) and fits three
-        otherwise: then the two had split the skewed leaf mode, giving its
-        bright tail to the wood (docs/classify_register.md, *Two or three
-        Gaussians*).  ``2`` always fits the paper's two; ``'bic'`` lets the
-        Bayesian information criterion choose between two and three.
+    components : int >= 2 or 'bic', default 'bic'
+        Gaussians fitted (:func:`fit_gaussians`).  ``'bic'`` fits two and
+        three and keeps the one the Bayesian information criterion prefers:
+        on a scan, three, so that the leaves' skewed mode cannot take the
+        wood's place (docs/classify_register.md, *Two or three Gaussians*).
+        ``2`` is the paper's fit.
     incidence_correction : bool, default False
         Divide each echo's reflectance by its estimated incidence cosine
         (:func:`incidence_cosine`, ``normal_k`` neighbours, clamped at
@@ -151,7 +150,7 @@ def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod
         from the cloud it lowers the scores on the synthetic truth
         (docs/classify_register.md).
     fit_single_returns : bool, default True
-        ``neighbourhood`` and ``echo``: fit the two Gaussians to the echoes of
+        ``neighbourhood`` and ``echo``: fit the Gaussians to the echoes of
         single-echo pulses only (when there are at least 10), then threshold
         every echo.  An echo of a multi-echo pulse carries only part of the
         beam, so its reflectance is lowered by an unknown fraction; full hits

@@ -36,8 +36,8 @@ and, for simulated scans, the error against the true pose).
 _CLASSIFY_HELP = """\
 Classify the echoes of each scan as leaf, wood, noise, ground or target.
 
-Per scan: a two-Gaussian fit to the reflectance of the vegetation echoes
-(three where the two overlap, --components), leaf/wood threshold midway
+Per scan: two or three Gaussians fitted to the reflectance of the vegetation
+echoes (chosen by BIC, --components), leaf/wood threshold midway
 between the leaf and wood means (or at equal posterior),
 optional geometric refinement of branch edges.  Methods (--method):
 neighbourhood (default) fits the mean dB reflectance of each echo and its
@@ -76,10 +76,9 @@ def register(subparsers) -> None:
     c.add_argument("-o", "--output", required=True, help="output folder")
     c.add_argument("--rule", default="midway", choices=[r.value for r in ThresholdRule],
                    help="leaf/wood threshold rule (default: midway, the paper's)")
-    c.add_argument("--components", default="auto", type=_components,
-                   help="Gaussians fitted to the reflectances: auto (default: the paper's 2, or 3 when the 2 "
-                        "overlap, Ashman's D < 2), 2, 3, or bic (the better of 2 and 3 by the Bayesian "
-                        "information criterion)")
+    c.add_argument("--components", default="bic", type=_components,
+                   help="Gaussians fitted to the reflectances: bic (default: the better of 2 and 3 by the "
+                        "Bayesian information criterion) or an integer >= 2 (2: the paper's fit)")
     c.add_argument("--method", default="neighbourhood", choices=[m.value for m in ClassifyMethod],
                    help="classification method (default: neighbourhood)")
     c.add_argument("--incidence-correction", action="store_true",
@@ -124,13 +123,13 @@ def cmd_register(args) -> int:
 
 
 def _components(text: str):
-    """argparse type of ``--components``: an integer >= 2, 'auto' or 'bic'."""
+    """argparse type of ``--components``: an integer >= 2 or 'bic'."""
     from tlsvox.classify._mixture import parse_components
 
     try:
-        return parse_components(text if text.strip().lower() in ("auto", "bic") else int(text))
-    except (ValueError, InputError) as e:
-        raise argparse.ArgumentTypeError(f"{text!r}: give an integer >= 2, 'auto' or 'bic'") from e
+        return parse_components(text)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(f"{text!r}: give an integer >= 2 or 'bic'") from e
 
 
 def cmd_classify(args) -> int:

@@ -66,14 +66,14 @@ def test_classify_command(toy_files, tmp_path, capsys):
     las = Scan.read(out / "A.classified.laz")
     assert len(las) == len(A)
     assert (out / "histograms.png").stat().st_size > 1000
-    assert doc["scans"][0]["components"] in (2, 3)  # the default: 2, or 3 where the 2 overlap
+    assert doc["scans"][0]["components"] in (2, 3)  # the default: chosen by BIC
     out2 = tmp_path / "cls2"
     assert run(["classify", str(d / "A.laz"), "-o", str(out2), "--components", "2"]) == 0
     assert json.loads((out2 / "classification.json").read_text())["scans"][0]["components"] == 2
     with pytest.raises(SystemExit) as e:
         run(["classify", str(d / "A.laz"), "-o", str(tmp_path / "cls3"), "--components", "one"])
     assert e.value.code == 2
-    assert "--components: 'one': give an integer >= 2, 'auto' or 'bic'" in capsys.readouterr().err
+    assert "--components: 'one': give an integer >= 2 or 'bic'" in capsys.readouterr().err
     assert not (tmp_path / "cls3").exists()
 
 
