@@ -476,6 +476,19 @@ def _label_errors(scans, labels):
     return ([(m == Material.BARK) & (c == PointClass.LEAF) for m, c in zip(mats, labels)],
             [(m == Material.LEAF) & (c != PointClass.LEAF) for m, c in zip(mats, labels)])
 
+def _classified_area(tree, scans, labels, azimuth, tracer, iterations):
+    """The refinement and mixture tables' row: the echoes ``labels`` get wrong (bark labelled leaf, leaves
+    labelled other) and the leaf area they give (total and seen-voxel scores) at 20 cm, -20 dB settings,
+    ``undetected='model'``, ``fill='calibrated'``."""
+    from tlsvox.voxel.voxlad import voxelize
+
+    bark, leaves = (sum(int(e.sum()) for e in errors) for errors in _label_errors(scans, labels))
+    res = voxelize(scans, voxel_size=0.2, classes=labels, class_codes="pointclass", leaf_angle="uniform",
+                   leaf_azimuth=azimuth, ground=0.0, layout="dense", progress=False, tracer=tracer,
+                   undetected="model", fill="calibrated", undetected_iterations=iterations)
+    return (bark, leaves, *_score(tree, res))
+
+
 def classes_table(args):
     """The default oak (seed 1) with the classifier's labels, the true ones, and each error alone."""
     from tlsvox.classify import PointClass
@@ -591,7 +604,6 @@ _REFINE_RULES = (("k 20, wood share >= 0.5, linearity >= 0.6 (the default)", {})
 def refine_table(args):
     """The geometric refinement's rules on four oaks (two held out): echo errors and leaf area."""
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
 
     load0 = os.getloadavg()
     t_all = time.perf_counter()
@@ -601,11 +613,7 @@ def refine_table(args):
         variants = [(name, _pipeline_labels(scans, **kw)) for name, kw in _REFINE_RULES]
         variants.append(("true classes", _true_labels(scans)))
         for name, lab in variants:
-            bark, leaves = (sum(int(e.sum()) for e in errors) for errors in _label_errors(scans, lab))
-            res = voxelize(scans, voxel_size=0.2, classes=lab, class_codes="pointclass", leaf_angle="uniform",
-                           leaf_azimuth=azimuth, ground=0.0, layout="dense", progress=False, tracer=tracer,
-                           undetected="model", fill="calibrated", undetected_iterations=args.iterations)
-            tot, seen = _score(tree, res)
+            bark, leaves, tot, seen = _classified_area(tree, scans, lab, azimuth, tracer, args.iterations)
             rows.append((label, name, bark, leaves, tot, seen))
             print(f"{label} / {name}: bark labelled leaf {bark:,}, leaves labelled other {leaves:,}; total "
                   f"{100 * tot['area_error']:+.1f} %, seen {100 * seen['area_error']:+.1f} %", flush=True)
@@ -629,7 +637,6 @@ def components_table(args):
     """Two Gaussians against the BIC-chosen two or three, on five oaks: thresholds, echo errors and leaf
     area."""
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
 
     load0 = os.getloadavg()
     t_all = time.perf_counter()
@@ -649,19 +656,9 @@ def components_table(args):
             fits = "; ".join(f"{c.mixture.n_components}: {c.leaf_wood_threshold:.2f} dB" for c in classes)
             variants.append((name, lab, fits))
         variants.append(("true classes", _true_labels(scans), "-"))
-        done = []
         for name, lab, fits in variants:
-            bark, leaves = (sum(int(e.sum()) for e in errors) for errors in _label_errors(scans, lab))
-            same = [row for row, labels in done if all(np.array_equal(a, b) for a, b in zip(labels, lab))]
-            if same:  # the same echo classes: the same leaf area (not voxelised again)
-                rows.append((label, name + f" (the labels of: {same[0][1]})", fits, bark, leaves, *same[0][5:]))
-                continue
-            res = voxelize(scans, voxel_size=0.2, classes=lab, class_codes="pointclass", leaf_angle="uniform",
-                           leaf_azimuth=azimuth, ground=0.0, layout="dense", progress=False, tracer=tracer,
-                           undetected="model", fill="calibrated", undetected_iterations=args.iterations)
-            tot, seen = _score(tree, res)
+            bark, leaves, tot, seen = _classified_area(tree, scans, lab, azimuth, tracer, args.iterations)
             rows.append((label, name, fits, bark, leaves, tot, seen))
-            done.append((rows[-1], lab))
             print(f"{label} / {name} [{fits}]: bark labelled leaf {bark:,}, leaves labelled other {leaves:,}; "
                   f"total {100 * tot['area_error']:+.1f} %, seen {100 * seen['area_error']:+.1f} %", flush=True)
     lines = _section("The classifier's mixture: two Gaussians or BIC's choice (synthetic oaks, 20 cm)",
