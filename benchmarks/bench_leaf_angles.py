@@ -27,6 +27,9 @@ figure of the crown histograms (``--png``).
 
 ``--seed`` picks another oak (``make_tree(..., seed=N)``), a held-out check of
 a method chosen on seed 0; its pages default to ``leaf_angles-seedN.*``.
+``--leaf-azimuth uniform`` gives the leaves random azimuths instead of the
+outward ones (``TreeParams.leaf_azimuth``), the deconvolution kernel's own
+assumption; its pages get ``-uniform-azimuth`` in their names.
 """
 
 from __future__ import annotations
@@ -76,19 +79,19 @@ def score(tree, res) -> list[dict]:
     return rows
 
 
-def run_kind(kind: str, *, seed: int = 0) -> dict:
+def run_kind(kind: str, *, seed: int = 0, leaf_azimuth: str = "outward") -> dict:
     from tlsvox.leafangles import measure_leaf_angles
     from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
 
     t0 = time.perf_counter()
-    tree = make_tree(TreeParams(leaf_angle=kind), seed=seed)
+    tree = make_tree(TreeParams(leaf_angle=kind, leaf_azimuth=leaf_azimuth), seed=seed)
     scans = [simulate_scan(tree, pose=pose, seed=10 + i, scan_id=i, progress=False)
              for i, pose in enumerate(paper_scan_poses(tree))]
     for s in scans:
         s.pose = s.pose_true
     t_scan = time.perf_counter() - t0
-    out = {"kind": kind, "seed": seed, "scan_s": round(t_scan, 1), "methods": {}}
+    out = {"kind": kind, "seed": seed, "leaf_azimuth": leaf_azimuth, "scan_s": round(t_scan, 1), "methods": {}}
     for method in METHODS:
         t1 = time.perf_counter()
         res = measure_leaf_angles(scans, layers=4, method=method)
@@ -105,13 +108,13 @@ def run_kind(kind: str, *, seed: int = 0) -> dict:
     return out
 
 
-def diagnostics(*, seed: int = 0) -> list[dict]:
+def diagnostics(*, seed: int = 0, leaf_azimuth: str = "outward") -> list[dict]:
     """Planophile oak, near scan only: pencil beams with and without range noise, and the real beam."""
     from tlsvox.leafangles import measure_leaf_angles
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
 
-    tree = make_tree(TreeParams(leaf_angle="planophile"), seed=seed)
+    tree = make_tree(TreeParams(leaf_angle="planophile", leaf_azimuth=leaf_azimuth), seed=seed)
     pose = paper_scan_poses(tree)[1]
     incl = np.degrees(np.arccos(np.abs(tree.leaf_normals[:, 2])))
     rows = []
@@ -149,14 +152,22 @@ def figure(results, path):
         ax.set_xlim(0, 90)
         ax.legend(fontsize=7, loc="upper center")
     np.atleast_1d(axes)[0].set_ylabel("leaf area density of inclination (1/deg)")
-    fig.suptitle("Leaf inclination of the synthetic oak: true vs measured from two TLS scans (whole crown)")
+    azimuths = " (leaf azimuths random)" if results and results[0].get("leaf_azimuth") == "uniform" else ""
+    fig.suptitle("Leaf inclination of the synthetic oak" + azimuths
+                 + ": true vs measured from two TLS scans (whole crown)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
 
-def markdown(results, diag, command, *, seed=0, png="leaf_angles.png") -> str:
-    lines = ["# Leaf angles measured from the scans" + (f" (held-out oak, seed {seed})" if seed else ""), "",
-             f"The synthetic oak (seed {seed}, 500 m2 of 5 x 2.5 cm leaves) with three true leaf inclination "
+def markdown(results, diag, command, *, seed=0, png="leaf_angles.png", leaf_azimuth="outward") -> str:
+    uniform_az = leaf_azimuth == "uniform"
+    title = "# Leaf angles measured from the scans" + (f" (held-out oak, seed {seed})" if seed else "")
+    if uniform_az:
+        title += " - leaves with random azimuths"
+    lines = [title, "",
+             f"The synthetic oak (seed {seed}, 500 m2 of 5 x 2.5 cm leaves, "
+             + ("normals' azimuths random: the deconvolution kernel's own assumption" if uniform_az
+                else "normals' azimuths pointing outwards from the crown centre") + ") with three true leaf inclination "
              "distributions, scanned from the paper's two positions by the simulated RIEGL VZ-400 (0.06 deg "
              "steps, 7-sub-ray beam, 5 mm range noise); `tlsvox.leafangles.measure_leaf_angles` on the leaf "
              "echoes, 4 crown layers. Truth: the tree's own leaf normals, per layer by leaf centre height. "
@@ -198,12 +209,15 @@ def main(argv=None):
     p.add_argument("--kinds", default=",".join(KINDS), help="true distributions (comma-separated)")
     p.add_argument("--diagnostics", action="store_true", help="add the pencil-beam cases (planophile, near scan)")
     p.add_argument("--seed", type=int, default=0, help="the oak's seed (make_tree); 0 is the one methods are chosen on")
+    p.add_argument("--leaf-azimuth", choices=("outward", "uniform"), default="outward",
+                   help="the leaves' normal azimuths (TreeParams.leaf_azimuth; default outward, the paper's oak)")
     p.add_argument("--out", help="Markdown page (default docs/bench/leaf_angles[-seedN].md)")
     p.add_argument("--json", help="every number (default docs/bench/leaf_angles[-seedN].json)")
     p.add_argument("--png", help="figure (default docs/img/leaf_angles[-seedN].png)")
     p.add_argument("--from-json", action="store_true", help="only redraw the table and figure from --json")
     args = p.parse_args(argv)
-    stem = "leaf_angles" + (f"-seed{args.seed}" if args.seed else "")
+    stem = ("leaf_angles" + (f"-seed{args.seed}" if args.seed else "")
+            + ("-uniform-azimuth" if args.leaf_azimuth == "uniform" else ""))
     args.out = args.out or str(ROOT / f"docs/bench/{stem}.md")
     args.json = args.json or str(ROOT / f"docs/bench/{stem}.json")
     args.png = args.png or str(ROOT / f"docs/img/{stem}.png")
@@ -211,15 +225,17 @@ def main(argv=None):
         doc = json.loads(Path(args.json).read_text())
         results, diag = doc["results"], doc["diagnostics"]
     else:
-        results = [run_kind(k, seed=args.seed) for k in args.kinds.split(",")]
-        diag = diagnostics(seed=args.seed) if args.diagnostics else []
+        results = [run_kind(k, seed=args.seed, leaf_azimuth=args.leaf_azimuth) for k in args.kinds.split(",")]
+        diag = diagnostics(seed=args.seed, leaf_azimuth=args.leaf_azimuth) if args.diagnostics else []
     seed = results[0].get("seed", 0) if results else args.seed
+    azimuth = results[0].get("leaf_azimuth", "outward") if results else args.leaf_azimuth
     command = ("python benchmarks/bench_leaf_angles.py" + (" --diagnostics" if args.diagnostics or diag else "")
-               + (f" --seed {seed}" if seed else ""))
+               + (f" --seed {seed}" if seed else "") + (" --leaf-azimuth uniform" if azimuth == "uniform" else ""))
     if not args.from_json:
         Path(args.json).write_text(json.dumps({"results": results, "diagnostics": diag}, indent=1) + "\n")
     figure(results, args.png)
-    Path(args.out).write_text(markdown(results, diag, command, seed=seed, png=Path(args.png).name))
+    Path(args.out).write_text(markdown(results, diag, command, seed=seed, png=Path(args.png).name,
+                                       leaf_azimuth=azimuth))
     print(f"wrote {args.out}, {args.json}, {args.png}")
 
 
