@@ -99,8 +99,7 @@ def fitted(c, scan):
 
 def main(argv=None):
     from tlsvox.classify import classify_scan, fit_two_gaussians, leaf_wood_threshold
-    from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
-    from tlsvox.truth.synthetic import TreeParams, make_tree
+    from bench_lad_terms import _oak_scans
     from voxlidar.materials import Material
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -108,17 +107,12 @@ def main(argv=None):
     args = ap.parse_args(argv)
     load0 = os.getloadavg()
     t_all = time.perf_counter()
-    preset = ScannerPreset.riegl_vz400(min_reflectance_db=-20.0)
     rows = []
     total = {}
     radius_rows = []
     for seed, azimuth, label in OAKS:
-        tree = make_tree(TreeParams(leaf_azimuth=azimuth, leaf_cluster_sigma=0.35), seed=seed)
-        scans = []
-        for i, pose in enumerate(paper_scan_poses(tree)):
-            scan = simulate_scan(tree, pose=pose, preset=preset, seed=10 + i, scan_id=i, progress=False)
-            scan.pose = scan.pose_true
-            scans.append(scan)
+        tree, scans = _oak_scans(azimuth, 0.35, -20.0, seed=seed)  # true poses, the VZ-400 at -20 dB
+        for i, scan in enumerate(scans):
             m = np.asarray(scan.truth_material)
             for method in ("neighbourhood", "echo", "paper"):
                 cells = []

@@ -476,6 +476,7 @@ def _label_errors(scans, labels):
     return ([(m == Material.BARK) & (c == PointClass.LEAF) for m, c in zip(mats, labels)],
             [(m == Material.LEAF) & (c != PointClass.LEAF) for m, c in zip(mats, labels)])
 
+
 def _classified_area(tree, scans, labels, azimuth, tracer, iterations):
     """The refinement and mixture tables' row: the echoes ``labels`` get wrong (bark labelled leaf, leaves
     labelled other) and the leaf area they give (total and seen-voxel scores) at 20 cm, -20 dB settings,
