@@ -10,8 +10,10 @@ scans' truth material), 4 crown layers, with both corrections:
 
 - ``weighted``: plane fits weighted by r^2 / |cos a| (fits with |cos a| < 0.2 dropped);
 - ``deconvolve`` (the default): the same, with the measurement simulated
-  (leaves scanned on the angular grid with the range noise, partly hidden
-  to the degree the scan's neighbour counts call for) and inverted (EM).
+  (leaves scanned on the angular grid by the scanner's beam with its sub-rays
+  and range noise, partly hidden, with second leaves behind them, facing
+  random azimuths or outwards) and inverted (EM) for the distribution
+  together with the shares of the occlusion levels and azimuth models.
 
 Scored against the tree's own leaf normals per layer (leaves by centre height):
 mean inclination, and the largest relative error of G(theta) of the fitted
@@ -28,8 +30,8 @@ figure of the crown histograms (``--png``).
 ``--seed`` picks another oak (``make_tree(..., seed=N)``), a held-out check of
 a method chosen on seed 0; its pages default to ``leaf_angles-seedN.*``.
 ``--leaf-azimuth uniform`` gives the leaves random azimuths instead of the
-outward ones (``TreeParams.leaf_azimuth``), the deconvolution kernel's own
-assumption; its pages get ``-uniform-azimuth`` in their names.
+outward ones (``TreeParams.leaf_azimuth``); its pages get
+``-uniform-azimuth`` in their names.
 """
 
 from __future__ import annotations
@@ -97,6 +99,9 @@ def run_kind(kind: str, *, seed: int = 0, leaf_azimuth: str = "outward") -> dict
         res = measure_leaf_angles(scans, layers=4, method=method)
         out["methods"][method] = {"seconds": round(time.perf_counter() - t1, 1), "rows": score(tree, res),
                                   "edges_deg": [float(v) for v in np.degrees(res.crown.edges)]}
+        if method == "deconvolve":
+            out["methods"][method].update({k: res.params[k] for k in ("azimuth_share", "crown_center_m",
+                                                                       "crown_center_from")})
     true_edges = np.radians(out["methods"]["weighted"]["edges_deg"])
     incl = np.arccos(np.abs(tree.leaf_normals[:, 2]))
     out["true_density"] = [float(v) for v in np.histogram(incl, true_edges, density=True)[0]]
@@ -159,6 +164,19 @@ def figure(results, path):
     fig.savefig(path, dpi=110)
 
 
+def azimuth_line(dec) -> str:
+    """The deconvolution's fitted azimuth-model shares per layer and the crown centre it used."""
+    shares = dec.get("azimuth_share")
+    if not shares:
+        return ""
+    per = "; ".join(f"layer {k + 1} " + ", ".join(f"{m} {v:.2f}" for m, v in s.items())
+                    for k, s in enumerate(shares) if s)
+    centre = dec.get("crown_center_m")
+    where = (f"crown centre ({centre[0]:.2f}, {centre[1]:.2f}) m from the {dec.get('crown_center_from')}"
+             if centre else f"no crown centre ({dec.get('crown_center_from')})")
+    return f"Azimuth-model shares fitted (deconvolve): {per}; {where}."
+
+
 def markdown(results, diag, command, *, seed=0, png="leaf_angles.png", leaf_azimuth="outward") -> str:
     uniform_az = leaf_azimuth == "uniform"
     title = "# Leaf angles measured from the scans" + (f" (held-out oak, seed {seed})" if seed else "")
@@ -166,7 +184,7 @@ def markdown(results, diag, command, *, seed=0, png="leaf_angles.png", leaf_azim
         title += " - leaves with random azimuths"
     lines = [title, "",
              f"The synthetic oak (seed {seed}, 500 m2 of 5 x 2.5 cm leaves, "
-             + ("normals' azimuths random: the deconvolution kernel's own assumption" if uniform_az
+             + ("normals' azimuths random" if uniform_az
                 else "normals' azimuths pointing outwards from the crown centre") + ") with three true leaf inclination "
              "distributions, scanned from the paper's two positions by the simulated RIEGL VZ-400 (0.06 deg "
              "steps, 7-sub-ray beam, 5 mm range noise); `tlsvox.leafangles.measure_leaf_angles` on the leaf "
@@ -176,15 +194,18 @@ def markdown(results, diag, command, *, seed=0, png="leaf_angles.png", leaf_azim
              "(the `LeafAngle` given to `voxelize`), G_true from the true model. Goals (issue 14): mean "
              "inclination within 5 deg, G within 5 %. Methods: `weighted` = plane fits weighted by "
              "r^2 / |cos a| (visibility; fits with |cos a| < 0.2 dropped); `deconvolve` (the default) = the "
-             "same histogram inverted through a simulation of the measurement (range noise, angular grid, "
-             "leaves partly hidden as the neighbour counts say), one per scan and crown layer; the crown "
+             "echoes' joint histogram of measured inclination, normal azimuth (from the outward direction) and "
+             "neighbour count inverted through a simulation of the measurement (the VZ-400 beam's 7 sub-rays, "
+             "range noise, angular grid, leaves partly hidden or with a second leaf behind, facing random "
+             "azimuths or outwards from the trunk), by EM for the distribution with the shares of the "
+             "occlusion levels (per scan and layer) and of the two azimuth models (per layer); the crown "
              "inverts all the layers' rows together.", "",
              f"Command: `{command}`", ""]
     for r in results:
         lines += [f"## {r['kind']}", "",
                   f"Scans {r['scan_s']} s; measurement " + ", ".join(
                       f"{m} {r['methods'][m]['seconds']} s" for m in METHODS) + f"; peak RSS {r['peak_rss_gib']} GiB.",
-                  "", "| layer | z (m) | echoes fitted | scanned zenith (deg) | true mean (deg) | "
+                  "", azimuth_line(r["methods"]["deconvolve"]), "", "| layer | z (m) | echoes fitted | scanned zenith (deg) | true mean (deg) | "
                   "weighted (deg) | deconvolve (deg) | G error weighted (%) | G error deconvolve (%) | "
                   "beta (mu, nu), deconvolve |", "|---|---|---|---|---|---|---|---|---|---|"]
         for rw, rd in zip(r["methods"]["weighted"]["rows"], r["methods"]["deconvolve"]["rows"]):

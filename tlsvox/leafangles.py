@@ -16,55 +16,51 @@ echoes' local geometry:
    is set by the errors along the beam (range noise, and echoes whose
    sub-rays met a leaf and whatever lies just behind or in front of it),
    which pile up normals perpendicular to the beam with the largest weights.
-3. **Plane-fit noise.**  At leaf scale the range noise (5 mm on the VZ-400,
-   along the beam) is comparable with the spread of a leaf's echoes (about
-   7 mm), so single normals scatter by tens of degrees and the weighted
-   histogram is biased towards the middle.  The default
-   (``method="deconvolve"``) models the measurement: for every true
-   inclination bin, leaves of that inclination (random azimuth and spin, of
-   ``leaf_size``) are scanned by the angular grid around sampled echoes (their
-   range and beam), with the instrument's range noise, and fitted, weighted
-   and dropped as the measured ones are.  Leaves in a crown are often seen
-   only in part (others hide the rest): each simulated leaf is cut by one or
-   two straight edges at one of seven occlusion levels (none, one edge at
-   four depths beyond its echo, two edges at two depths); a neighbourhood
-   can also span two leaves (28 % of the fits on the seed-0 oak's near
-   scan, counted by hand from the leaf each echo hit; their normals tens of
-   degrees off), so three more levels put a second leaf of the same
-   inclination bin just behind the first, seen where the first is cut or
-   ends (``second_leaf``).  The mix of
-   levels is the one whose neighbour counts match the data's own
-   (non-negative least squares, given the weighted histogram), a calibration
-   on the data, not on any truth.  All of this is done per scan and crown
-   layer: the echoes sampled, the groups of beam zenith angles and the
-   occlusion mix are the layer's own, since the upper layers are farther from
-   ground scanners, seen more steeply and more hidden.  That gives, per group,
-   the expected weighted histogram of unit leaf area of each true bin, and a
-   layer's leaf-area distribution is the EM (Richardson-Lucy) solution of
-   that linear model; the crown's is the one distribution that explains every
-   layer's groups together.  ``method="weighted"`` is step 2 alone.
+3. **The measurement, simulated and inverted** (``method="deconvolve"``, the
+   default).  At leaf scale the range noise (5 mm on the VZ-400, along the
+   beam) is comparable with the spread of a leaf's echoes (about 7 mm); a
+   wide beam's partial hits put the echo on the pulse's central direction;
+   sub-rays on a leaf and on what lies behind it merge into one echo between
+   the two (within the range resolution); and leaves are seen in part.  So
+   single normals scatter by tens of degrees and the weighted histogram is
+   biased.  The default models the measurement: for every true inclination
+   bin, leaves of that inclination are scanned in simulation around sampled
+   echoes (their range, beam and outward direction) on the scan's angular
+   grid by the instrument's beam (its sub-rays stop on the first leaf they
+   meet; each pulse gives one echo on its central direction at the
+   power-weighted mean range of its sub-rays' hits, with the range noise),
+   and fitted, weighted and dropped as the measured ones are.  Each simulated
+   leaf draws an occlusion level: whole, cut by one or two straight edges
+   (others hide part of it), or with a second leaf behind it in one of four
+   distance bands (0-2.5, 2.5-5, 5-10, 10-25 cm; ``second_leaf``); and it
+   faces a random azimuth or away from the crown centre (the trunk's axis,
+   :func:`trunk_center` of the wood echoes at its base; ``azimuth``).  An
+   echo's observation is its measured inclination bin, the azimuth of its
+   normal from the outward direction (4 classes) and its neighbour count
+   (7 classes), or the count alone when it has no fit.  The expected
+   histogram of the observations is linear in the leaf-area distribution for
+   given shares of the occlusion levels and azimuth models; the three are
+   fitted together by maximum likelihood (EM): a distribution per layer, an
+   occlusion mix per scan and layer, an azimuth mix per layer.  Everything
+   is simulated per scan and crown layer (the upper layers are farther from
+   ground scanners, seen more steeply and more hidden); the crown's
+   distribution is the one that explains every layer's rows together.
+   ``method="weighted"`` is step 2 alone.
 
-Accuracy (``benchmarks/bench_leaf_angles.py``, docs/bench/leaf_angles.md):
-on the oak's two VZ-400 scans (7-sub-ray beam, 5 mm range noise) the whole
-crown is measured at 44.3 deg for 45.0 (uniform), 28.7 for 26.7
-(planophile) and 64.1 for 63.2 (erectophile), G within 3.2 % over the
-scanned zenith angles; on a held-out oak (seed 1) 41.1, 27.1 and 61.4 deg
-(G 4.6, 1.6, 4.8 %).  Ten of the twelve layers on seed 0 and nine on
-seed 1 are within 5 deg and 5 %; the others miss by 5.0-11.5 deg or a G
-error of 6.1-9.2 % (layer 3 of the uniform and erectophile oaks on seed 0,
-read flat: leaves facing outwards are seen edge-on where inclination plus
-beam zenith is near 90 deg, which the random-azimuth kernel does not model;
-on seed 1 the sparse lowest layer and a layer 2).  Without the second-leaf
-levels: nine layers on each oak.  Without range noise (pencil beams) the
-deconvolution gives 25.7 deg for 26.7.
+Accuracy (``benchmarks/bench_leaf_angles.py``, docs/bench/leaf_angles*.md):
+on the oak's two VZ-400 scans (7-sub-ray beam, 5 mm range noise) with
+uniform, planophile and erectophile leaves, facing outwards (the paper's oak)
+or random azimuths, on two oaks (seeds 0 and 1), every crown's mean
+inclination is within 3.8 deg and its G within 4.1 % over the scanned
+zenith angles, and 45 of the 48 layers are within 5 deg and 5 %; the three
+others are planophile layers read 5.0-6.2 deg steep (flat leaves read 2.7 to
+3.8 deg steep on all four oaks, pencil beams included).  The fitted azimuth
+shares pick the right model (outward 0.88-0.98 on the outward oaks, uniform
+0.66-0.82 on the random ones).  Two scans take 90-110 s (2 cores).
 
-**Limit: leaves facing random azimuths.**  The kernel's pencil beams miss
-the scanner's 7-sub-ray beam, whose partial hits and echoes merged across a
-leaf and what lies behind it read flat leaves about 9 deg steep, and its
-random azimuths miss the oak's outward-facing leaves, which read them about
-5 deg flat; on the paper's oak the two offset.  On an oak whose leaves face
-random azimuths the planophile crown reads 37.0 and 35.4 deg for 26.7
-(docs/bench/leaf_angles-uniform-azimuth.md, docs/voxelize.md).
+**Limits.**  One trunk: the outward model faces leaves away from one vertical
+axis.  The simulated leaves are flat ellipses of ``leaf_size``, and a second
+leaf behind the first has the first's inclination bin.
 
 The crown is cut into ``layers`` equal-height layers between the 1st and 99th
 height percentiles of the leaf echoes; every layer gets its histogram, mean
@@ -84,6 +80,8 @@ References
 Goel, N. S. & Strebel, D. E. (1984). Simple beta distribution representation
     of leaf orientation in vegetation canopies. Agronomy Journal 76(5), 800-802.
     doi:10.2134/agronj1984.00021962007600050021x
+Kasa, I. (1976). A circle fitting procedure and its error analysis. IEEE
+    Transactions on Instrumentation and Measurement 25(1), 8-14.
 Richardson, W. H. (1972). Bayesian-based iterative method of image
     restoration. JOSA 62(1), 55-59. doi:10.1364/JOSA.62.000055
 Bailey, B. N. & Mahaffee, W. F. (2017). Rapid measurement of the
@@ -103,7 +101,7 @@ from voxlidar.choices import Choice
 from voxlidar.leafangle import LeafAngle, ross_kernel
 
 __all__ = ["LeafAngleMethod", "LayerLeafAngles", "LeafAngleMeasurement", "measure_leaf_angles", "fit_beta",
-           "histogram_G"]
+           "histogram_G", "trunk_center"]
 
 HALF_PI = 0.5 * np.pi
 #: occlusion levels of the simulated leaves: each of two straight cuts (random directions) hiding part of
@@ -115,6 +113,10 @@ _CUTS = np.array([[1e9, 1e9, 1e9, 1e9], [0.5, 1.0, 1e9, 1e9], [0.25, 0.5, 1e9, 1
 #: another leaf of the same inclination bin (random azimuth) just behind it, seen in the gaps the first
 #: leaf's outline and cut leave, so that some neighbourhoods hold echoes of two leaves
 _SECOND_CUTS = np.array([[1e9, 1e9, 1e9, 1e9], [0.25, 0.5, 1e9, 1e9], [0.0, 0.1, 1e9, 1e9]])
+#: distance bands (metres behind the first leaf, along the beam) of the second leaf's plane
+_BANDS = np.array([[0.0, 0.025], [0.025, 0.05], [0.05, 0.1], [0.1, 0.25]])
+#: neighbour-count classes of the observations (counts from each edge up to the next)
+_COUNT_EDGES = (0, 5, 8, 11, 15, 20, 27)
 _MAX_COUNT = 40
 
 
@@ -302,6 +304,35 @@ def _inclination_bin(nrm, n_bins):
     return np.minimum((t / HALF_PI * n_bins).astype(np.int64), n_bins - 1)
 
 
+def _azimuth_class(nrm, outward, n_classes):
+    """Class of the angle between a normal's horizontal part and the outward direction: 0 facing out."""
+    if n_classes == 1:
+        return np.zeros(len(nrm), np.int64)
+    h = np.maximum(np.linalg.norm(nrm[:, :2], axis=1), 1e-12)
+    c = (nrm[:, 0] * outward[:, 0] + nrm[:, 1] * outward[:, 1]) / h
+    return np.minimum((np.arccos(np.clip(c, -1.0, 1.0)) / np.pi * n_classes).astype(np.int64), n_classes - 1)
+
+
+def _columns(fitted, meas_bin, az_class, count, *, n_bins, n_azimuth, count_edges):
+    """Observation column of each echo: (measured bin, azimuth class, count class) for a plane fit, else the
+    count class alone in the last ``len(count_edges)`` columns."""
+    n_count = len(count_edges)
+    cc = np.searchsorted(np.asarray(count_edges), count, side="right") - 1
+    return np.where(fitted, (meas_bin * n_azimuth + az_class) * n_count + cc, n_bins * n_azimuth * n_count + cc)
+
+
+def _n_columns(n_bins, n_azimuth, count_edges):
+    return (n_bins * n_azimuth + 1) * len(count_edges)
+
+
+def _measured_bins(kernel, n_bins, n_azimuth=1, count_edges=None):
+    """Sum a kernel's observation columns over azimuth and count classes: (..., n_bins) per measured bin
+    (echoes without a plane fit left out)."""
+    n_count = len(_COUNT_EDGES if count_edges is None else count_edges)
+    fit = kernel[..., :n_bins * n_azimuth * n_count]
+    return fit.reshape(fit.shape[:-1] + (n_bins, n_azimuth * n_count)).sum(axis=-1)
+
+
 @dataclass
 class _ScanFits:
     """Plane fits of one scan's leaf echoes (every echo; ``ok`` marks those with a fit)."""
@@ -312,11 +343,15 @@ class _ScanFits:
     count: np.ndarray  # (n,) echoes within the radius, itself included
     ok: np.ndarray  # (n,) bool, a plane fit
     theta: np.ndarray  # (n,) beam zenith angle, folded to [0, pi/2]
-    weight: np.ndarray  # (n,) r^2 / max(|n . d|, cap), the visibility weight (|n . d| >= cap where ok)
+    weight: np.ndarray  # (n,) r^2 / max(|n . d|, cap) with a fit (|n . d| >= cap), r^2 without
     meas_bin: np.ndarray  # (n,) measured inclination bin
+    outward: np.ndarray  # (n, 2) unit horizontal direction from the crown centre (zeros without a centre)
+    column: np.ndarray  # (n,) observation column (see _columns)
 
 
-def _fit_scan(xyz, origin, *, radius, min_points, min_spread, n_bins, cap):
+def _fit_scan(xyz, origin, *, radius, min_points, min_spread, n_bins, cap, centre=None, n_azimuth=1,
+              count_edges=None):
+    count_edges = _COUNT_EDGES if count_edges is None else count_edges
     d = xyz - origin
     r = np.linalg.norm(d, axis=1)
     d = d / r[:, None]
@@ -324,45 +359,82 @@ def _fit_scan(xyz, origin, *, radius, min_points, min_spread, n_bins, cap):
     nrm, cnt, _, spread = _normals(xyz[J], I, len(xyz))
     cos_a = np.abs(np.einsum("ij,ij->i", nrm, d))
     ok = (cnt >= min_points) & (spread >= min_spread) & (cos_a >= cap)
-    return _ScanFits(z=xyz[:, 2], r=r, d=d, count=cnt.astype(np.int64), ok=ok, theta=np.arccos(np.abs(d[:, 2])),
-                     weight=r * r / np.maximum(cos_a, cap), meas_bin=_inclination_bin(nrm, n_bins))
+    outward = np.zeros((len(xyz), 2))
+    if centre is not None:
+        outward = xyz[:, :2] - np.asarray(centre, float)[None, :2]
+        outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-9)
+    meas_bin = _inclination_bin(nrm, n_bins)
+    count = cnt.astype(np.int64)
+    column = _columns(ok, meas_bin, _azimuth_class(nrm, outward, n_azimuth), count, n_bins=n_bins,
+                      n_azimuth=n_azimuth, count_edges=count_edges)
+    return _ScanFits(z=xyz[:, 2], r=r, d=d, count=count, ok=ok, theta=np.arccos(np.abs(d[:, 2])),
+                     weight=np.where(ok, r * r / np.maximum(cos_a, cap), r * r), meas_bin=meas_bin, outward=outward,
+                     column=column)
+
+
+def trunk_center(wood_xyz, *, low: float = 0.3, high: float = 1.3):
+    """The trunk's axis (x, y) and radius from wood echoes near its base.
+
+    A circle fitted by least squares (Kasa 1976) to the wood echoes between
+    ``low`` and ``high`` metres above their 1st height percentile, refitted
+    without the echoes more than three median deviations off the circle
+    (branches, mislabelled ground) until the kept ones stay the same.
+
+    Returns
+    -------
+    centre : (2,) float, metres, or None
+        None when fewer than 30 echoes lie in the slice or the fit is not a
+        trunk (radius outside 1 cm - 3 m).
+    radius : float, metres (nan with no centre)
+    """
+    wood_xyz = np.asarray(wood_xyz, float).reshape(-1, 3)
+    if len(wood_xyz) < 30:
+        return None, float("nan")
+    z0 = np.percentile(wood_xyz[:, 2], 1)
+    sel = wood_xyz[(wood_xyz[:, 2] > z0 + low) & (wood_xyz[:, 2] < z0 + high)][:, :2]
+    keep = np.ones(len(sel), bool)
+    for _ in range(20):
+        if keep.sum() < 30:
+            return None, float("nan")
+        M = np.column_stack([sel[keep], np.ones(keep.sum())])
+        c = np.linalg.lstsq(M, (sel[keep] ** 2).sum(axis=1), rcond=None)[0]
+        centre = 0.5 * c[:2]
+        rad = float(np.sqrt(max(c[2] + centre @ centre, 0.0)))
+        off = np.abs(np.linalg.norm(sel - centre, axis=1) - rad)
+        new = off <= 3.0 * max(np.median(off[keep]), 1e-3)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    if not 0.01 <= rad <= 3.0:
+        return None, float("nan")
+    return centre, rad
 
 
 def _layer_rows(f, sel, *, n_bins, n_groups, max_sim, rng, **sim):
-    """The deconvolution rows of one scan's echoes ``sel`` (one crown layer): (histogram, kernel) per group.
+    """The observation rows of one scan's echoes ``sel`` (one crown layer): (histogram, kernel) per group.
 
-    The kernel is simulated for echoes sampled from ``sel`` (their ranges and
-    beams), the groups are quantiles of their beam zenith angles, and the mix
-    of occlusion levels is the one whose neighbour counts match those of
-    ``sel`` (non-negative least squares, given the weighted histogram).
-    Returns the rows and the mix (None when ``sel`` has no fit).
+    The kernel is simulated for echoes sampled from ``sel`` (their ranges,
+    beams and outward directions) and the groups are quantiles of the beam
+    zenith angles of the fitted ones.  Each row holds the weighted histogram
+    of the group's echoes over the observation columns and the kernel
+    ``(azimuth models, levels, true bins, columns)``.
     """
     fit = sel & f.ok
     if not fit.any():
-        return [], None
+        return []
     q = np.quantile(f.theta[fit], np.linspace(0, 1, n_groups + 1))
     group = np.clip(np.searchsorted(q[1:-1], f.theta, side="right"), 0, n_groups - 1)
     every = np.flatnonzero(sel)
     sub = every if len(every) <= max_sim else np.sort(rng.choice(every, max_sim, replace=False))
-    kernels, counts = _simulate_kernel(f.r[sub], f.d[sub], group[sub], n_bins=n_bins, n_groups=n_groups, rng=rng,
-                                       **sim)
-    prior = np.bincount(f.meas_bin[fit], weights=f.weight[fit], minlength=n_bins)
-    prior /= prior.sum()
-    pred = np.einsum("b,lbc->lc", prior, counts)
-    pred /= np.maximum(pred.sum(axis=1, keepdims=True), 1e-300)
-    seen = np.bincount(np.minimum(f.count[sel], _MAX_COUNT - 1), minlength=_MAX_COUNT).astype(float)
-    seen /= seen.sum()
-    from scipy.optimize import nnls
-
-    mix = nnls(pred.T, seen)[0]
-    mix = mix / mix.sum() if mix.sum() > 0 else np.eye(len(mix))[0]
-    kernel = np.einsum("l,lgbm->gbm", mix, kernels)
+    kernels, _ = _simulate_kernel(f.r[sub], f.d[sub], group[sub], f.outward[sub], n_bins=n_bins, n_groups=n_groups,
+                                  rng=rng, **sim)
     rows = []
     for g in range(n_groups):
-        m = fit & (group == g)
-        if m.any() and kernel[g].sum() > 0:  # far echoes whose simulated leaves never get a fit: no row
-            rows.append((np.bincount(f.meas_bin[m], weights=f.weight[m], minlength=n_bins), kernel[g]))
-    return rows, mix
+        m = sel & (group == g)
+        h = np.bincount(f.column[m], weights=f.weight[m], minlength=kernels.shape[-1])
+        if h.sum() > 0 and kernels[:, :, g].sum() > 0:  # far echoes whose simulated leaves never get a fit: no row
+            rows.append((h, kernels[:, :, g]))
+    return rows
 
 
 def _leaf_axes(normal, spin):
@@ -374,32 +446,56 @@ def _leaf_axes(normal, spin):
     return major, np.cross(normal, major)
 
 
-def _simulate_kernel(r, d, group, *, step, leaf_size, radius, min_points, min_spread, n_bins, n_groups, range_noise,
-                     samples, cap, rng, second_leaf: bool = False, max_offsets: int = 10):
-    """The weighted estimator's histogram for unit leaf area of each true inclination bin.
+def _levels(second_leaf):
+    """Occlusion levels: (cuts (L, 4), second-leaf band (L, 2) in metres behind the first, nan for none)."""
+    if not second_leaf:
+        return _CUTS, np.full((len(_CUTS), 2), np.nan)
+    cuts = np.concatenate([_CUTS] + [_SECOND_CUTS] * len(_BANDS))
+    band = np.concatenate([np.full((len(_CUTS), 2), np.nan)] + [np.repeat(b[None], len(_SECOND_CUTS), 0)
+                                                                for b in _BANDS])
+    return cuts, band
 
-    For each sampled echo (range ``r``, unit beam ``d``) and true bin: a leaf
-    (an ellipse ``leaf_size`` x ``leaf_size/2``, random azimuth and spin, the
-    echo at a random point of it) of that inclination is scanned by the beams
-    of the angular grid around the echo (``step`` = zenith and azimuth steps,
-    radians), with Gaussian range noise; the echoes within ``radius`` of the
-    centre echo are fitted as the measured ones are.  The leaf is hit in
-    proportion to its true ``|cos a|`` and the fit is weighted by
-    ``1 / measured |cos a|`` and dropped below ``cap``, as the measured fits are.
-    Each simulated leaf draws one of the occlusion levels ``_CUTS`` and, with
-    ``second_leaf``, also those of ``_SECOND_CUTS``, where a second leaf of the
-    same inclination bin (random azimuth, spin and position, its plane
-    crossing the centre beam up to half a leaf length behind the echo) gives
-    the echoes of the beams that miss the first leaf or meet it behind the
-    second: neighbourhoods that span two leaves.
+
+def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min_points, min_spread, n_bins,
+                     n_groups, range_noise, samples, cap, rng, second_leaf: bool = True, azimuths=("uniform",),
+                     n_azimuth: int = 1, count_edges=None, max_offsets: int = 10):
+    """The expected observation histogram of unit leaf area of each true inclination bin.
+
+    For each sampled echo (range ``r``, unit beam ``d``, outward direction
+    ``outward``) and true bin: a leaf (an ellipse ``leaf_size`` x
+    ``leaf_size/2``, random spin, the echo at a random point of it) of that
+    inclination, facing a random azimuth (``"uniform"``) or away from the
+    crown centre (``"outward"``), is scanned by the pulses of the angular grid
+    around the echo (``step`` = zenith and azimuth steps, radians).  Each pulse
+    is the instrument's beam ``beam = (exit radius m, half divergence rad,
+    sub-rays)``: its sub-rays (:func:`tlsvox.truth.scanner.subray_pattern`,
+    the pattern turned at random per pulse) stop on the first leaf they meet
+    and the pulse gives one echo on its central ray at the power-weighted
+    (|cos|) mean range of its sub-rays' hits, with Gaussian range noise.  The
+    echoes within ``radius`` of the centre echo are fitted as the measured ones
+    are; the leaf is hit in proportion to its true ``|cos a|``; a fit weighs
+    ``1 / measured |cos a|`` (dropped below ``cap``), an echo without a fit 1,
+    as the measured ones do.  Each simulated leaf draws one occlusion level
+    (:func:`_levels`): straight cuts hide part of it (``_CUTS``) and, with
+    ``second_leaf``, another leaf of the same inclination bin and azimuth
+    model crosses the centre beam in one of the distance bands ``_BANDS``
+    behind the first, seen where the first is cut or ends or is partly hit.
 
     Returns
     -------
-    kernel : (levels, n_groups, B, B) float
-        ``kernel[l, g, true, measured]``, per unit area of the true bin.
+    kernel : (models, levels, n_groups, B, columns) float
+        Per azimuth model, level, group and true bin, the expected weight per
+        simulated leaf in each observation column (:func:`_columns`).
     counts : (levels, B, _MAX_COUNT) float
         Hit-weighted distribution of the neighbour counts per level and bin.
     """
+    from tlsvox.truth.scanner import subray_pattern
+
+    count_edges = _COUNT_EDGES if count_edges is None else count_edges
+    exit_r, half_div, n_sub = beam
+    sub_r, sub_a = subray_pattern(int(n_sub))
+    cuts, band = _levels(second_leaf)
+    n_lev = len(cuts)
     dz, da = step
     zen = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
     e_a = np.column_stack([-d[:, 1], d[:, 0], np.zeros(len(d))])
@@ -413,108 +509,146 @@ def _simulate_kernel(r, d, group, *, step, leaf_size, radius, min_points, min_sp
     rays = (d[:, None, :] + i[None, :, None] * dz * e_z[:, None, :]
             + (k[None, :] * da * np.maximum(np.sin(zen), 1e-3)[:, None])[:, :, None] * e_a[:, None, :])
     rays /= np.linalg.norm(rays, axis=2, keepdims=True)  # (S, P, 3)
-    n = len(r)
-    cuts = np.concatenate([_CUTS, _SECOND_CUTS]) if second_leaf else _CUTS
-    with_second = np.arange(len(cuts)) >= len(_CUTS)
-    n_lev = len(cuts)
-    kernel = np.zeros((n_lev, n_groups, n_bins, n_bins))
-    n_sim = np.zeros((n_lev, n_groups, n_bins))
+    n, n_pulse = len(r), len(i)
+    width = exit_r + half_div * r  # beam radius at the echo, (S,)
+    n_col = _n_columns(n_bins, n_azimuth, count_edges)
+    kernel = np.zeros((len(azimuths), n_lev, n_groups, n_bins, n_col))
+    n_sim = np.zeros((len(azimuths), n_lev, n_groups, n_bins))
     counts = np.zeros((n_lev, n_bins, _MAX_COUNT))
-    n_lev = np.zeros((n_lev, n_bins))
+    n_cnt = np.zeros((n_lev, n_bins))
     half_len, half_wid = 0.5 * leaf_size, 0.25 * leaf_size
-    for b in range(n_bins):
-        for _ in range(samples):
-            t = (b + rng.random(n)) * HALF_PI / n_bins
-            phi = rng.uniform(0.0, 2 * np.pi, n)
-            nt = np.column_stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.cos(t)])
-            cos_true = np.einsum("ij,ij->i", nt, d)
-            # the leaf: axes in its plane, the centre echo at a random point of the ellipse
-            major, minor = _leaf_axes(nt, rng.uniform(0.0, 2 * np.pi, n))
-            rho, beta = np.sqrt(rng.random(n)), rng.uniform(0.0, 2 * np.pi, n)
-            off_a, off_b = rho * np.cos(beta) * half_len, rho * np.sin(beta) * half_wid
-            den = np.einsum("spc,sc->sp", rays, nt)
-            ok = np.sign(den) == np.sign(cos_true)[:, None]
-            s = (r * cos_true)[:, None] / np.where(ok & (np.abs(den) > 1e-9), den, 1.0)
-            rel = rays * s[:, :, None] - (d * r[:, None])[:, None, :]  # from the centre echo, in the plane
-            ea = np.einsum("spc,sc->sp", rel, major) + off_a[:, None]
-            eb = np.einsum("spc,sc->sp", rel, minor) + off_b[:, None]
-            hit = ok & ((ea / half_len) ** 2 + (eb / half_wid) ** 2 <= 1.0)
-            # the part of the leaf hidden by others: a straight cut at a distance beyond the centre echo
-            # set by the occlusion level (level 0: the whole leaf is seen)
-            level = rng.integers(0, len(cuts), n)
-            for c0 in range(0, cuts.shape[1], 2):
-                gam = rng.uniform(0.0, 2 * np.pi, n)
-                proj = np.cos(gam)[:, None] * ea / half_len + np.sin(gam)[:, None] * eb / half_wid
-                beyond = proj[:, centre] + rng.uniform(cuts[level, c0], cuts[level, c0 + 1])
-                hit &= proj <= beyond[:, None]
-            if second_leaf:
-                # the second leaf: its plane crosses the centre beam up to half a leaf length behind the echo
-                t2 = (b + rng.random(n)) * HALF_PI / n_bins
-                phi2 = rng.uniform(0.0, 2 * np.pi, n)
-                n2 = np.column_stack([np.sin(t2) * np.cos(phi2), np.sin(t2) * np.sin(phi2), np.cos(t2)])
-                q = d * (r + rng.uniform(0.0, half_len, n))[:, None]
-                major2, minor2 = _leaf_axes(n2, rng.uniform(0.0, 2 * np.pi, n))
-                rho2, beta2 = np.sqrt(rng.random(n)), rng.uniform(0.0, 2 * np.pi, n)
-                # drawn for every sample (the same random stream whatever the levels), traced for those
-                # whose level has a second leaf
-                two = np.flatnonzero(with_second[level])
+    out_phi = np.arctan2(outward[:, 1], outward[:, 0])
+
+    def dot(a, b):
+        return np.einsum("ij,ij->i", a, b)
+
+    def leaf(b, model):
+        """Normals, axes and the echo's offset in the leaf (units of half-axes) of n leaves of bin b."""
+        t = (b + rng.random(n)) * HALF_PI / n_bins
+        phi = out_phi if model == "outward" else rng.uniform(0.0, 2 * np.pi, n)
+        nt = np.column_stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.cos(t)])
+        major, minor = _leaf_axes(nt, rng.uniform(0.0, 2 * np.pi, n))
+        rho, beta = np.sqrt(rng.random(n)), rng.uniform(0.0, 2 * np.pi, n)
+        return nt, major, minor, rho * np.cos(beta), rho * np.sin(beta)
+
+    def trace(idx, nt, major, minor, off_a, off_b, point, c1, c2):
+        """Sub-ray hits of the pulses ``idx`` on the leaves (nt, ...) whose plane holds ``point`` (S, 3):
+        (range along each sub-ray (S, P, K), inside the ellipse (S, P, K), |cos| (S, P), leaf coordinates of
+        the pulses' central rays in half-axes (S, P) x 2)."""
+        den = np.einsum("spc,sc->sp", rays[idx], nt)
+        sden = np.where(np.abs(den) > 1e-9, den, 1.0)
+        s = dot(point, nt)[:, None] / sden
+        rel = rays[idx] * s[:, :, None] - point[:, None, :]
+        ea = np.einsum("spc,sc->sp", rel, major) / half_len + off_a[:, None]
+        eb = np.einsum("spc,sc->sp", rel, minor) / half_wid + off_b[:, None]
+        # a sub-ray offset (c1, c2) across the beam meets the plane tau further along the beam
+        tau = -(c1 * dot(e_a[idx], nt)[:, None, None] + c2 * dot(e_z[idx], nt)[:, None, None]) / sden[:, :, None]
+
+        def coord(axis, at, half):
+            return at[:, :, None] + (c1 * dot(e_a[idx], axis)[:, None, None] + c2 * dot(e_z[idx], axis)[:, None, None]
+                                     + tau * dot(d[idx], axis)[:, None, None]) / half
+
+        sa, sb = coord(major, ea, half_len), coord(minor, eb, half_wid)
+        t_sub = s[:, :, None] + tau
+        inside = (np.abs(den) > 1e-9)[:, :, None] & (t_sub > 0) & (sa * sa + sb * sb <= 1.0)
+        return t_sub, inside, np.abs(den), ea, eb, sa, sb
+
+    everyone = np.arange(n)
+    for a, model in enumerate(azimuths):
+        for b in range(n_bins):
+            for _ in range(samples):
+                nt, major, minor, off_a, off_b = leaf(b, model)
+                cos_true = dot(nt, d)
+                turn = sub_a[None, None, :] + rng.uniform(0.0, 2 * np.pi, (n, n_pulse, 1))
+                c1 = width[:, None, None] * sub_r[None, None, :] * np.cos(turn)
+                c2 = width[:, None, None] * sub_r[None, None, :] * np.sin(turn)
+                t_sub, hit, cos1, ea, eb, sa, sb = trace(everyone, nt, major, minor, off_a, off_b, d * r[:, None],
+                                                         c1, c2)
+                # the part of the leaf hidden by others: straight cuts at distances beyond the centre echo set
+                # by the occlusion level (level 0: the whole leaf is seen)
+                level = rng.integers(0, n_lev, n)
+                for c0 in range(0, cuts.shape[1], 2):
+                    gam = rng.uniform(0.0, 2 * np.pi, n)
+                    cg, sg = np.cos(gam)[:, None, None], np.sin(gam)[:, None, None]
+                    beyond = (cg[:, 0, 0] * ea[:, centre] + sg[:, 0, 0] * eb[:, centre]
+                              + rng.uniform(cuts[level, c0], cuts[level, c0 + 1]))
+                    hit &= cg * sa + sg * sb <= beyond[:, None, None]
+                hit[:, centre, 0] = True  # the sampled echo: the centre pulse's central sub-ray on the leaf
+                power = np.where(hit, cos1[:, :, None], 0.0)
+                # the second leaf, drawn for every sample (the same random stream whatever the levels)
+                n2, major2, minor2, off_a2, off_b2 = leaf(b, model)
+                lo, hi = np.nan_to_num(band[level, 0]), np.nan_to_num(band[level, 1])
+                behind = d * (r + rng.uniform(lo, hi))[:, None]
+                two = np.flatnonzero(np.isfinite(band[level, 0]))
                 if len(two):
-                    ray2, n2, q = rays[two], n2[two], q[two]
-                    den2 = np.einsum("spc,sc->sp", ray2, n2)
-                    s2 = np.einsum("sc,sc->s", q, n2)[:, None] / np.where(np.abs(den2) > 1e-9, den2, 1.0)
-                    rel2 = ray2 * s2[:, :, None] - q[:, None, :]
-                    ea2 = (np.einsum("spc,sc->sp", rel2, major2[two])
-                           + (rho2[two] * np.cos(beta2[two]) * half_len)[:, None])
-                    eb2 = (np.einsum("spc,sc->sp", rel2, minor2[two])
-                           + (rho2[two] * np.sin(beta2[two]) * half_wid)[:, None])
-                    hit2 = (np.abs(den2) > 1e-9) & (s2 > 0) & ((ea2 / half_len) ** 2 + (eb2 / half_wid) ** 2 <= 1.0)
-                    use2 = hit2 & ~(hit[two] & (s[two] <= s2))  # the nearer leaf gives the echo
-                    s[two] = np.where(use2, s2, s[two])
+                    t2, hit2, cos2, *_ = trace(two, n2[two], major2[two], minor2[two], off_a2[two], off_b2[two],
+                                               behind[two], c1[two], c2[two])
+                    use2 = hit2 & ~(hit[two] & (t_sub[two] <= t2))  # each sub-ray stops on the nearer leaf
+                    t_sub[two] = np.where(use2, t2, t_sub[two])
+                    power[two] = np.where(use2, cos2[:, :, None], power[two])
                     hit[two] |= hit2
-            s_noisy = s + rng.normal(0.0, range_noise, s.shape)
-            pts = rays * s_noisy[:, :, None]  # relative to the scanner
-            near = hit & (np.linalg.norm(pts - pts[:, centre:centre + 1, :], axis=2) <= radius)
-            cnt = near.sum(axis=1)
-            wgt = near / np.maximum(cnt, 1)[:, None]
-            mean = np.einsum("sp,spc->sc", wgt, pts)
-            dev = pts - mean[:, None, :]
-            cov = np.einsum("sp,spa,spb->sab", wgt, dev, dev)
-            val, vec = np.linalg.eigh(cov)
-            nrm = vec[:, :, 0]
-            nrm = nrm * np.where(nrm[:, 2:3] < 0, -1.0, 1.0)
-            cos_m = np.abs(np.einsum("ij,ij->i", nrm, d))
-            fitted = (cnt >= min_points) & (np.sqrt(np.clip(val[:, 1], 0.0, None)) >= min_spread) & (cos_m >= cap)
-            mb = _inclination_bin(nrm, n_bins)
-            w_est = np.abs(cos_true) / np.maximum(cos_m, cap)
-            np.add.at(kernel, (level[fitted], group[fitted], b, mb[fitted]), w_est[fitted])
-            np.add.at(n_sim, (level, group, b), 1.0)
-            np.add.at(counts, (level, b, np.minimum(cnt, _MAX_COUNT - 1)), np.abs(cos_true))
-            np.add.at(n_lev, (level, b), 1.0)
-    return kernel / np.maximum(n_sim, 1)[..., None], counts / np.maximum(n_lev, 1)[..., None]
+                any_hit = hit.any(axis=2)
+                s_m = (power * np.where(hit, t_sub, 0.0)).sum(axis=2) / np.maximum(power.sum(axis=2), 1e-30)
+                s_noisy = s_m + rng.normal(0.0, range_noise, s_m.shape)
+                pts = rays * s_noisy[:, :, None]  # relative to the scanner
+                near = any_hit & (np.linalg.norm(pts - pts[:, centre:centre + 1, :], axis=2) <= radius)
+                cnt = near.sum(axis=1)
+                wgt = near / np.maximum(cnt, 1)[:, None]
+                mean = np.einsum("sp,spc->sc", wgt, pts)
+                dev = pts - mean[:, None, :]
+                cov = np.einsum("sp,spa,spb->sab", wgt, dev, dev)
+                val, vec = np.linalg.eigh(cov)
+                nrm = vec[:, :, 0]
+                nrm = nrm * np.where(nrm[:, 2:3] < 0, -1.0, 1.0)
+                cos_m = np.abs(dot(nrm, d))
+                fitted = (cnt >= min_points) & (np.sqrt(np.clip(val[:, 1], 0.0, None)) >= min_spread) & (cos_m >= cap)
+                col = _columns(fitted, _inclination_bin(nrm, n_bins), _azimuth_class(nrm, outward, n_azimuth), cnt,
+                               n_bins=n_bins, n_azimuth=n_azimuth, count_edges=count_edges)
+                w = np.abs(cos_true) * np.where(fitted, 1.0 / np.maximum(cos_m, cap), 1.0)
+                np.add.at(kernel, (a, level, group, b, col), w)
+                np.add.at(n_sim, (a, level, group, b), 1.0)
+                np.add.at(counts, (level, b, np.minimum(cnt, _MAX_COUNT - 1)), np.abs(cos_true))
+                np.add.at(n_cnt, (level, b), 1.0)
+    return kernel / np.maximum(n_sim, 1)[..., None], counts / np.maximum(n_cnt, 1)[..., None]
 
 
-def _deconvolve(rows, n_bins, iterations):
-    """EM (Richardson-Lucy) estimate of the area-weighted bin probabilities.
+def _em(rows, shape, iterations):
+    """Maximum-likelihood EM for the leaf-area distribution with the occlusion and azimuth mixes.
 
-    ``rows`` are (histogram, kernel) pairs, one per scan, crown layer and beam
-    zenith group g: the weighted histogram of the fits is modelled as
-    ``h_g = s_g f @ K_g`` (``s_g`` the leaf area the group sees).
+    ``rows`` are (f, m, a, histogram, kernel) with the indices of the row's
+    inclination distribution, occlusion mix and azimuth mix and its kernel
+    ``K[model, level, true bin, column]``; the histogram is modelled as Poisson
+    with mean ``s sum az[a] mix[m] f[f] K`` (``s`` the leaf area the row's
+    echoes see, fitted).  The three are updated together by the multiplicative
+    EM (Richardson-Lucy) step on the expected complete counts.  ``shape`` =
+    (number of f, of mixes, of azimuth mixes).  Returns (f (nf, B), mix
+    (nm, L), az (na, A)).
     """
-    if not rows:
-        return np.zeros(n_bins)
-    h = np.array([row[0] for row in rows])  # (G, B)
-    K = np.array([row[1] for row in rows])  # (G, B, B)
-    p = np.full(n_bins, 1.0 / n_bins)
+    n_f, n_m, n_a = shape
+    n_mod, n_lev, n_bins, _ = rows[0][4].shape
+    f = np.full((n_f, n_bins), 1.0 / n_bins)
+    mix = np.full((n_m, n_lev), 1.0 / n_lev)
+    az = np.full((n_a, n_mod), 1.0 / n_mod)
+    flat = [(fi, mi, ai, h, K.reshape(-1, K.shape[-1]), K.sum(axis=-1)) for fi, mi, ai, h, K in rows]
     for _ in range(iterations):
-        pred = np.einsum("b,gbm->gm", p, K)
-        scale = h.sum(axis=1) / np.maximum(pred.sum(axis=1), 1e-300)
-        pred *= scale[:, None]
-        ratio = np.where(pred > 0, h / np.maximum(pred, 1e-300), 0.0)
-        num = np.einsum("g,gbm,gm->b", scale, K, ratio)
-        den = np.einsum("g,gbm->b", scale, K)
-        p = p * np.where(den > 0, num / np.maximum(den, 1e-300), 0.0)
-        p /= p.sum()
-    return p
+        num = [np.zeros_like(f), np.zeros_like(mix), np.zeros_like(az)]
+        den = [np.zeros_like(f), np.zeros_like(mix), np.zeros_like(az)]
+        for fi, mi, ai, h, K, sens in flat:
+            x = az[ai][:, None, None] * mix[mi][None, :, None] * f[fi][None, None, :]
+            pred = x.ravel() @ K
+            scale = h.sum() / max(pred.sum(), 1e-300)
+            ratio = np.where(pred > 0, h / np.maximum(scale * pred, 1e-300), 0.0)
+            back = (K @ ratio).reshape(x.shape) * x * scale  # expected complete counts
+            s = sens * scale
+            num[0][fi] += back.sum(axis=(0, 1))
+            den[0][fi] += np.einsum("a,l,alb->b", az[ai], mix[mi], s)
+            num[1][mi] += back.sum(axis=(0, 2))
+            den[1][mi] += np.einsum("a,b,alb->l", az[ai], f[fi], s)
+            num[2][ai] += back.sum(axis=(1, 2))
+            den[2][ai] += np.einsum("l,b,alb->a", mix[mi], f[fi], s)
+        f, mix, az = (np.where(d_ > 0, n_ / np.maximum(d_, 1e-300), 0.0) for n_, d_ in zip(num, den))
+        f, mix, az = (v / np.maximum(v.sum(axis=1, keepdims=True), 1e-300) for v in (f, mix, az))
+    return f, mix, az
 
 
 def _weighted(fits, masks, n_bins):
@@ -525,24 +659,38 @@ def _weighted(fits, masks, n_bins):
     return h / h.sum() if h.sum() > 0 else h
 
 
+def _class_mask(scan, material, point_class):
+    """Echoes of a truth material, else of a class; None when the scan says neither."""
+    if scan.truth_material is not None:
+        return np.asarray(scan.truth_material) == material
+    if scan.classification is not None:
+        return np.asarray(scan.classification) == point_class
+    return None
+
+
 def _leaf_mask(scan):
+    from tlsvox.classify import PointClass
     from voxlidar.materials import Material
 
-    if scan.truth_material is not None:
-        return np.asarray(scan.truth_material) == Material.LEAF
-    if scan.classification is not None:
-        from tlsvox.classify import PointClass
+    mask = _class_mask(scan, Material.LEAF, PointClass.LEAF)
+    if mask is None:
+        raise InputError(f"scan {scan.name!r} says neither which echoes are leaves (no truth_material, no "
+                         "classification): classify it first (tlsvox.classify_scan) or pass leaf=[mask, ...]")
+    return mask
 
-        return np.asarray(scan.classification) == PointClass.LEAF
-    raise InputError(f"scan {scan.name!r} says neither which echoes are leaves (no truth_material, no "
-                     "classification): classify it first (tlsvox.classify_scan) or pass leaf=[mask, ...]")
+
+def _scan_beam(scan):
+    """(exit radius m, half divergence rad, sub-rays) of a scan's preset, else the RIEGL VZ-400's."""
+    p = scan.meta.get("preset", {})
+    return (0.5 * float(p.get("beam_exit_diameter_m", 0.007)), 0.5e-3 * float(p.get("divergence_mrad", 0.35)),
+            int(p.get("n_subrays", 7)))
 
 
 def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: float = 0.025,
                         min_points: int = 5, min_spread: float = 0.0, bins: int = 18, range_noise: float | None = None,
-                        leaf_size: float = 0.05, angular_step=None, zenith_groups: int = 6, samples: int = 5,
-                        max_simulated: int = 3000, iterations: int = 30, cap: float = 0.2, second_leaf: bool = True,
-                        leaf=None, seed: int = 0) -> LeafAngleMeasurement:
+                        leaf_size: float = 0.05, angular_step=None, beam=None, azimuth="auto", crown_center=None,
+                        zenith_groups: int = 6, samples: int = 3, max_simulated: int = 3000, iterations: int = 300,
+                        cap: float = 0.2, second_leaf: bool = True, leaf=None, seed: int = 0) -> LeafAngleMeasurement:
     """Measure the leaf inclination distribution per crown layer from leaf echoes.
 
     Parameters
@@ -575,32 +723,49 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
     angular_step : float or (2,) float, degrees, optional
         Zenith and azimuth steps of the scans; default each scan's angular
         grid (pulse table) or simulator preset.
+    beam : (3,) tuple, optional
+        The instrument's beam in the deconvolution: (exit beam diameter m,
+        full divergence mrad, sub-rays 1/7/19/37); default each scan's preset,
+        else the RIEGL VZ-400's (7 mm, 0.35 mrad, 7).  ``(0, 0, 1)`` is a
+        pencil beam.
+    azimuth : {"auto", "uniform", "outward"}
+        Leaf azimuth models of the deconvolution: leaves facing any azimuth,
+        facing away from the crown centre, or both, their shares fitted
+        per layer with the rest (``"auto"``).  Without a crown centre (none
+        given and no trunk found) only ``"uniform"`` is used and
+        ``params["azimuth_models"]`` says so.
+    crown_center : (2,) float, metres, optional
+        The crown's axis (x, y) in the world frame for the outward model;
+        default the trunk's (:func:`trunk_center` of the wood echoes: truth
+        bark or the classification's wood class).
     zenith_groups, samples, max_simulated, iterations
         Deconvolution: groups of beam zenith angles per scan and crown
-        layer, simulated leaves per bin and sampled echo (spread over the
-        occlusion levels), echoes sampled per scan and crown layer, EM
-        iterations (few: Richardson-Lucy amplifies noise as it goes on; on
-        the oak, seed 0, the crown's mean inclination moves by under 1 deg
-        and a layer's by up to 2.5 deg between 10 and 100 iterations).
+        layer, simulated leaves per bin, sampled echo and azimuth model
+        (spread over the occlusion levels), echoes sampled per scan and crown
+        layer, EM iterations.
     cap : float
         Smallest |cos a| between a fitted normal and its beam: fits nearer
         edge-on are dropped (their normals are set by the errors along the
         beam), in the simulation too; the others are weighted by 1/|cos a|.
     second_leaf : bool
-        Deconvolution: add occlusion levels where a second leaf just behind
-        the first lies in the neighbourhood (see :func:`_simulate_kernel`);
-        their share, like the other levels', comes from the neighbour counts.
-        False gives the single-leaf levels alone.
+        Deconvolution: add occlusion levels where a second leaf behind the
+        first lies in the neighbourhood (see :func:`_simulate_kernel`); their
+        share, like the other levels', is fitted.  False gives the
+        single-leaf levels alone.
     leaf : list of (N_i,) bool, optional
         Leaf echoes per scan; default ``truth_material == LEAF`` or the
         classification's leaf class.
     seed : int
-        Seeds the simulated normals.
+        Seeds the simulated leaves.
 
     Returns
     -------
     LeafAngleMeasurement
     """
+    from tlsvox.classify import PointClass
+    from voxlidar.leafangle import LeafAzimuth
+    from voxlidar.materials import Material
+
     method = LeafAngleMethod.parse(method, "method")
     scans = list(scans)
     if not scans:
@@ -616,12 +781,42 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
                          "(e.g. 0.2)")
     if leaf is not None and len(leaf) != len(scans):
         raise InputError(f"leaf= holds {len(leaf)} masks for {len(scans)} scans; give one per scan")
+    if azimuth != "auto":
+        azimuth = LeafAzimuth.parse(azimuth, "azimuth (or 'auto')").value
+    if beam is not None:
+        beam = tuple(beam)
+        if (len(beam) != 3 or not all(np.isfinite(v) and v >= 0 for v in beam[:2])
+                or int(beam[2]) not in (1, 7, 19, 37)):
+            raise InputError(f"beam={beam!r} must be (exit diameter m, full divergence mrad, sub-rays 1/7/19/37), "
+                             "e.g. (0.007, 0.35, 7) for the RIEGL VZ-400")
     rng = np.random.default_rng(seed)
-    fits, noise_used, steps = [], [], []
-    for i, s in enumerate(scans):
+    poses = []
+    for s in scans:
         pose = s.pose if s.pose is not None else s.pose_true
         if pose is None:
             raise InputError(f"scan {s.name!r} has no pose: register it (tlsvox register) first")
+        poses.append(np.asarray(pose, float))
+
+    # the crown centre of the outward model
+    centre, centre_from = None, "none"
+    if crown_center is not None:
+        centre = np.asarray(crown_center, float).reshape(-1)[:2]
+        centre_from = "given"
+    elif method is LeafAngleMethod.DECONVOLVE and azimuth != "uniform":
+        wood = [s.world_xyz(p)[m] for s, p in zip(scans, poses)
+                if (m := _class_mask(s, Material.BARK, PointClass.WOOD)) is not None]
+        centre, _ = trunk_center(np.concatenate(wood) if wood else np.zeros((0, 3)))
+        centre_from = "trunk" if centre is not None else "no trunk found in the wood echoes"
+    if azimuth == "outward" and centre is None and method is LeafAngleMethod.DECONVOLVE:
+        raise InputError("azimuth='outward' needs the crown centre: pass crown_center=(x, y) or scans with wood "
+                         "echoes at the trunk's base (classify them first)")
+    models = {"auto": ("uniform", "outward"), "uniform": ("uniform",), "outward": ("outward",)}[azimuth]
+    if centre is None:
+        models = ("uniform",)
+    n_azimuth = 4 if "outward" in models else 1
+
+    fits, noise_used, steps, beams = [], [], [], []
+    for i, (s, pose) in enumerate(zip(scans, poses)):
         mask = _leaf_mask(s) if leaf is None else np.asarray(leaf[i], bool)
         if mask.shape != (len(s),):
             raise InputError(f"leaf[{i}] has shape {mask.shape}; scan {s.name!r} has {len(s)} echoes")
@@ -640,10 +835,12 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
         xyz = s.world_xyz(pose)[mask]
         if len(xyz) < min_points:
             continue
-        fits.append(_fit_scan(xyz, np.asarray(pose, float)[:3, 3], radius=radius, min_points=int(min_points),
-                              min_spread=float(min_spread), n_bins=int(bins), cap=cap))
+        fits.append(_fit_scan(xyz, pose[:3, 3], radius=radius, min_points=int(min_points),
+                              min_spread=float(min_spread), n_bins=int(bins), cap=cap, centre=centre,
+                              n_azimuth=n_azimuth))
         noise_used.append(sigma)
         steps.append(tuple(step))
+        beams.append(_scan_beam(s) if beam is None else (0.5 * beam[0], 0.5e-3 * beam[1], int(beam[2])))
     z_all = np.concatenate([f.z[f.ok] for f in fits]) if fits else np.zeros(0)
     if len(z_all) < 10 * bins:
         raise InputError(f"only {len(z_all)} leaf echoes have {min_points} neighbours within {radius} m: too few "
@@ -651,41 +848,62 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
     lo, hi = np.percentile(z_all, [1, 99])
     cuts = np.linspace(lo, hi, int(layers) + 1)
     edges = np.linspace(0.0, HALF_PI, int(bins) + 1)
+    n_layers = int(layers)
 
     def in_layer(f, k):
         """Echoes of layer k (the bottom and top layers take the echoes below and above the cuts)."""
-        return (f.z >= cuts[k]) | (k == 0) if k == layers - 1 else ((f.z >= cuts[k]) | (k == 0)) & (f.z < cuts[k + 1])
+        return (f.z >= cuts[k]) | (k == 0) if k == n_layers - 1 else ((f.z >= cuts[k]) | (k == 0)) & (f.z < cuts[k + 1])
 
-    # per scan and layer: its kernel (its echoes' ranges and beams, its occlusion) and rows
-    rows = [[[] for _ in fits] for _ in range(int(layers))]
-    mixes = [[None] * int(layers) for _ in fits]
+    # per scan and layer: its kernel (its echoes' ranges, beams and outward directions) and rows
+    rows = []  # (layer, scan, histogram, kernel)
     if method is LeafAngleMethod.DECONVOLVE:
         for i, f in enumerate(fits):
-            for k in range(int(layers)):
-                rows[k][i], mixes[i][k] = _layer_rows(
+            for k in range(n_layers):
+                rows += [(k, i, h, K) for h, K in _layer_rows(
                     f, in_layer(f, k), n_bins=int(bins), n_groups=int(zenith_groups), max_sim=int(max_simulated),
-                    rng=rng, step=steps[i], leaf_size=float(leaf_size), radius=radius, min_points=int(min_points),
-                    min_spread=float(min_spread), range_noise=noise_used[i], samples=int(samples), cap=cap,
-                    second_leaf=bool(second_leaf))
+                    rng=rng, step=steps[i], beam=beams[i], leaf_size=float(leaf_size), radius=radius,
+                    min_points=int(min_points), min_spread=float(min_spread), range_noise=noise_used[i],
+                    samples=int(samples), cap=cap, second_leaf=bool(second_leaf), azimuths=models,
+                    n_azimuth=n_azimuth)]
+    mixes = [[None] * n_layers for _ in fits]
+    shares = [None] * n_layers
 
     def result(ks, z_range):
         masks = [np.logical_or.reduce([in_layer(f, k) for k in ks]) for f in fits]
-        if method is LeafAngleMethod.DECONVOLVE:
-            p = _deconvolve([row for k in ks for scan_rows in rows[k] for row in scan_rows], int(bins),
-                            int(iterations))
-        else:
+        if method is LeafAngleMethod.WEIGHTED:
             p = _weighted(fits, masks, int(bins))
+        else:
+            # one distribution; an occlusion mix per scan and layer; an azimuth mix per layer
+            sel = [(k, i, h, K) for k, i, h, K in rows if k in ks]
+            p = np.zeros(int(bins))
+            if sel:
+                p, mix, az = _em([(0, i * len(ks) + list(ks).index(k), list(ks).index(k), h, K)
+                                  for k, i, h, K in sel], (1, len(fits) * len(ks), len(ks)), int(iterations))
+                p = p[0]
+                if len(ks) == 1:
+                    for i in range(len(fits)):
+                        if any(i_ == i for _, i_, _, _ in sel):
+                            mixes[i][ks[0]] = mix[i]
+                    shares[ks[0]] = az[0]
         n = int(sum((m & f.ok).sum() for f, m in zip(fits, masks)))
         th = np.concatenate([f.theta[m & f.ok] for f, m in zip(fits, masks)])
         zr = np.percentile(th, [5, 95]) if len(th) else np.array([np.nan, np.nan])
+        la = fit_beta(p, edges) if n else LeafAngle("uniform")
         return LayerLeafAngles(z_range=np.asarray(z_range, float), edges=edges, density=p / np.diff(edges),
-                               n_echoes=n, zenith_range=zr, leaf_angle=fit_beta(p, edges) if n else LeafAngle("uniform"))
+                               n_echoes=n, zenith_range=zr, leaf_angle=la)
 
-    per_layer = [result([k], cuts[k:k + 2]) for k in range(int(layers))]
-    crown = result(range(int(layers)), [z_all.min(), z_all.max()])
+    per_layer = [result([k], cuts[k:k + 2]) for k in range(n_layers)]
+    crown = result(list(range(n_layers)), [z_all.min(), z_all.max()])
+    deconvolve = method is LeafAngleMethod.DECONVOLVE
     params = {"occlusion_mix": [[None if m is None else [round(float(v), 3) for v in m] for m in scan_mixes]
                                 for scan_mixes in mixes],
-              "layers": int(layers), "radius_m": float(radius), "min_points": int(min_points),
+              "azimuth_models": list(models) if deconvolve else None,
+              "azimuth_share": [None if a is None else {mod: round(float(v), 3) for mod, v in zip(models, a)}
+                                for a in shares],
+              "crown_center_m": None if centre is None else [round(float(v), 3) for v in centre],
+              "crown_center_from": centre_from,
+              "beam": [{"exit_radius_m": b[0], "half_divergence_rad": b[1], "subrays": b[2]} for b in beams],
+              "layers": n_layers, "radius_m": float(radius), "min_points": int(min_points),
               "min_spread_m": float(min_spread), "bins": int(bins), "range_noise_m": [float(v) for v in noise_used],
               "zenith_groups": int(zenith_groups), "leaf_size_m": float(leaf_size), "samples": int(samples),
               "max_simulated": int(max_simulated), "iterations": int(iterations), "cap": float(cap),
