@@ -100,8 +100,8 @@ def run_kind(kind: str, *, seed: int = 0, leaf_azimuth: str = "outward") -> dict
         out["methods"][method] = {"seconds": round(time.perf_counter() - t1, 1), "rows": score(tree, res),
                                   "edges_deg": [float(v) for v in np.degrees(res.crown.edges)]}
         if method == "deconvolve":
-            out["methods"][method].update({k: res.params[k] for k in ("azimuth_share", "crown_center_m",
-                                                                       "crown_center_from")})
+            out["methods"][method].update({k: res.params.get(k) for k in ("azimuth_share", "azimuth_model",
+                                                                           "crown_center_m", "crown_center_from")})
     true_edges = np.radians(out["methods"]["weighted"]["edges_deg"])
     incl = np.arccos(np.abs(tree.leaf_normals[:, 2]))
     out["true_density"] = [float(v) for v in np.histogram(incl, true_edges, density=True)[0]]
@@ -169,12 +169,13 @@ def azimuth_line(dec) -> str:
     shares = dec.get("azimuth_share")
     if not shares:
         return ""
+    chosen = dec.get("azimuth_model") or [None] * len(shares)
     per = "; ".join(f"layer {k + 1} " + ", ".join(f"{m} {v:.2f}" for m, v in s.items())
-                    for k, s in enumerate(shares) if s)
+                    + (f" (uses {c})" if c else "") for k, (s, c) in enumerate(zip(shares, chosen)) if s)
     centre = dec.get("crown_center_m")
     where = (f"crown centre ({centre[0]:.2f}, {centre[1]:.2f}) m from the {dec.get('crown_center_from')}"
              if centre else f"no crown centre ({dec.get('crown_center_from')})")
-    return f"Azimuth-model shares fitted (deconvolve): {per}; {where}."
+    return f"Azimuth-model shares fitted together (deconvolve), and the model each layer uses: {per}; {where}."
 
 
 def markdown(results, diag, command, *, seed=0, png="leaf_angles.png", leaf_azimuth="outward") -> str:

@@ -39,9 +39,13 @@ echoes' local geometry:
    normal from the outward direction (4 classes) and its neighbour count
    (7 classes), or the count alone when it has no fit.  The expected
    histogram of the observations is linear in the leaf-area distribution for
-   given shares of the occlusion levels and azimuth models; the three are
-   fitted together by maximum likelihood (EM): a distribution per layer, an
-   occlusion mix per scan and layer, an azimuth mix per layer.  Everything
+   given shares of the occlusion levels and azimuth models, and all are
+   fitted by maximum likelihood (EM): the azimuth models' shares first, per
+   layer, together with the rest; then each layer keeps the model with the
+   larger share (a mixture of the two read flat leaves up to 1.6 deg steeper
+   than the right model alone), and its distribution and occlusion mix (per
+   scan and layer) are fitted with that model.  The sampled echoes stand for
+   the leaf area around them, so each weighs r^2 in the simulation.  Everything
    is simulated per scan and crown layer (the upper layers are farther from
    ground scanners, seen more steeply and more hidden); the crown's
    distribution is the one that explains every layer's rows together.
@@ -109,9 +113,9 @@ HALF_PI = 0.5 * np.pi
 #: no cut, so the first level is a whole leaf and the last two are cut on two sides
 _CUTS = np.array([[1e9, 1e9, 1e9, 1e9], [0.5, 1.0, 1e9, 1e9], [0.25, 0.5, 1e9, 1e9], [0.1, 0.25, 1e9, 1e9],
                   [0.0, 0.1, 1e9, 1e9], [0.1, 0.25, 0.1, 0.25], [0.0, 0.1, 0.0, 0.1]])
-#: levels with a second leaf (``second_leaf=True``): the first leaf whole or cut once as in ``_CUTS``, and
-#: another leaf of the same inclination bin (random azimuth) just behind it, seen in the gaps the first
-#: leaf's outline and cut leave, so that some neighbourhoods hold echoes of two leaves
+#: levels with a second leaf (``second_leaf=True``), one set per distance band ``_BANDS``: the first leaf whole
+#: or cut once as in ``_CUTS``, and another leaf of the same inclination bin and azimuth model behind it, seen in
+#: the gaps the first leaf's outline and cut leave, so that some neighbourhoods hold echoes of two leaves
 _SECOND_CUTS = np.array([[1e9, 1e9, 1e9, 1e9], [0.25, 0.5, 1e9, 1e9], [0.0, 0.1, 1e9, 1e9]])
 #: distance bands (metres behind the first leaf, along the beam) of the second leaf's plane
 _BANDS = np.array([[0.0, 0.025], [0.025, 0.05], [0.05, 0.1], [0.1, 0.25]])
@@ -186,8 +190,15 @@ class LeafAngleMeasurement:
         All layers together (the ``leaf_angle`` to give ``voxelize``).
     method : LeafAngleMethod
     params : dict
-        The settings used (radius, range noise, ...) and, per scan, the fitted
-        mix of occlusion levels (``occlusion_mix``; None for ``weighted``).
+        The settings used (radius, range noise, ...); the scans measured
+        (``scans_used``: a scan with too few leaf echoes is left out, and the
+        per-scan lists follow this one); per scan and layer the fitted mix of
+        occlusion levels (``occlusion_mix``); the azimuth models tried
+        (``azimuth_models``), their shares fitted together per layer
+        (``azimuth_share``) and the one each layer uses (``azimuth_model``);
+        the crown centre and where it came from (``crown_center_m``,
+        ``crown_center_from``); the beam per scan.  The deconvolution's
+        entries are None for ``weighted``.
     """
 
     layers: list
@@ -426,13 +437,14 @@ def _layer_rows(f, sel, *, n_bins, n_groups, max_sim, rng, **sim):
     group = np.clip(np.searchsorted(q[1:-1], f.theta, side="right"), 0, n_groups - 1)
     every = np.flatnonzero(sel)
     sub = every if len(every) <= max_sim else np.sort(rng.choice(every, max_sim, replace=False))
+    # the sampled echoes stand for the leaf area around them: echoes fall off as 1/r^2, so weigh them by r^2
     kernels, _ = _simulate_kernel(f.r[sub], f.d[sub], group[sub], f.outward[sub], n_bins=n_bins, n_groups=n_groups,
-                                  rng=rng, **sim)
+                                  rng=rng, area=f.r[sub] ** 2, **sim)
     rows = []
     for g in range(n_groups):
         m = sel & (group == g)
         h = np.bincount(f.column[m], weights=f.weight[m], minlength=kernels.shape[-1])
-        if h.sum() > 0 and kernels[:, :, g].sum() > 0:  # far echoes whose simulated leaves never get a fit: no row
+        if h.sum() > 0 and kernels[:, :, g].sum() > 0:  # a group none of whose echoes was sampled: no row
             rows.append((h, kernels[:, :, g]))
     return rows
 
@@ -457,8 +469,8 @@ def _levels(second_leaf):
 
 
 def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min_points, min_spread, n_bins,
-                     n_groups, range_noise, samples, cap, rng, second_leaf: bool = True, azimuths=("uniform",),
-                     n_azimuth: int = 1, count_edges=None, max_offsets: int = 10):
+                     n_groups, range_noise, samples, cap, rng, area=None, second_leaf: bool = True,
+                     azimuths=("uniform",), n_azimuth: int = 1, count_edges=None, max_offsets: int = 10):
     """The expected observation histogram of unit leaf area of each true inclination bin.
 
     For each sampled echo (range ``r``, unit beam ``d``, outward direction
@@ -475,7 +487,8 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     echoes within ``radius`` of the centre echo are fitted as the measured ones
     are; the leaf is hit in proportion to its true ``|cos a|``; a fit weighs
     ``1 / measured |cos a|`` (dropped below ``cap``), an echo without a fit 1,
-    as the measured ones do.  Each simulated leaf draws one occlusion level
+    as the measured ones do; ``area`` (S,) weighs each sampled echo by the
+    leaf area it stands for (default equal).  Each simulated leaf draws one occlusion level
     (:func:`_levels`): straight cuts hide part of it (``_CUTS``) and, with
     ``second_leaf``, another leaf of the same inclination bin and azimuth
     model crosses the centre beam in one of the distance bands ``_BANDS``
@@ -492,6 +505,7 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     from tlsvox.truth.scanner import subray_pattern
 
     count_edges = _COUNT_EDGES if count_edges is None else count_edges
+    area = np.ones(len(r)) if area is None else np.asarray(area, float) / np.mean(area)
     exit_r, half_div, n_sub = beam
     sub_r, sub_a = subray_pattern(int(n_sub))
     cuts, band = _levels(second_leaf)
@@ -502,8 +516,11 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     norm = np.linalg.norm(e_a, axis=1, keepdims=True)
     e_a = np.where(norm > 1e-9, e_a / np.maximum(norm, 1e-12), [[1.0, 0.0, 0.0]])
     e_z = np.cross(e_a, d)
-    m = int(min(max_offsets, np.ceil(radius / (max(r.min(), 0.1) * min(dz, da)))))
-    i, k = np.meshgrid(np.arange(-m, m + 1), np.arange(-m, m + 1), indexing="ij")
+    # pulses within the radius: the azimuth step across the beam shrinks with sin(zenith)
+    near = max(r.min(), 0.1)
+    m_z = int(min(max_offsets, np.ceil(radius / (near * dz))))
+    m_a = int(min(max_offsets, np.ceil(radius / (near * da * max(np.sin(zen).min(), 1e-3)))))
+    i, k = np.meshgrid(np.arange(-m_z, m_z + 1), np.arange(-m_a, m_a + 1), indexing="ij")
     i, k = i.ravel().astype(float), k.ravel().astype(float)
     centre = int(np.flatnonzero((i == 0) & (k == 0))[0])
     rays = (d[:, None, :] + i[None, :, None] * dz * e_z[:, None, :]
@@ -605,8 +622,8 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
                 col = _columns(fitted, _inclination_bin(nrm, n_bins), _azimuth_class(nrm, outward, n_azimuth), cnt,
                                n_bins=n_bins, n_azimuth=n_azimuth, count_edges=count_edges)
                 w = np.abs(cos_true) * np.where(fitted, 1.0 / np.maximum(cos_m, cap), 1.0)
-                np.add.at(kernel, (a, level, group, b, col), w)
-                np.add.at(n_sim, (a, level, group, b), 1.0)
+                np.add.at(kernel, (a, level, group, b, col), w * area)
+                np.add.at(n_sim, (a, level, group, b), area)
                 np.add.at(counts, (level, b, np.minimum(cnt, _MAX_COUNT - 1)), np.abs(cos_true))
                 np.add.at(n_cnt, (level, b), 1.0)
     return kernel / np.maximum(n_sim, 1)[..., None], counts / np.maximum(n_cnt, 1)[..., None]
@@ -636,7 +653,7 @@ def _em(rows, shape, iterations):
         for fi, mi, ai, h, K, sens in flat:
             x = az[ai][:, None, None] * mix[mi][None, :, None] * f[fi][None, None, :]
             pred = x.ravel() @ K
-            scale = h.sum() / max(pred.sum(), 1e-300)
+            scale = h[pred > 0].sum() / max(pred.sum(), 1e-300)  # data the model cannot give does not count
             ratio = np.where(pred > 0, h / np.maximum(scale * pred, 1e-300), 0.0)
             back = (K @ ratio).reshape(x.shape) * x * scale  # expected complete counts
             s = sens * scale
@@ -729,11 +746,12 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
         else the RIEGL VZ-400's (7 mm, 0.35 mrad, 7).  ``(0, 0, 1)`` is a
         pencil beam.
     azimuth : {"auto", "uniform", "outward"}
-        Leaf azimuth models of the deconvolution: leaves facing any azimuth,
-        facing away from the crown centre, or both, their shares fitted
-        per layer with the rest (``"auto"``).  Without a crown centre (none
-        given and no trunk found) only ``"uniform"`` is used and
-        ``params["azimuth_models"]`` says so.
+        Leaf azimuth model of the deconvolution: leaves facing any azimuth,
+        facing away from the crown centre, or (``"auto"``) per layer the one
+        of the two with the larger share when both are fitted together
+        (``params["azimuth_share"]``, ``params["azimuth_model"]``).  Without
+        a crown centre (none given and no trunk found) only ``"uniform"`` is
+        used and ``params["azimuth_models"]`` says so.
     crown_center : (2,) float, metres, optional
         The crown's axis (x, y) in the world frame for the outward model;
         default the trunk's (:func:`trunk_center` of the wood echoes: truth
@@ -742,7 +760,8 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
         Deconvolution: groups of beam zenith angles per scan and crown
         layer, simulated leaves per bin, sampled echo and azimuth model
         (spread over the occlusion levels), echoes sampled per scan and crown
-        layer, EM iterations.
+        layer, EM iterations (of each fit: with ``"auto"`` the shares' fit
+        comes first).
     cap : float
         Smallest |cos a| between a fitted normal and its beam: fits nearer
         edge-on are dropped (their normals are set by the errors along the
@@ -770,8 +789,6 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
     scans = list(scans)
     if not scans:
         raise InputError("measure_leaf_angles needs at least one scan")
-    if int(layers) < 1:
-        raise InputError(f"layers={layers!r} must be an integer >= 1 (e.g. 4 crown layers)")
     if not (np.isfinite(radius) and radius > 0):
         raise InputError(f"radius={radius!r} must be a positive number of metres (leaf scale, e.g. 0.025)")
     if int(min_points) < 3:
@@ -781,14 +798,36 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
                          "(e.g. 0.2)")
     if leaf is not None and len(leaf) != len(scans):
         raise InputError(f"leaf= holds {len(leaf)} masks for {len(scans)} scans; give one per scan")
-    if azimuth != "auto":
-        azimuth = LeafAzimuth.parse(azimuth, "azimuth (or 'auto')").value
+    azimuth = str(azimuth).lower()
+    if azimuth not in ("auto", LeafAzimuth.UNIFORM.value, LeafAzimuth.OUTWARD.value):
+        raise InputError(f"azimuth={azimuth!r} is not known; choose one of: auto, uniform, outward")
+    for name, value, least in (("layers", layers, 1), ("zenith_groups", zenith_groups, 1), ("samples", samples, 1),
+                               ("max_simulated", max_simulated, 1), ("iterations", iterations, 1), ("bins", bins, 2)):
+        if not isinstance(value, (int, np.integer)) or value < least:
+            raise InputError(f"{name}={value!r} must be an integer >= {least}")
     if beam is not None:
-        beam = tuple(beam)
-        if (len(beam) != 3 or not all(np.isfinite(v) and v >= 0 for v in beam[:2])
-                or int(beam[2]) not in (1, 7, 19, 37)):
-            raise InputError(f"beam={beam!r} must be (exit diameter m, full divergence mrad, sub-rays 1/7/19/37), "
-                             "e.g. (0.007, 0.35, 7) for the RIEGL VZ-400")
+        try:
+            raw = tuple(beam)
+            beam = (float(raw[0]), float(raw[1]), float(raw[2]))
+            ok = len(raw) == 3 and 0 <= beam[0] < 0.1 and 0 <= beam[1] < 10 and beam[2] in (1, 7, 19, 37)
+        except (TypeError, ValueError, IndexError):
+            ok = False
+        if not ok:
+            raise InputError(f"beam={beam!r} must be (exit diameter m < 0.1, full divergence mrad < 10, sub-rays 1, "
+                             "7, 19 or 37), e.g. (0.007, 0.35, 7) for the RIEGL VZ-400")
+        beam = (beam[0], beam[1], int(beam[2]))
+    if crown_center is not None:
+        try:
+            crown_center = np.asarray(crown_center, float).reshape(-1)
+        except (TypeError, ValueError):
+            crown_center = np.array([np.nan])
+        if crown_center.shape != (2,) or not np.isfinite(crown_center).all():
+            raise InputError(f"crown_center={crown_center!r} must be (x, y) in metres, world frame, e.g. (0.4, -0.2)")
+    if angular_step is not None:
+        st = np.asarray(angular_step, float).reshape(-1)
+        if st.size not in (1, 2) or not (np.isfinite(st).all() and (st > 0).all()):
+            raise InputError(f"angular_step={angular_step!r} must be one or two positive angles in degrees "
+                             "(zenith, azimuth), e.g. 0.06")
     rng = np.random.default_rng(seed)
     poses = []
     for s in scans:
@@ -800,7 +839,7 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
     # the crown centre of the outward model
     centre, centre_from = None, "none"
     if crown_center is not None:
-        centre = np.asarray(crown_center, float).reshape(-1)[:2]
+        centre = crown_center
         centre_from = "given"
     elif method is LeafAngleMethod.DECONVOLVE and azimuth != "uniform":
         wood = [s.world_xyz(p)[m] for s, p in zip(scans, poses)
@@ -815,7 +854,7 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
         models = ("uniform",)
     n_azimuth = 4 if "outward" in models else 1
 
-    fits, noise_used, steps, beams = [], [], [], []
+    fits, noise_used, steps, beams, used = [], [], [], [], []
     for i, (s, pose) in enumerate(zip(scans, poses)):
         mask = _leaf_mask(s) if leaf is None else np.asarray(leaf[i], bool)
         if mask.shape != (len(s),):
@@ -839,6 +878,7 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
                               min_spread=float(min_spread), n_bins=int(bins), cap=cap, centre=centre,
                               n_azimuth=n_azimuth))
         noise_used.append(sigma)
+        used.append(s.name)
         steps.append(tuple(step))
         beams.append(_scan_beam(s) if beam is None else (0.5 * beam[0], 0.5e-3 * beam[1], int(beam[2])))
     z_all = np.concatenate([f.z[f.ok] for f in fits]) if fits else np.zeros(0)
@@ -866,29 +906,36 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
                     samples=int(samples), cap=cap, second_leaf=bool(second_leaf), azimuths=models,
                     n_azimuth=n_azimuth)]
     mixes = [[None] * n_layers for _ in fits]
-    shares = [None] * n_layers
+    # the azimuth model of each layer: with both, the one with the larger share when both are fitted together
+    shares, chosen = [None] * n_layers, [0 if len(models) == 1 else None for _ in range(n_layers)]
+    if len(models) > 1:
+        for k in range(n_layers):
+            sel = [(i, h, K) for k_, i, h, K in rows if k_ == k]
+            if sel:
+                shares[k] = _em([(0, i, 0, h, K) for i, h, K in sel], (1, len(fits), 1), int(iterations))[2][0]
+                chosen[k] = int(np.argmax(shares[k]))
+        rows = [(k, i, h, K[chosen[k]:chosen[k] + 1]) for k, i, h, K in rows]  # a layer with rows has a choice
 
     def result(ks, z_range):
         masks = [np.logical_or.reduce([in_layer(f, k) for k in ks]) for f in fits]
         if method is LeafAngleMethod.WEIGHTED:
             p = _weighted(fits, masks, int(bins))
         else:
-            # one distribution; an occlusion mix per scan and layer; an azimuth mix per layer
+            # one distribution; an occlusion mix per scan and layer; each layer's azimuth model
             sel = [(k, i, h, K) for k, i, h, K in rows if k in ks]
             p = np.zeros(int(bins))
             if sel:
-                p, mix, az = _em([(0, i * len(ks) + list(ks).index(k), list(ks).index(k), h, K)
-                                  for k, i, h, K in sel], (1, len(fits) * len(ks), len(ks)), int(iterations))
+                p, mix, _ = _em([(0, i * len(ks) + list(ks).index(k), 0, h, K) for k, i, h, K in sel],
+                                (1, len(fits) * len(ks), 1), int(iterations))
                 p = p[0]
                 if len(ks) == 1:
                     for i in range(len(fits)):
                         if any(i_ == i for _, i_, _, _ in sel):
                             mixes[i][ks[0]] = mix[i]
-                    shares[ks[0]] = az[0]
         n = int(sum((m & f.ok).sum() for f, m in zip(fits, masks)))
         th = np.concatenate([f.theta[m & f.ok] for f, m in zip(fits, masks)])
         zr = np.percentile(th, [5, 95]) if len(th) else np.array([np.nan, np.nan])
-        la = fit_beta(p, edges) if n else LeafAngle("uniform")
+        la = fit_beta(p, edges) if n and p.sum() > 0 else LeafAngle("uniform")
         return LayerLeafAngles(z_range=np.asarray(z_range, float), edges=edges, density=p / np.diff(edges),
                                n_echoes=n, zenith_range=zr, leaf_angle=la)
 
@@ -899,7 +946,9 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
                                 for scan_mixes in mixes],
               "azimuth_models": list(models) if deconvolve else None,
               "azimuth_share": [None if a is None else {mod: round(float(v), 3) for mod, v in zip(models, a)}
-                                for a in shares],
+                                for a in shares] if deconvolve else None,
+              "azimuth_model": [None if c is None else models[c] for c in chosen] if deconvolve else None,
+              "scans_used": used,
               "crown_center_m": None if centre is None else [round(float(v), 3) for v in centre],
               "crown_center_from": centre_from,
               "beam": [{"exit_radius_m": b[0], "half_divergence_rad": b[1], "subrays": b[2]} for b in beams],
