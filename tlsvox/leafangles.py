@@ -42,8 +42,8 @@ echoes' local geometry:
    given shares of the occlusion levels and azimuth models, and all are
    fitted by maximum likelihood (EM): the azimuth models' shares first, per
    layer, together with the rest; then each layer keeps the model with the
-   larger share (a mixture of the two read flat leaves up to 1.6 deg steeper
-   than the right model alone), and its distribution and occlusion mix (per
+   larger share (a mixture of the two read the four planophile crowns
+   0.7-1.9 deg steeper than the right model alone), and its distribution and occlusion mix (per
    scan and layer) are fitted with that model.  The sampled echoes stand for
    the leaf area around them, so each weighs r^2 in the simulation.  Everything
    is simulated per scan and crown layer (the upper layers are farther from
@@ -55,12 +55,12 @@ Accuracy (``benchmarks/bench_leaf_angles.py``, docs/bench/leaf_angles*.md):
 on the oak's two VZ-400 scans (7-sub-ray beam, 5 mm range noise) with
 uniform, planophile and erectophile leaves, facing outwards (the paper's oak)
 or random azimuths, on two oaks (seeds 0 and 1), every crown's mean
-inclination is within 3.8 deg and its G within 4.1 % over the scanned
+inclination is within 2.9 deg and its G within 4.2 % over the scanned
 zenith angles, and 45 of the 48 layers are within 5 deg and 5 %; the three
-others are planophile layers read 5.0-6.2 deg steep (flat leaves read 2.7 to
-3.8 deg steep on all four oaks, pencil beams included).  The fitted azimuth
-shares pick the right model (outward 0.88-0.98 on the outward oaks, uniform
-0.66-0.82 on the random ones).  Two scans take 90-110 s (2 cores).
+others miss on G alone (5.0-5.4 %, means within 3.9 deg).  Uniform and
+erectophile crowns read 1.5-2.9 deg flat, planophile ones -0.8 to +1.3 deg.
+Each layer's azimuth model is the right one on all four oaks.  Two scans
+take 134-164 s (2 cores) and 1.6 GiB.
 
 **Limits.**  One trunk: the outward model faces leaves away from one vertical
 axis.  The simulated leaves are flat ellipses of ``leaf_size``, and a second
