@@ -336,10 +336,10 @@ def _n_columns(n_bins, n_azimuth, count_edges):
     return (n_bins * n_azimuth + 1) * len(count_edges)
 
 
-def _measured_bins(kernel, n_bins, n_azimuth=1, count_edges=None):
+def _measured_bins(kernel, n_bins, n_azimuth=1, count_edges=_COUNT_EDGES):
     """Sum a kernel's observation columns over azimuth and count classes: (..., n_bins) per measured bin
     (echoes without a plane fit left out)."""
-    n_count = len(_COUNT_EDGES if count_edges is None else count_edges)
+    n_count = len(count_edges)
     fit = kernel[..., :n_bins * n_azimuth * n_count]
     return fit.reshape(fit.shape[:-1] + (n_bins, n_azimuth * n_count)).sum(axis=-1)
 
@@ -351,7 +351,6 @@ class _ScanFits:
     z: np.ndarray  # (n,) echo heights
     r: np.ndarray  # (n,) range, metres
     d: np.ndarray  # (n, 3) unit beam direction
-    count: np.ndarray  # (n,) echoes within the radius, itself included
     ok: np.ndarray  # (n,) bool, a plane fit
     theta: np.ndarray  # (n,) beam zenith angle, folded to [0, pi/2]
     weight: np.ndarray  # (n,) r^2 / max(|n . d|, cap) with a fit (|n . d| >= cap), r^2 without
@@ -361,8 +360,7 @@ class _ScanFits:
 
 
 def _fit_scan(xyz, origin, *, radius, min_points, min_spread, n_bins, cap, centre=None, n_azimuth=1,
-              count_edges=None):
-    count_edges = _COUNT_EDGES if count_edges is None else count_edges
+              count_edges=_COUNT_EDGES):
     d = xyz - origin
     r = np.linalg.norm(d, axis=1)
     d = d / r[:, None]
@@ -375,10 +373,9 @@ def _fit_scan(xyz, origin, *, radius, min_points, min_spread, n_bins, cap, centr
         outward = xyz[:, :2] - np.asarray(centre, float)[None, :2]
         outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-9)
     meas_bin = _inclination_bin(nrm, n_bins)
-    count = cnt.astype(np.int64)
-    column = _columns(ok, meas_bin, _azimuth_class(nrm, outward, n_azimuth), count, n_bins=n_bins,
+    column = _columns(ok, meas_bin, _azimuth_class(nrm, outward, n_azimuth), cnt.astype(np.int64), n_bins=n_bins,
                       n_azimuth=n_azimuth, count_edges=count_edges)
-    return _ScanFits(z=xyz[:, 2], r=r, d=d, count=count, ok=ok, theta=np.arccos(np.abs(d[:, 2])),
+    return _ScanFits(z=xyz[:, 2], r=r, d=d, ok=ok, theta=np.arccos(np.abs(d[:, 2])),
                      weight=np.where(ok, r * r / np.maximum(cos_a, cap), r * r), meas_bin=meas_bin, outward=outward,
                      column=column)
 
@@ -470,7 +467,7 @@ def _levels(second_leaf):
 
 def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min_points, min_spread, n_bins,
                      n_groups, range_noise, samples, cap, rng, area=None, second_leaf: bool = True,
-                     azimuths=("uniform",), n_azimuth: int = 1, count_edges=None, max_offsets: int = 10):
+                     azimuths=("uniform",), n_azimuth: int = 1, count_edges=_COUNT_EDGES, max_offsets: int = 10):
     """The expected observation histogram of unit leaf area of each true inclination bin.
 
     For each sampled echo (range ``r``, unit beam ``d``, outward direction
@@ -504,7 +501,6 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     """
     from tlsvox.truth.scanner import subray_pattern
 
-    count_edges = _COUNT_EDGES if count_edges is None else count_edges
     area = np.ones(len(r)) if area is None else np.asarray(area, float) / np.mean(area)
     exit_r, half_div, n_sub = beam
     sub_r, sub_a = subray_pattern(int(n_sub))
