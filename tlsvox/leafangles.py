@@ -465,6 +465,30 @@ def _levels(second_leaf):
     return cuts, band
 
 
+def _grid_half_widths(r, sin_z, *, step, radius, max_offsets=10):
+    """Pulses each side of an echo's own (zenith, azimuth steps; at most ``max_offsets``) whose rays can pass
+    within ``radius`` of it: at a range 5 cm short of the echo's (the range noise), the azimuth step across the
+    beam shrunk by sin(zenith)."""
+    near = np.maximum(np.asarray(r, float) - 0.05, 0.1)
+    m_z = np.minimum(max_offsets, np.ceil(radius / (near * step[0]))).astype(np.int64)
+    m_a = np.minimum(max_offsets, np.ceil(radius / (near * step[1] * np.maximum(sin_z, 1e-3)))).astype(np.int64)
+    return m_z, m_a
+
+
+def _pulse_grid(r, sin_z, *, step, radius, max_offsets=10):
+    """Step offsets (i, k) (zenith, azimuth; floats) of the pulses around a centre echo whose rays can pass
+    within ``radius`` of any of the echoes at ranges ``r`` with beams of sin(zenith) ``sin_z``: the rectangle of
+    :func:`_grid_half_widths` cut to the ellipse of the nearest echo's radius (a ray farther than the radius from
+    the echo gives no neighbour)."""
+    m_z, m_a = (int(v.max()) for v in _grid_half_widths(r, sin_z, step=step, radius=radius,
+                                                         max_offsets=max_offsets))
+    i, k = (g.ravel().astype(float) for g in np.meshgrid(np.arange(-m_z, m_z + 1), np.arange(-m_a, m_a + 1),
+                                                           indexing="ij"))
+    near = max(float(np.min(r)) - 0.05, 0.1)
+    inside = (i * step[0]) ** 2 + (k * step[1] * max(float(np.min(sin_z)), 1e-3)) ** 2 <= (radius / near) ** 2
+    return i[inside], k[inside]
+
+
 def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min_points, min_spread, n_bins,
                      n_groups, range_noise, samples, cap, rng, area=None, second_leaf: bool = True,
                      azimuths=("uniform",), n_azimuth: int = 1, count_edges=_COUNT_EDGES, max_offsets: int = 10):
@@ -475,7 +499,9 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     ``leaf_size/2``, random spin, the echo at a random point of it) of that
     inclination, facing a random azimuth (``"uniform"``) or away from the
     crown centre (``"outward"``), is scanned by the pulses of the angular grid
-    around the echo (``step`` = zenith and azimuth steps, radians).  Each pulse
+    around the echo (``step`` = zenith and azimuth steps, radians) whose rays
+    pass within ``radius`` of it (:func:`_pulse_grid`; the others give no
+    neighbour; echoes needing the same grid are simulated together).  Each pulse
     is the instrument's beam ``beam = (exit radius m, half divergence rad,
     sub-rays)``: its sub-rays (:func:`tlsvox.truth.scanner.subray_pattern`,
     the pattern turned at random per pulse) stop on the first leaf they meet
@@ -499,9 +525,35 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     counts : (levels, B, _MAX_COUNT) float
         Hit-weighted distribution of the neighbour counts per level and bin.
     """
+    area = np.ones(len(r)) if area is None else np.asarray(area, float) / np.mean(area)
+    # each echo's pulse grid (:func:`_pulse_grid`): echoes needing the same one are simulated together
+    sin_z = np.sqrt(np.clip(1.0 - d[:, 2] ** 2, 0.0, 1.0))
+    m_z, m_a = _grid_half_widths(r, sin_z, step=step, radius=radius, max_offsets=max_offsets)
+    n_col = _n_columns(n_bins, n_azimuth, count_edges)
+    n_lev = len(_levels(second_leaf)[0])
+    kernel = np.zeros((len(azimuths), n_lev, n_groups, n_bins, n_col))
+    n_sim = np.zeros((len(azimuths), n_lev, n_groups, n_bins))
+    counts = np.zeros((n_lev, n_bins, _MAX_COUNT))
+    n_cnt = np.zeros((n_lev, n_bins))
+    for mz, ma in sorted(set(zip(m_z.tolist(), m_a.tolist()))):
+        sel = np.flatnonzero((m_z == mz) & (m_a == ma))
+        _simulate_pulses(r[sel], d[sel], group[sel], outward[sel], area[sel], (kernel, n_sim, counts, n_cnt),
+                         offsets=_pulse_grid(r[sel], sin_z[sel], step=step, radius=radius, max_offsets=max_offsets),
+                         step=step, beam=beam, leaf_size=leaf_size, radius=radius,
+                         min_points=min_points, min_spread=min_spread, n_bins=n_bins, range_noise=range_noise,
+                         samples=samples, cap=cap, rng=rng, second_leaf=second_leaf, azimuths=azimuths,
+                         n_azimuth=n_azimuth, count_edges=count_edges)
+    return kernel / np.maximum(n_sim, 1e-300)[..., None], counts / np.maximum(n_cnt, 1)[..., None]
+
+
+def _simulate_pulses(r, d, group, outward, area, sums, *, offsets, step, beam, leaf_size, radius, min_points,
+                     min_spread, n_bins, range_noise, samples, cap, rng, second_leaf, azimuths, n_azimuth,
+                     count_edges):
+    """:func:`_simulate_kernel` for echoes scanned by the same pulse grid ``offsets`` = (zenith, azimuth step
+    offsets) from :func:`_pulse_grid`; adds to ``sums`` = (kernel, n_sim, counts, n_cnt), not normalised."""
     from tlsvox.truth.scanner import subray_pattern
 
-    area = np.ones(len(r)) if area is None else np.asarray(area, float) / np.mean(area)
+    kernel, n_sim, counts, n_cnt = sums
     exit_r, half_div, n_sub = beam
     sub_r, sub_a = subray_pattern(int(n_sub))
     cuts, band = _levels(second_leaf)
@@ -512,23 +564,13 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     norm = np.linalg.norm(e_a, axis=1, keepdims=True)
     e_a = np.where(norm > 1e-9, e_a / np.maximum(norm, 1e-12), [[1.0, 0.0, 0.0]])
     e_z = np.cross(e_a, d)
-    # pulses within the radius: the azimuth step across the beam shrinks with sin(zenith)
-    near = max(r.min(), 0.1)
-    m_z = int(min(max_offsets, np.ceil(radius / (near * dz))))
-    m_a = int(min(max_offsets, np.ceil(radius / (near * da * max(np.sin(zen).min(), 1e-3)))))
-    i, k = np.meshgrid(np.arange(-m_z, m_z + 1), np.arange(-m_a, m_a + 1), indexing="ij")
-    i, k = i.ravel().astype(float), k.ravel().astype(float)
+    i, k = offsets
     centre = int(np.flatnonzero((i == 0) & (k == 0))[0])
     rays = (d[:, None, :] + i[None, :, None] * dz * e_z[:, None, :]
             + (k[None, :] * da * np.maximum(np.sin(zen), 1e-3)[:, None])[:, :, None] * e_a[:, None, :])
     rays /= np.linalg.norm(rays, axis=2, keepdims=True)  # (S, P, 3)
     n, n_pulse = len(r), len(i)
     width = exit_r + half_div * r  # beam radius at the echo, (S,)
-    n_col = _n_columns(n_bins, n_azimuth, count_edges)
-    kernel = np.zeros((len(azimuths), n_lev, n_groups, n_bins, n_col))
-    n_sim = np.zeros((len(azimuths), n_lev, n_groups, n_bins))
-    counts = np.zeros((n_lev, n_bins, _MAX_COUNT))
-    n_cnt = np.zeros((n_lev, n_bins))
     half_len, half_wid = 0.5 * leaf_size, 0.25 * leaf_size
     out_phi = np.arctan2(outward[:, 1], outward[:, 0])
 
@@ -622,7 +664,6 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
                 np.add.at(n_sim, (a, level, group, b), area)
                 np.add.at(counts, (level, b, np.minimum(cnt, _MAX_COUNT - 1)), np.abs(cos_true))
                 np.add.at(n_cnt, (level, b), 1.0)
-    return kernel / np.maximum(n_sim, 1)[..., None], counts / np.maximum(n_cnt, 1)[..., None]
 
 
 def _em(rows, shape, iterations):
