@@ -69,7 +69,7 @@ axis.  The simulated leaves are flat ellipses of ``leaf_size``, and a second
 leaf behind the first has the first's inclination bin.
 
 The crown is cut into ``layers`` equal-height layers between the 1st and 99th
-height percentiles of the leaf echoes; every layer gets its histogram, mean
+height percentiles of the leaf echoes with a plane fit; every layer gets its histogram, mean
 inclination and a beta distribution (Goel & Strebel 1984) fitted by moments,
 a :class:`~voxlidar.leafangle.LeafAngle` usable as ``voxelize(leaf_angle=...)``
 and stored in the scene file like any other.
@@ -467,27 +467,55 @@ def _levels(second_leaf):
     return cuts, band
 
 
-def _grid_half_widths(r, sin_z, *, step, radius, max_offsets=10):
-    """Pulses each side of an echo's own (zenith, azimuth steps; at most ``max_offsets``) whose rays can pass
-    within ``radius`` of it: at a range 5 cm short of the echo's (the range noise), the azimuth step across the
-    beam shrunk by sin(zenith)."""
-    near = np.maximum(np.asarray(r, float) - 0.05, 0.1)
-    m_z = np.minimum(max_offsets, np.ceil(radius / (near * step[0]))).astype(np.int64)
-    m_a = np.minimum(max_offsets, np.ceil(radius / (near * step[1] * np.maximum(sin_z, 1e-3)))).astype(np.int64)
+def _grid_half_widths(r, sin_z, *, step, radius, margin, max_offsets=10):
+    """Pulses each side of an echo's own whose rays can pass within ``radius`` of it.
+
+    Parameters
+    ----------
+    r, sin_z : (S,) float
+        The echoes' ranges (m) and the sines of their beams' zenith angles.
+    step : (2,) float, radians
+        Zenith and azimuth steps of the scan (the azimuth step across the beam
+        is ``step[1] * sin_z``).
+    radius : float, m
+        Neighbourhood radius.
+    margin : float, m
+        How much nearer than ``r`` the centre pulse's echo can lie (range
+        noise, and sub-rays meeting the leaf's plane short of its centre ray).
+    max_offsets : int
+        Cap on each half-width (echoes within about 2.4 m / sin(zenith) of
+        the scanner at 0.06 deg steps get fewer pulses than they could).
+
+    Returns
+    -------
+    m_z, m_a : (S,) int64
+        Half-widths in zenith and azimuth steps.
+    """
+    rho = radius / np.maximum(np.asarray(r, float) - margin, 0.1)
+    tan_max = rho / np.sqrt(np.maximum(1.0 - rho * rho, 1e-12))  # a ray at angle a passes r sin(a) from the echo
+    m_z = np.minimum(max_offsets, np.ceil(tan_max / step[0])).astype(np.int64)
+    m_a = np.minimum(max_offsets, np.ceil(tan_max / (step[1] * np.maximum(sin_z, 1e-3)))).astype(np.int64)
     return m_z, m_a
 
 
-def _pulse_grid(r, sin_z, *, step, radius, max_offsets=10):
-    """Step offsets (i, k) (zenith, azimuth; floats) of the pulses around a centre echo whose rays can pass
-    within ``radius`` of any of the echoes at ranges ``r`` with beams of sin(zenith) ``sin_z``: the rectangle of
-    :func:`_grid_half_widths` cut to the ellipse of the nearest echo's radius (a ray farther than the radius from
-    the echo gives no neighbour)."""
-    m_z, m_a = (int(v.max()) for v in _grid_half_widths(r, sin_z, step=step, radius=radius,
+def _pulse_grid(r, sin_z, *, step, radius, margin, max_offsets=10):
+    """Step offsets of the pulses around a centre echo whose rays can pass within ``radius`` of any of the
+    echoes (ranges ``r``, beams' sin(zenith) ``sin_z``; see :func:`_grid_half_widths`): the rectangle of the
+    largest half-widths cut to the ellipse of the nearest echo (a ray farther than the radius from the echo
+    gives no neighbour).
+
+    Returns
+    -------
+    i, k : (P,) float
+        Zenith and azimuth step offsets; (0, 0), the centre pulse, among them.
+    """
+    m_z, m_a = (int(v.max()) for v in _grid_half_widths(r, sin_z, step=step, radius=radius, margin=margin,
                                                          max_offsets=max_offsets))
     i, k = (g.ravel().astype(float) for g in np.meshgrid(np.arange(-m_z, m_z + 1), np.arange(-m_a, m_a + 1),
                                                            indexing="ij"))
-    near = max(float(np.min(r)) - 0.05, 0.1)
-    inside = (i * step[0]) ** 2 + (k * step[1] * max(float(np.min(sin_z)), 1e-3)) ** 2 <= (radius / near) ** 2
+    rho = radius / max(float(np.min(r)) - margin, 0.1)
+    tan2 = rho * rho / max(1.0 - rho * rho, 1e-12)
+    inside = (i * step[0]) ** 2 + (k * step[1] * max(float(np.min(sin_z)), 1e-3)) ** 2 <= tan2
     return i[inside], k[inside]
 
 
@@ -530,7 +558,10 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     area = np.ones(len(r)) if area is None else np.asarray(area, float) / np.mean(area)
     # each echo's pulse grid (:func:`_pulse_grid`): echoes needing the same one are simulated together
     sin_z = np.sqrt(np.clip(1.0 - d[:, 2] ** 2, 0.0, 1.0))
-    m_z, m_a = _grid_half_widths(r, sin_z, step=step, radius=radius, max_offsets=max_offsets)
+    # the centre echo lies at most a leaf length (sub-rays meeting a grazing leaf short of the centre ray) and
+    # five noise sigmas nearer than the sampled range
+    margin = leaf_size + 5.0 * range_noise
+    m_z, m_a = _grid_half_widths(r, sin_z, step=step, radius=radius, margin=margin, max_offsets=max_offsets)
     n_col = _n_columns(n_bins, n_azimuth, count_edges)
     n_lev = len(_levels(second_leaf)[0])
     kernel = np.zeros((len(azimuths), n_lev, n_groups, n_bins, n_col))
@@ -540,7 +571,8 @@ def _simulate_kernel(r, d, group, outward, *, step, beam, leaf_size, radius, min
     for mz, ma in sorted(set(zip(m_z.tolist(), m_a.tolist()))):
         sel = np.flatnonzero((m_z == mz) & (m_a == ma))
         _simulate_pulses(r[sel], d[sel], group[sel], outward[sel], area[sel], (kernel, n_sim, counts, n_cnt),
-                         offsets=_pulse_grid(r[sel], sin_z[sel], step=step, radius=radius, max_offsets=max_offsets),
+                         offsets=_pulse_grid(r[sel], sin_z[sel], step=step, radius=radius, margin=margin,
+                                             max_offsets=max_offsets),
                          step=step, beam=beam, leaf_size=leaf_size, radius=radius,
                          min_points=min_points, min_spread=min_spread, n_bins=n_bins, range_noise=range_noise,
                          samples=samples, cap=cap, rng=rng, second_leaf=second_leaf, azimuths=azimuths,
@@ -756,7 +788,7 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
         when it has no other).
     layers : int
         Equal-height crown layers between the 1st and 99th height percentiles
-        of the leaf echoes (>= 1).
+        of the leaf echoes with a plane fit (>= 1).
     method : {"deconvolve", "weighted"}
         See the module docstring.
     radius : float, metres
