@@ -41,11 +41,13 @@ def module_at(rev: str):
     """``tlsvox/leafangles.py`` as it was at ``rev``, imported under another name."""
     text = subprocess.run(["git", "show", f"{rev}:tlsvox/leafangles.py"], cwd=ROOT, check=True,
                           capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp()) / "leafangles_base.py"
-    path.write_text(text)
-    spec = importlib.util.spec_from_file_location("leafangles_base", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "leafangles_base.py"
+        path.write_text(text)
+        spec = importlib.util.spec_from_file_location("leafangles_base", path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["leafangles_base"] = mod  # its dataclasses look their module up
+        spec.loader.exec_module(mod)
     return mod
 
 
@@ -107,9 +109,10 @@ def main(argv=None) -> int:
              f"The synthetic oak (seed 0, {args.kind} leaves facing outwards) scanned from the paper's two positions "
              "by the simulated VZ-400, true poses; `measure_leaf_angles(scans, layers=4, samples=N)` with every "
              f"other setting at its default, on the same scans in one process: this tree's code ({this}) beside "
-             f"revision {args.base}, whose kernel scanned every sampled echo with the pulse grid its nearest echo "
-             "needed (this tree's scans each echo only with the pulses whose rays pass within the 2.5 cm radius "
-             f"of it). Each setting ran {args.repeats} times in turn; the median wall time. Errors against the "
+             f"revision {args.base}'s `tlsvox/leafangles.py` (imported beside today's other modules), whose kernel "
+             "scanned every sampled echo with the pulse grid its nearest echo needed (this tree's scans each echo "
+             "only with the pulses whose rays pass within the 2.5 cm radius of it). Each setting ran "
+             f"{args.repeats} times in turn; the median wall time. Errors against the "
              "tree's own leaf normals (as in bench_leaf_angles.py): mean inclination (measured - true) and G "
              "(the largest relative error over the scanned zenith angles), the worst of the 4 layers and the "
              "crown; the same seed gives the same numbers on every repeat.", "",
