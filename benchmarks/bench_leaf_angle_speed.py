@@ -14,8 +14,9 @@ seed being fixed).
 
     .venv/bin/python benchmarks/bench_leaf_angle_speed.py [--kind uniform] [--repeats 3]
 
-Writes docs/bench/leaf_angle_speed.md (``--out``) and a time-against-error
-figure (``--png``).
+Writes docs/bench/leaf_angle_speed.md (``--out``), its numbers in a JSON
+beside it, and a time-against-error figure (``--png``; ``--replot`` redraws
+it from the JSON without running anything).
 """
 
 from __future__ import annotations
@@ -63,6 +64,34 @@ def summary(rows) -> dict:
                           for r in layers]}
 
 
+def draw(png, data) -> None:
+    """The time-against-error chart of a run's ``data`` (as written to the page's JSON)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from voxlidar.safeio import atomic_write
+
+    fig, ax = plt.subplots(figsize=(7.0, 4.6))
+    for j, name in enumerate(data["settings"]):
+        t, a = data["median_s"][name], data["accuracy"][name]
+        colour = f"C{j}"
+        ax.plot(t, a["worst_G_pct"], "o", ms=8, color=colour, label=f"{name}: worst layer's G error (%)")
+        ax.plot(t, abs(a["crown_mean_deg"]), "s", ms=7, mfc="none", color=colour,
+                label=f"{name}: crown's mean inclination error (deg)")
+    ax.axhline(5, color="grey", lw=0.8, ls="--", label="goal (5 % / 5 deg)")
+    ax.set_xlabel("wall time, two scans (s, 2 CPU cores; median)")
+    ax.set_ylabel("error (% for G, degrees for the mean)")
+    ax.set_title(f"Leaf-angle deconvolution: time against error ({data['kind']} leaves, oak seed 0)")
+    ax.set_xlim(left=0)
+    ax.set_ylim(0, 7)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
+    fig.tight_layout()
+    atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png", bbox_inches="tight"))
+    plt.close(fig)
+    print(f"wrote {png}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--kind", default="uniform", help="true leaf inclination distribution (default uniform)")
@@ -70,7 +99,13 @@ def main(argv=None) -> int:
     ap.add_argument("--base", default="31ec0d7", help="older revision to compare with (default 31ec0d7)")
     ap.add_argument("--out", default=str(ROOT / "docs/bench/leaf_angle_speed.md"))
     ap.add_argument("--png", default=str(ROOT / "docs/img/leaf_angle_speed.png"))
+    ap.add_argument("--replot", action="store_true", help="redraw the chart from the page's JSON; run nothing")
     args = ap.parse_args(argv)
+    if args.replot:
+        import json
+
+        draw(args.png, json.loads(Path(args.out).with_suffix(".json").read_text()))
+        return 0
 
     from tlsvox import leafangles
     from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
@@ -127,27 +162,13 @@ def main(argv=None) -> int:
     lines += ["", f"![time against error](../img/{Path(args.png).name})"]
     write_page(args.out, lines, echo=True)
 
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import json
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for name, *_ in settings:
-        ax.plot(med[name], acc[name]["worst_G_pct"], "o", ms=8, label=f"{name}: worst layer G")
-        ax.plot(med[name], abs(acc[name]["crown_mean_deg"]), "s", ms=6, mfc="none",
-                label=f"{name}: |crown mean| (deg)")
-    ax.axhline(5, color="grey", lw=0.8, ls="--", label="goal (5 % / 5 deg)")
-    ax.set_xlabel("wall time, two scans (s, 2 CPU cores)")
-    ax.set_ylabel("error (% for G, degrees for the mean)")
-    ax.set_title(f"Leaf-angle deconvolution: time against error ({args.kind} leaves, seed 0)")
-    ax.set_xlim(left=0)
-    ax.set_ylim(bottom=0)
-    ax.legend(fontsize=6.5, loc="upper right")
-    fig.tight_layout()
     from voxlidar.safeio import atomic_write
 
-    atomic_write(args.png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
-    print(f"wrote {args.png}")
+    data = {"kind": args.kind, "settings": [name for name, *_ in settings], "median_s": med, "accuracy": acc}
+    atomic_write(Path(args.out).with_suffix(".json"), lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
+    draw(args.png, data)
     return 0
 
 

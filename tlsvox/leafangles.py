@@ -55,14 +55,14 @@ Accuracy (``benchmarks/bench_leaf_angles.py``, docs/bench/leaf_angles*.md):
 on the oak's two VZ-400 scans (7-sub-ray beam, 5 mm range noise) with
 uniform, planophile and erectophile leaves, facing outwards (the paper's oak)
 or random azimuths, on two oaks (seeds 0 and 1), every crown's mean
-inclination is within 2.4 deg and its G within 3.6 % over the scanned
+inclination is within 3.1 deg and its G within 3.9 % over the scanned
 zenith angles, and 46 of the 48 layers are within 5 deg and 5 %; the two
-others are erectophile layers that miss on G alone (5.1 and 5.2 %, means
-within 2.8 deg).  Uniform and erectophile crowns read 1.4-2.4 deg flat,
-planophile ones -0.7 to +1.0 deg (docs/bench/leaf_angle_kernel.md: the
-kernel measures 30-60 deg leaves steeper than the scans do).  Each layer's
-azimuth model is the right one on all four oaks.  Two scans take 42-59 s
-(2 cores) and 1.3-1.4 GiB.
+others are erectophile layers that miss on G alone (6.2 and 5.2 %, means
+within 3.5 deg).  Uniform and erectophile crowns read 1.2-3.1 deg flat,
+planophile ones -0.6 to +1.4 deg (docs/bench/leaf_angle_kernel.md: the
+kernel measures 30-75 deg leaves 1-4 deg steeper than the scans do).  Each
+layer's azimuth model is the right one on all four oaks.  Two scans take
+44-58 s (2 cores) and 1.3-1.4 GiB.
 
 **Limits.**  One trunk: the outward model faces leaves away from one vertical
 axis.  The simulated leaves are flat ellipses of ``leaf_size``, and a second
