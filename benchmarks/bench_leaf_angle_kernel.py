@@ -115,7 +115,7 @@ def main(argv=None) -> int:
         step = tuple(np.radians([scans[i].meta["preset"]["zenith_step_deg"],
                                  scans[i].meta["preset"]["azimuth_step_deg"]]))
         for k in range(4):
-            sel = ((f.z >= cuts[k]) | (k == 0)) & ((f.z < cuts[k + 1]) | (k == 3))
+            sel = la._in_layer(f.z, cuts, k)
             if f.ok[sel].mean() < 0.05:
                 continue  # a scan too far for plane fits (its rows are the neighbour counts alone)
             rows = la._layer_rows(f, sel, n_bins=n_bins, n_groups=6, max_sim=3000, rng=rng, step=step,
@@ -125,7 +125,7 @@ def main(argv=None) -> int:
             _, mix, _ = la._em([(0, 0, 0, h, K) for h, K in rows], (1, 1, 1), 300)
             kern = sum(h.sum() * np.einsum("l,lbc->bc", mix[0], K[0]) for h, K in rows)  # (true bin, column)
             # the kernel is per unit leaf area of each true bin: weigh the bins of a class by the layer's leaf area
-            in_layer = ((leaf_z >= cuts[k]) | (k == 0)) & ((leaf_z < cuts[k + 1]) | (k == 3))
+            in_layer = la._in_layer(leaf_z, cuts, k)
             area = np.bincount(np.minimum((true_incl[in_layer] / (90 / n_bins)).astype(int), n_bins - 1),
                                minlength=n_bins).astype(float)
             kern = kern * area[:, None]

@@ -402,14 +402,13 @@ def trunk_center(wood_xyz, *, low: float = 0.3, high: float = 1.3):
         return None, float("nan")
     z0 = np.percentile(wood_xyz[:, 2], 1)
     sel = wood_xyz[(wood_xyz[:, 2] > z0 + low) & (wood_xyz[:, 2] < z0 + high)][:, :2]
+    from tlsvox.qsm import _circle
+
     keep = np.ones(len(sel), bool)
     for _ in range(20):
         if keep.sum() < 30:
             return None, float("nan")
-        M = np.column_stack([sel[keep], np.ones(keep.sum())])
-        c = np.linalg.lstsq(M, (sel[keep] ** 2).sum(axis=1), rcond=None)[0]
-        centre = 0.5 * c[:2]
-        rad = float(np.sqrt(max(c[2] + centre @ centre, 0.0)))
+        centre, rad = _circle(sel[keep])
         off = np.abs(np.linalg.norm(sel - centre, axis=1) - rad)
         new = off <= 3.0 * max(np.median(off[keep]), 1e-3)
         if np.array_equal(new, keep):
@@ -457,6 +456,14 @@ def _leaf_axes(normal, spin):
     return major, np.cross(normal, major)
 
 
+def _in_layer(z, cuts, k):
+    """Heights ``z`` in layer k of the layer boundaries ``cuts`` (the bottom and top layers take those below
+    and above the cuts)."""
+    n_layers = len(cuts) - 1
+    low = (z >= cuts[k]) | (k == 0)
+    return low if k == n_layers - 1 else low & (z < cuts[k + 1])
+
+
 def _levels(second_leaf):
     """Occlusion levels: (cuts (L, 4), second-leaf band (L, 2) in metres behind the first, nan for none)."""
     if not second_leaf:
@@ -465,6 +472,13 @@ def _levels(second_leaf):
     band = np.concatenate([np.full((len(_CUTS), 2), np.nan)] + [np.repeat(b[None], len(_SECOND_CUTS), 0)
                                                                 for b in _BANDS])
     return cuts, band
+
+
+def _reach(r, *, radius, margin):
+    """tan of the largest angle off the beam of an echo at range ``r`` (taken ``margin`` nearer) at which a ray
+    passes within ``radius`` of it (a ray at angle a passes r sin(a) from the echo)."""
+    rho = radius / np.maximum(np.asarray(r, float) - margin, 0.1)
+    return rho / np.sqrt(np.maximum(1.0 - rho * rho, 1e-12))
 
 
 def _grid_half_widths(r, sin_z, *, step, radius, margin, max_offsets=10):
@@ -491,8 +505,7 @@ def _grid_half_widths(r, sin_z, *, step, radius, margin, max_offsets=10):
     m_z, m_a : (S,) int64
         Half-widths in zenith and azimuth steps.
     """
-    rho = radius / np.maximum(np.asarray(r, float) - margin, 0.1)
-    tan_max = rho / np.sqrt(np.maximum(1.0 - rho * rho, 1e-12))  # a ray at angle a passes r sin(a) from the echo
+    tan_max = _reach(r, radius=radius, margin=margin)
     m_z = np.minimum(max_offsets, np.ceil(tan_max / step[0])).astype(np.int64)
     m_a = np.minimum(max_offsets, np.ceil(tan_max / (step[1] * np.maximum(sin_z, 1e-3)))).astype(np.int64)
     return m_z, m_a
@@ -513,9 +526,8 @@ def _pulse_grid(r, sin_z, *, step, radius, margin, max_offsets=10):
                                                          max_offsets=max_offsets))
     i, k = (g.ravel().astype(float) for g in np.meshgrid(np.arange(-m_z, m_z + 1), np.arange(-m_a, m_a + 1),
                                                            indexing="ij"))
-    rho = radius / max(float(np.min(r)) - margin, 0.1)
-    tan2 = rho * rho / max(1.0 - rho * rho, 1e-12)
-    inside = (i * step[0]) ** 2 + (k * step[1] * max(float(np.min(sin_z)), 1e-3)) ** 2 <= tan2
+    tan_max = float(_reach(np.min(r), radius=radius, margin=margin))
+    inside = (i * step[0]) ** 2 + (k * step[1] * max(float(np.min(sin_z)), 1e-3)) ** 2 <= tan_max ** 2
     return i[inside], k[inside]
 
 
@@ -962,8 +974,7 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
     n_layers = int(layers)
 
     def in_layer(f, k):
-        """Echoes of layer k (the bottom and top layers take the echoes below and above the cuts)."""
-        return (f.z >= cuts[k]) | (k == 0) if k == n_layers - 1 else ((f.z >= cuts[k]) | (k == 0)) & (f.z < cuts[k + 1])
+        return _in_layer(f.z, cuts, k)
 
     # per scan and layer: its kernel (its echoes' ranges, beams and outward directions) and rows
     rows = []  # (layer, scan, histogram, kernel)
