@@ -1,0 +1,1 @@
+"""Replay measured airborne pulses over a voxel scene and score them against the measurement."""
