@@ -115,6 +115,12 @@ def ws(tmp_path_factory):
     t = np.linspace(0, 60, 120)
     rows = [10 + 80 * np.exp(-0.5 * ((t - 30 + k) / 2.0) ** 2) + rng.normal(0, 1, t.size) for k in range(5)]
     (d / "return.csv").write_text("\n".join(",".join(f"{v:.2f}" for v in r) for r in rows) + "\n")
+    head = "index,bin0_x,bin0_y,bin0_z,bin0_dx,bin0_dy,bin0_dz\n"
+    for name, dz, n_geo in (("neonup", 0.15, 5), ("neonrows", -0.15, 3)):  # NEON-style folders gone wrong
+        (d / name).mkdir()
+        shutil.copy(d / "return.csv", d / name / "return.csv")
+        (d / name / "geolocation.csv").write_text(head + "".join(f"{i},{i * 0.4},0,330,0,{0.01 * i},{dz}\n"
+                                                                 for i in range(n_geo)))
     tls = rng.uniform(-5, 5, (3000, 3))
     np.save(d / "tls.npy", tls)
     np.save(d / "als.npy", tls[::3] + [100.0, 50.0, 0.0])
@@ -169,5 +175,5 @@ def test_corpus_counts():
     assert len(CASES) >= 175, len(CASES)
     commands = {cmd for _, cmd in tools}
     for cmd in ("tree", "scan", "view", "register", "classify", "voxelize", "georegister", "simulate",
-                "decompose", "waveforms", "bench"):
+                "decompose", "waveforms", "bench", "replay"):
         assert cmd in commands, cmd

@@ -8,6 +8,7 @@ Examples:
   clsim devices
   clsim waveforms info fwf.las
   clsim decompose fwf.las -o echoes.csv --plot echoes.png
+  clsim replay neon-harvard-waveforms/ -o out/replay
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from clsim.cli import pick, simulate, survey, waveforms
+from clsim.cli import pick, replay, simulate, survey, waveforms
 from voxlidar.cli import Parser, run, with_debug
 
 
@@ -30,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     waveforms.register(sub)
     pick.register(sub)
     survey.register(sub)
+    replay.register(sub)
     return parser
 
 

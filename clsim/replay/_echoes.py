@@ -42,6 +42,7 @@ class Prepared:
         pulse, location of the pulse peak (samples), energy (counts x
         samples), spread in range (samples).
     echo_xyz : (E, 3) float64, metres
+    shape_source : str, where the pulse shape came from
     """
 
     pulses: object
@@ -55,6 +56,7 @@ class Prepared:
     echo_energy: np.ndarray
     echo_sigma: np.ndarray
     echo_xyz: np.ndarray
+    shape_source: str = ""
 
     @property
     def energy(self) -> np.ndarray:
@@ -105,7 +107,7 @@ def pulse_shape(pulses, signal=None, mask=None) -> tuple[np.ndarray, float, str]
     return h / h.sum(), _peak(h), "the median of the file's strongest single returns (no impulse response recorded)"
 
 
-def prepare(pulses, *, false_alarm: float = 0.01, device=None) -> Prepared:
+def prepare(pulses, *, false_alarm: float = 0.01) -> Prepared:
     """Baselines, pulse shape and Gaussian echoes of every record (see the module docstring)."""
     from clsim.waveforms.decompose._template import decompose_template
 
@@ -125,7 +127,7 @@ def prepare(pulses, *, false_alarm: float = 0.01, device=None) -> Prepared:
         mask[i, : lengths[i]] = m
         noise[i] = s
         rows.append(y)
-    h, peak, _ = pulse_shape(pulses, signal, mask)
+    h, peak, source = pulse_shape(pulses, signal, mask)
     table = decompose_template(rows, h, dt_ns=pulses.dt_ns, false_alarm=false_alarm)
     loc = table.location_ns / pulses.dt_ns
     e_pulse = table.waveform.astype(np.int64)
@@ -133,4 +135,4 @@ def prepare(pulses, *, false_alarm: float = 0.01, device=None) -> Prepared:
     energy = table.energy / pulses.dt_ns
     return Prepared(pulses=pulses, signal=signal, mask=mask, noise=noise, shape=h, shape_peak=peak,
                     echo_pulse=e_pulse, echo_sample=loc, echo_energy=energy,
-                    echo_sigma=table.extent_ns / pulses.dt_ns, echo_xyz=xyz)
+                    echo_sigma=table.extent_ns / pulses.dt_ns, echo_xyz=xyz, shape_source=source)

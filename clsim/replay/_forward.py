@@ -29,8 +29,28 @@ __all__ = ["Calibration", "SimulatedPulses", "calibrate", "scene_from_pulses", "
 
 
 def scene_from_pulses(prepared, train, *, voxel_size: float = 0.25, pool_m: float = 0.3, n_min: int = 1,
-                      full_percentile: float = 95.0, tracer=None):
+                      full_percentile: float = 95.0, estimator: str = "beer_lambert", tracer=None):
     """A plant-area scene from the training pulses ``train`` (see the module docstring).
+
+    Parameters
+    ----------
+    prepared : Prepared
+    train : (J,) int, the training pulses
+    voxel_size : float, metres
+    pool_m : float, metres
+        Horizontal Gaussian the voxels' sums are pooled over
+        (:func:`tlsvox.voxel.airborne.pool_layers`).
+    n_min : int
+        Pooled beams a voxel needs to be seen (else it takes a wider pooling).
+    full_percentile : float
+        The full hit's energy is this percentile of the training pulses' echo energies.
+    estimator : str
+        ``beer_lambert`` by default: with each echo weighted by the share of
+        the beam it stopped, Beer-Lambert on the voxel's intercepted share is
+        exact for a turbid layer (tests/tlsvox/voxel/test_airborne.py), while
+        the bcMLE's small-sample correction, made for hits of weight 1, takes
+        about 1/(2N) off with N pooled beams (a sixth with 3).
+    tracer : Tracer, optional
 
     Returns
     -------
@@ -52,7 +72,7 @@ def scene_from_pulses(prepared, train, *, voxel_size: float = 0.25, pool_m: floa
     # the echoes' box, widened by the pooling's reach so that the pooled sums spread beyond the outer beams
     pts = beams.echo_points()
     reach = np.array([3.0 * pool_m, 3.0 * pool_m, 0.0])
-    scene = voxelize_beams(beams, voxel_size=voxel_size, n_min=n_min, pool_m=pool_m, tracer=tracer,
+    scene = voxelize_beams(beams, voxel_size=voxel_size, n_min=n_min, pool_m=pool_m, tracer=tracer, estimator=estimator,
                            bounds=np.array([pts.min(axis=0) - reach, pts.max(axis=0) + reach]))
     scene.meta["airborne"]["full_hit_energy"] = full
     scene.meta["airborne"]["full_hit_percentile"] = full_percentile

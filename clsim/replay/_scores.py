@@ -104,7 +104,7 @@ def score_pulse(measured, predicted, *, dt_ns: float = 1.0, max_lag_ns: float = 
         if r > best:
             best, lag = r, k
     out["r_best"] = float(best) if np.isfinite(best) else float("nan")
-    out["lag_ns"] = float(lag * dt_ns)
+    out["lag_ns"] = float(-lag * dt_ns)  # the shift that aligns it, negated: > 0 for a late prediction
     ey = float(y.sum())
     out["energy_ratio"] = float(s.sum() / ey) if ey > 0 else float("nan")
     yc = np.clip(y, 0.0, None)

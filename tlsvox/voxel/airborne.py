@@ -145,8 +145,8 @@ def pool_layers(stats, sigma_m: float):
 
 
 def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="bcmle", n_min: int = 2,
-                   min_explored: float = 0.0, leaf_angle="spherical", pool_m: float = 0.0, tracer=None,
-                   progress: bool = False):
+                   min_explored: float = 0.0, leaf_angle="spherical", pool_m: float = 0.0, widen=(2.0, 4.0),
+                   tracer=None, progress: bool = False):
     """A plant-area scene from beams whose echoes all count as vegetation.
 
     Parameters
@@ -170,6 +170,11 @@ def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="b
         airborne pulses lie tens of centimetres apart, so a small voxel is
         crossed by less than one beam; pooling keeps the vertical resolution
         and borrows the beams of a footprint around.  0: each voxel alone.
+    widen : sequence of float
+        With ``pool_m``: a voxel still occluded (fewer than ``n_min`` beams'
+        worth) takes the estimate pooled over ``pool_m`` times each of these
+        factors in turn, the narrowest that sees it (the finest footprint with
+        enough beams); it stays flagged ``occluded``.
     tracer : Tracer, optional
     progress : bool
 
@@ -196,16 +201,30 @@ def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="b
     grid = VoxelGrid.from_bounds(lo, hi, voxel_size=voxel_size, snap=True)
     grid.check_memory(200, what="tracing airborne beams")
     tracer = tracer or Tracer()
-    stats = pool_layers(tracer.trace(grid, beams, progress=progress), float(pool_m))
+    raw = tracer.trace(grid, beams, progress=progress)
+    stats = pool_layers(raw, float(pool_m))
     lad = estimate_lad(stats, estimator=estimator, n_min=n_min, min_explored=min_explored, leaf_size=None)
-    ijk = np.argwhere((lad.lad > 0) | lad.occluded)
+    values = lad.lad.copy()
+    todo = lad.occluded.copy()
+    widened = 0
+    for factor in (widen if pool_m > 0 else ()):
+        if not todo.any():
+            break
+        wide = estimate_lad(pool_layers(raw, float(pool_m) * float(factor)), estimator=estimator, n_min=n_min,
+                            min_explored=min_explored, leaf_size=None)
+        take = todo & ~wide.occluded
+        values[take] = wide.lad[take]
+        widened += int(take.sum())
+        todo &= ~take
+    ijk = np.argwhere((values > 0) | lad.occluded)
     sel = tuple(ijk.T)
     reached = int(np.count_nonzero(stats.field("count") > 0))
-    meta = {"airborne": {"beams": len(beams), "pool_m": float(pool_m), "echoes": beams.n_echoes, "capped_pulses": beams.meta.get("capped"),
+    meta = {"airborne": {"beams": len(beams), "pool_m": float(pool_m), "widened_voxels": widened,
+                         "widen": [float(f) for f in widen], "echoes": beams.n_echoes, "capped_pulses": beams.meta.get("capped"),
                          "occluded_voxels": int(lad.occluded[sel].sum()), "voxels": len(ijk),
                          "reached_voxels": reached,
                          "note": "every echo counted as vegetation: lad is plant area density (leaves, wood, and the "
                                  "ground where the records reach it)"},
             "estimator": str(getattr(lad.estimator, "value", lad.estimator)), "flags": lad.counts()}
-    return Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=lad.lad[sel],
+    return Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=values[sel],
                  occluded=lad.occluded[sel], lad_std=lad.lad_std[sel], leaf_angle=la, meta=meta)
