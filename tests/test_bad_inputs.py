@@ -140,6 +140,8 @@ def ws(tmp_path_factory):
             for f in files:
                 shutil.copy(src / f, d / sub / f)
         (d / "zerowdp" / "fwf.wdp").write_text("")
+    if (REAL / "neon-harvard-waveforms" / "return.csv").exists():
+        shutil.copytree(REAL / "neon-harvard-waveforms", d / "neon")
     return d
 
 

@@ -36,6 +36,11 @@ def register(subparsers) -> None:
     p.add_argument("measured", type=Path,
                    help="a NEON record folder (return.csv, geolocation.csv; outgoing.csv and system_impulse.csv "
                         "when present) or its return.csv")
+    p.add_argument("--scene", type=Path, default=None,
+                   help="replay over this scene (.npz, e.g. from tlsvox voxelize of TLS scans in the file's frame) "
+                        "instead of scenes made from the held-out folds' training pulses")
+    p.add_argument("--scene-out", type=Path, default=None, metavar="PATH",
+                   help="also write the scene made from every pulse of the file (.npz, for clsim simulate / survey)")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder (created; files in it replaced "
                                                                     "only when the whole run succeeds)")
     p.add_argument("--scheme", default="interleaved,lines",
@@ -54,8 +59,12 @@ def register(subparsers) -> None:
     p.add_argument("--no-hotspot", action="store_true",
                    help="single scattering returns through the canopy independently (a turbid medium's two-way "
                         "attenuation) instead of along its free incoming path")
+    p.add_argument("--methods", default="simulation,blair_hofton,blair_hofton_samples,nearest",
+                   help="methods compared, comma-separated: simulation (clsim), blair_hofton (training echoes), "
+                        "blair_hofton_samples (training samples), nearest (the nearest training pulse)")
     p.add_argument("--baselines-only", action="store_true",
-                   help="score only the baselines (no OpenCL device needed)")
+                   help="score only the baselines (no OpenCL device needed); the same as leaving simulation out "
+                        "of --methods")
     p.add_argument("--no-plots", action="store_true", help="write the tables only")
     p.add_argument("--plot-count", type=number(int, lo=1, hi=24), default=6, help="pulses in the overlay picture")
     p.add_argument("--device", default=None,
@@ -93,15 +102,33 @@ def cmd_replay(args) -> int:
     schemes = [Scheme.parse(s.strip(), "--scheme").value for s in str(args.scheme).split(",") if s.strip()]
     if not schemes:
         raise InputError("--scheme is empty; give interleaved, lines or both (comma-separated)")
+    chosen = [m.strip().lower() for m in str(args.methods).split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in METHODS]
+    if unknown or not chosen:
+        raise InputError(f"--methods {args.methods!r}: unknown {unknown or 'empty'}; choose from {', '.join(METHODS)}")
+    methods = tuple(m for m in METHODS if m in chosen and not (args.baselines_only and m == "simulation"))
+    if not methods:
+        raise InputError("--baselines-only leaves no method of --methods to run; add a baseline to --methods")
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {str(out)!r} is a file; give a folder")
-    inputs = [("measured", args.measured)]
-    check_outputs(inputs, [(f"-o ({p.name})", p) for p in
-                           output_paths(out, schemes, plots=not args.no_plots).values()])
+    inputs = [("measured", args.measured), ("--scene", args.scene)]
+    outputs = [(f"-o ({p.name})", p) for p in output_paths(out, schemes, plots=not args.no_plots).values()]
+    if args.scene_out is not None:
+        if Path(args.scene_out).suffix.lower() != ".npz":
+            raise InputError(f"--scene-out must end in .npz, got {str(args.scene_out)!r}")
+        outputs.append(("--scene-out", args.scene_out))
+    check_outputs(inputs, outputs)
+    scene = None
+    if args.scene is not None:
+        from voxlidar.scene import Scene
+
+        if args.baselines_only or "simulation" not in chosen:
+            raise InputError("--scene is replayed by the simulation; it needs simulation in --methods and no "
+                             "--baselines-only")
+        scene = Scene.load(args.scene)
     measured = load_measured(args.measured, divergence_mrad=args.divergence_mrad)
     prepared = prepare(measured)
-    methods = tuple(m for m in METHODS if not (args.baselines_only and m == "simulation"))
     simulator = None
     if "simulation" in methods:
         from clsim.transport.simulator import Simulator
@@ -112,8 +139,20 @@ def cmd_replay(args) -> int:
         results.append(cross_validate(prepared, scheme=s, k=args.folds, photons=args.photons, seed=args.seed,
                                       voxel_size=args.voxel_size, beams_per_footprint=args.beams_per_footprint,
                                       max_order=args.max_order, hotspot=not args.no_hotspot, methods=methods,
-                                      simulator=simulator, progress=not args.quiet))
+                                      scene=scene, simulator=simulator, progress=not args.quiet))
     paths = write_replay(prepared, results, out, plots=not args.no_plots, plot_count=args.plot_count)
+    if args.scene_out is not None:
+        import numpy as np
+
+        from clsim.replay import scene_from_pulses
+        from clsim.replay._replay import _pool_sigma
+
+        every = np.arange(len(measured))
+        whole = scene_from_pulses(prepared, every, voxel_size=args.voxel_size,
+                                  pool_m=_pool_sigma(prepared, every, args.beams_per_footprint))
+        whole.save(args.scene_out)
+        print(f"wrote the scene from all {len(measured)} pulses ({whole.n_voxels:,} voxels of {args.voxel_size:g} m, "
+              f"plant area density) to {args.scene_out}")
     geo = measured.meta.get("geometry") or {}
     print(f"{measured.name}: {len(measured)} pulses, {geo.get('lines', '?')} scan lines (positions rebuilt: "
           f"95 % within {geo.get('residual_x_p95_m', float('nan')):.2f} m in x, "

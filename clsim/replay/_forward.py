@@ -238,7 +238,8 @@ def calibrate(prepared, simulated: SimulatedPulses, *, lags=np.arange(-6.0, 6.01
     """Fit the gain and the time offset on simulated training pulses.
 
     The offset maximises the median Pearson r between measured and simulated
-    training records; the gain is the median ratio of their energies.
+    training records; the gain is the median ratio of their energies on the
+    recorded samples.
     """
     from clsim.replay._scores import _pearson
 
@@ -253,12 +254,13 @@ def calibrate(prepared, simulated: SimulatedPulses, *, lags=np.arange(-6.0, 6.01
         r = float(np.nanmedian(rs))
         if r > best:
             best, lag = r, float(L)
-    e_sim = simulated.total()
+    # energies on the recorded samples, as the scores count them (not the light beyond the record's end)
+    w = simulated.waveforms(prepared, lag=lag, responses=resp)
+    e_sim = np.array([w[k][prepared.mask[i]].sum() for k, i in enumerate(idx)])
     e_meas = prepared.energy[idx]
-    if len(simulated.outside):
-        keep = ~np.isin(idx, simulated.outside)
-        e_sim, e_meas = e_sim[keep], e_meas[keep]
     ok = e_sim > 0
+    if len(simulated.outside):
+        ok &= ~np.isin(idx, simulated.outside)
     if not ok.any():
         raise InputError("no simulated training pulse received any energy: the scene does not reach the pulses")
     return Calibration(gain=float(np.median(e_meas[ok] / e_sim[ok])), lag=lag, pulses=int(len(idx)))

@@ -7,7 +7,9 @@ angles).  For each fold, from the training pulses only, it builds
 
 - ``simulation``: the forward model (:mod:`clsim.replay._forward`): a scene
   from the training pulses' echoes, each test pulse simulated as fired, with
-  the gain and time offset fitted on simulated training pulses;
+  the gain and time offset fitted on training pulses (``calibration_pulses``
+  of them, each replayed over a scene made from the other training pulses,
+  as a test pulse is);
 - ``blair_hofton``: the standard method from ALS echoes
   (:func:`~clsim.replay._baselines.blair_hofton`), its footprint width chosen
   among ``BH_SIGMAS_M`` by predicting each training pulse from the other
@@ -138,9 +140,22 @@ def _pool_sigma(prepared, train, beams_per_footprint: float) -> float:
     return math.sqrt(beams_per_footprint / (2.0 * math.pi * density))
 
 
+def _check_coverage(p, scene) -> None:
+    """One clear error when a given scene covers none of the pulses' records (a frame mismatch)."""
+    lo = scene.origin
+    hi = scene.origin + scene.voxel_size * np.asarray(scene.shape)
+    end = p.bin0 + p.n_samples[:, None] * p.step
+    inside = np.all((end[:, :2] >= lo[:2]) & (end[:, :2] <= hi[:2]), axis=1)
+    if not inside.any():
+        raise InputError(f"the scene covers none of the {len(p)} pulses (scene x, y {lo[:2].round(1).tolist()} .. "
+                         f"{hi[:2].round(1).tolist()}; pulses {end[:, :2].min(axis=0).round(1).tolist()} .. "
+                         f"{end[:, :2].max(axis=0).round(1).tolist()}): the scene and the file must share a frame "
+                         "(place a TLS scene in the airborne frame first: tlsvox georegister)")
+
+
 def cross_validate(prepared, *, scheme="interleaved", k: int = 5, photons: int = 2000, seed: int = 0,
                    voxel_size: float = 0.25, beams_per_footprint: float = 3.0, calibration_pulses: int = 100,
-                   max_order: int = 3, hotspot: bool = True, methods=METHODS, simulator=None,
+                   max_order: int = 3, hotspot: bool = True, methods=METHODS, scene=None, simulator=None,
                    progress: bool = False) -> ReplayResult:
     """Held-out replay of every pulse by each method (see the module docstring).
 
@@ -161,11 +176,17 @@ def cross_validate(prepared, *, scheme="interleaved", k: int = 5, photons: int =
         The scene pools each voxel's sums over a horizontal Gaussian that holds
         this many training beams (:func:`tlsvox.voxel.airborne.pool_layers`).
     calibration_pulses : int
-        Training pulses simulated to fit the gain and time offset.
+        Training pulses simulated to fit the gain and time offset (at most
+        half of them), over a scene made from the other training pulses.
     max_order, hotspot
         As :func:`~clsim.replay._forward.simulate_pulses`.
     methods : sequence of str
         A subset of :data:`METHODS`.
+    scene : voxlidar.scene.Scene, optional
+        Replay over this scene (e.g. one made from TLS scans of the same
+        trees, georegistered to the file) instead of one made from each fold's
+        training pulses; the gain and time offset are still fitted on each
+        fold's training pulses.
     simulator : clsim.Simulator, optional
     progress : bool
 
@@ -186,6 +207,8 @@ def cross_validate(prepared, *, scheme="interleaved", k: int = 5, photons: int =
     seconds = {m: 0.0 for m in methods}
     fold_info = []
     splits = folds(p, scheme, k=k)
+    if "simulation" in methods and scene is not None:
+        _check_coverage(p, scene)
     if "simulation" in methods and simulator is None:
         from clsim.transport.simulator import Simulator
 
@@ -202,23 +225,30 @@ def cross_validate(prepared, *, scheme="interleaved", k: int = 5, photons: int =
         info = {"fold": int(f), "test": int(len(test)), "train": int(len(train))}
         if "simulation" in methods:
             t0 = time.perf_counter()
-            if tracer is None:
+            if tracer is None and scene is None:
                 from tlsvox.voxel.trace import Tracer
 
                 tracer = Tracer()
-            pool = _pool_sigma(prepared, train, beams_per_footprint)
-            scene = scene_from_pulses(prepared, train, voxel_size=voxel_size, pool_m=pool, tracer=tracer)
-            cal = np.sort(rng.choice(train, size=min(calibration_pulses, len(train)), replace=False))
-            fit = calibrate(prepared, simulate_pulses(prepared, scene, cal, simulator=simulator, photons=photons,
+            cal = np.sort(rng.choice(train, size=min(calibration_pulses, len(train) // 2), replace=False))
+            if scene is None:
+                pool = _pool_sigma(prepared, train, beams_per_footprint)
+                fold_scene = scene_from_pulses(prepared, train, voxel_size=voxel_size, pool_m=pool, tracer=tracer)
+                # the calibration pulses are replayed over a scene made without them, as the test pulses are:
+                # over their own echoes they would read brighter and the gain would come out low
+                rest = np.setdiff1d(train, cal)
+                cal_scene = scene_from_pulses(prepared, rest, voxel_size=voxel_size, pool_m=pool, tracer=tracer)
+            else:
+                pool, fold_scene, cal_scene = float("nan"), scene, scene
+            fit = calibrate(prepared, simulate_pulses(prepared, cal_scene, cal, simulator=simulator, photons=photons,
                                                       seed=seed, max_order=max_order, hotspot=hotspot,
                                                       outside="skip"))
-            sim = simulate_pulses(prepared, scene, test, simulator=simulator, photons=photons, seed=seed,
+            sim = simulate_pulses(prepared, fold_scene, test, simulator=simulator, photons=photons, seed=seed,
                                   max_order=max_order, hotspot=hotspot, outside="skip")
             preds["simulation"][test] = sim.waveforms(prepared, gain=fit.gain, lag=fit.lag)
             uncovered[sim.outside] = True
             seconds["simulation"] += time.perf_counter() - t0
-            info["simulation"] = dict(fit.to_dict(), pool_m=round(pool, 4), voxels=int(scene.n_voxels),
-                                      full_hit_energy=scene.meta["airborne"]["full_hit_energy"])
+            info["simulation"] = dict(fit.to_dict(), pool_m=round(pool, 4), voxels=int(fold_scene.n_voxels),
+                                      full_hit_energy=(fold_scene.meta.get("airborne") or {}).get("full_hit_energy"))
         for m, kind in (("blair_hofton", "echoes"), ("blair_hofton_samples", "samples")):
             if m not in methods:
                 continue
@@ -256,6 +286,7 @@ def cross_validate(prepared, *, scheme="interleaved", k: int = 5, photons: int =
                     voxel_size=float(voxel_size), beams_per_footprint=float(beams_per_footprint),
                     calibration_pulses=int(calibration_pulses), max_order=int(max_order), hotspot=bool(hotspot),
                     divergence_mrad=p.divergence_mrad, multi_echo_pulses=int(np.sum(peaks >= 2)),
+                    scene="given" if scene is not None else "from each fold's training pulses",
                     uncovered_pulses=int(uncovered.sum()))
     return ReplayResult(scheme=settings["scheme"], rows=rows, predictions=preds, summary=summary, folds=fold_info,
                         seconds=seconds, settings=settings)

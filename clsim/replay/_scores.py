@@ -17,7 +17,9 @@ removed; :func:`score_pulse` compares the two:
   height error (:func:`clsim.waveforms.metrics.relative_heights`);
 - ``cover``: canopy cover, one minus the lowest echo's mirrored energy over
   the total (:func:`clsim.waveforms.metrics.canopy_ground_ratio`, the LVIS
-  "mirror" method), for both.
+  "mirror" method), for both; clipped to 0-1, since the mirror doubles the
+  trailing half of the lowest echo, and a system's long tail can make that
+  more than the whole record.
 
 References
 ----------
@@ -66,7 +68,8 @@ def _heights(t, w, tg):
     rh = relative_heights(t, w, percentiles=PERCENTILES, ground_time_ns=tg)
     try:
         ratio = canopy_ground_ratio(t, w, ground_time_ns=tg)
-        cover = ratio / (1.0 + ratio)
+        # the mirror doubles the lowest echo's trailing half: with a system's long tail it can pass the total
+        cover = float(np.clip(ratio / (1.0 + ratio), 0.0, 1.0)) if ratio > -1.0 else 0.0
     except InputError:
         cover = float("nan")
     return rh, cover

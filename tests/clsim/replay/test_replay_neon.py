@@ -62,3 +62,31 @@ def test_a_scene_that_does_not_cover_the_pulses_is_one_clear_error(neon):
     scene = homogeneous_layer(width=4.0, voxel_size=0.5)  # around the origin, far from the NEON strip
     with pytest.raises(InputError, match="outside the scene"):
         simulate_pulses(neon, scene, [0], photons=64)
+
+
+def test_a_scene_from_every_pulse_replays_them_better_than_held_out(shared_data, tmp_path, capsys):
+    """--scene-out writes the scene from all pulses; replayed over it (--scene) each pulse's own echoes are in the
+    scene, so the pulses must read closer than held out (the in-sample ceiling of the forward model)."""
+    from clsim.cli.app import main
+
+    neon = str(shared_data / "neon-harvard-waveforms")
+    scene = tmp_path / "als_scene.npz"
+    common = ["--scheme", "interleaved", "--folds", "2", "--photons", "300", "--methods", "simulation", "--no-plots",
+              "-q"]
+    assert main(["replay", neon, "-o", str(tmp_path / "held"), "--scene-out", str(scene), *common]) == 0
+    assert main(["replay", neon, "-o", str(tmp_path / "own"), "--scene", str(scene), *common]) == 0
+    capsys.readouterr()
+
+    def sim_r(folder):
+        s = json.loads((tmp_path / folder / "summary.json").read_text())["schemes"]["interleaved"]
+        return s["summary"]["simulation"]["all"]["r_median"], s["settings"]["scene"]
+
+    held, how_held = sim_r("held")
+    own, how_own = sim_r("own")
+    assert how_held.startswith("from each fold") and how_own == "given"
+    assert own > held + 0.005, (own, held)
+
+    from voxlidar.scene import Scene
+
+    s = Scene.load(scene)
+    assert s.meta["airborne"]["beams"] == 500 and "plant area" in s.meta["airborne"]["note"]
