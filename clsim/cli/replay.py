@@ -35,7 +35,8 @@ def register(subparsers) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("measured", type=Path,
                    help="a NEON record folder (return.csv, geolocation.csv; outgoing.csv and system_impulse.csv "
-                        "when present) or its return.csv")
+                        "when present) or its return.csv; or a LAS 1.3/1.4 file with waveform packets (.wdp beside): "
+                        "its sensor positions are a straight, steady flight fitted to the pulses' lines")
     p.add_argument("--scene", type=Path, default=None,
                    help="replay over this scene (.npz, e.g. from tlsvox voxelize of TLS scans in the file's frame) "
                         "instead of scenes made from the held-out folds' training pulses")
@@ -54,7 +55,8 @@ def register(subparsers) -> None:
                    help="each voxel's sums are pooled over a horizontal Gaussian holding this many training "
                         "beams (airborne pulses are too sparse for one voxel's own)")
     p.add_argument("--divergence-mrad", type=number(lo=0, lo_open=True, unit="mrad"), default=None,
-                   help="beam divergence half angle at 1/e^2 (default: the reader's, NEON 0.25 mrad)")
+                   help="beam divergence half angle at 1/e^2 (default: the reader's: NEON 0.25 mrad, LAS 0.11 mrad "
+                        "as a Leica ALS50-II; files do not record it)")
     p.add_argument("--max-order", type=number(int, lo=1, hi=16), default=3, help="highest scattering order")
     p.add_argument("--no-hotspot", action="store_true",
                    help="single scattering returns through the canopy independently (a turbid medium's two-way "
@@ -75,21 +77,26 @@ def register(subparsers) -> None:
 
 
 def load_measured(path: Path, *, divergence_mrad=None):
-    """The measured pulses of ``path`` (a NEON record folder or its ``return.csv``)."""
-    from clsim.replay import read_neon
+    """The measured pulses of ``path``: a NEON record folder (or its ``return.csv``), or a LAS file with
+    waveform packets (``.wdp`` beside)."""
+    from clsim.replay import read_las_pulses, read_neon
 
     path = Path(path)
     if not path.exists():
         raise InputError(f"{str(path)!r} does not exist")
+    kwargs = {} if divergence_mrad is None else {"divergence_mrad": float(divergence_mrad)}
+    if path.is_file() and path.suffix.lower() in (".las", ".laz"):
+        if path.suffix.lower() == ".laz":
+            raise InputError(f"{path.name}: LASzip files do not carry the waveform packets; give the .las with its "
+                             ".wdp beside")
+        return read_las_pulses(path, **kwargs)
+    if path.is_file() and path.suffix.lower() == ".pls":
+        raise InputError(f"{path.name}: clsim replay reads NEON record folders and LAS waveform packets; PulseWaves "
+                         "is not replayed yet (decompose it with clsim decompose)")
     folder = path if path.is_dir() else path.parent
-    if path.is_file() and path.suffix.lower() in (".las", ".laz", ".pls"):
-        raise InputError(f"{path.name}: clsim replay reads NEON record folders (return.csv + geolocation.csv); "
-                         "LAS waveform packets and PulseWaves files have no sensor position to replay from yet; "
-                         "decompose them with clsim decompose")
     if not (folder / "return.csv").is_file():
         raise InputError(f"{str(folder)!r} holds no return.csv: pass a NEON record folder (return.csv, "
-                         "geolocation.csv)")
-    kwargs = {} if divergence_mrad is None else {"divergence_mrad": float(divergence_mrad)}
+                         "geolocation.csv) or a LAS file with waveform packets")
     return read_neon(folder, **kwargs)
 
 

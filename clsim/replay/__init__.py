@@ -22,7 +22,8 @@ Examples
 from clsim.replay._baselines import blair_hofton, nearest_pulse
 from clsim.replay._echoes import Prepared, prepare, pulse_shape
 from clsim.replay._forward import Calibration, SimulatedPulses, calibrate, scene_from_pulses, simulate_pulses
-from clsim.replay._measured import GeometryFit, MeasuredPulses, read_neon, rebuild_positions, scan_lines
+from clsim.replay._measured import (GeometryFit, MeasuredPulses, common_point, read_las_pulses, read_neon,
+                                    rebuild_positions, scan_lines, straight_trajectory)
 from clsim.replay._replay import METHODS, ReplayResult, Scheme, cross_validate, folds, peak_counts
 from clsim.replay._scores import score_pulse, summarize
 from clsim.replay._write import write_replay
@@ -38,16 +39,19 @@ __all__ = [
     "SimulatedPulses",
     "blair_hofton",
     "calibrate",
+    "common_point",
     "cross_validate",
     "folds",
     "nearest_pulse",
     "peak_counts",
     "prepare",
     "pulse_shape",
+    "read_las_pulses",
     "read_neon",
     "rebuild_positions",
     "scan_lines",
     "scene_from_pulses",
+    "straight_trajectory",
     "score_pulse",
     "simulate_pulses",
     "summarize",

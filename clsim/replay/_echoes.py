@@ -84,7 +84,8 @@ def pulse_shape(pulses, signal=None, mask=None) -> tuple[np.ndarray, float, str]
 
     The measured system impulse response when the file has one; else the
     median of the strongest single-peaked records, each shifted to a common
-    peak (a hard target's return, estimated from the file itself).
+    peak (a hard target's return, estimated from the file itself:
+    :func:`clsim.waveforms.decompose._template.template_from_returns`).
     """
     if pulses.impulse is not None:
         h = np.clip(np.asarray(pulses.impulse, dtype=np.float64), 0.0, None)
@@ -92,19 +93,10 @@ def pulse_shape(pulses, signal=None, mask=None) -> tuple[np.ndarray, float, str]
             return h / h.sum(), _peak(h), "measured system impulse response"
     if signal is None:
         raise InputError("no system impulse response and no records to estimate one from")
-    peaks = signal.max(axis=1)
-    strong = np.argsort(peaks)[::-1][: max(5, len(peaks) // 20)]
-    width = 40
-    stack = []
-    for i in strong:
-        y = signal[i]
-        p = int(np.argmax(y))
-        seg = np.zeros(2 * width)
-        lo, hi = max(0, p - width), min(y.size, p + width)
-        seg[lo - p + width: hi - p + width] = y[lo:hi]
-        stack.append(seg / max(seg.max(), 1e-300))
-    h = np.clip(np.median(np.array(stack), axis=0), 0.0, None)
-    return h / h.sum(), _peak(h), "the median of the file's strongest single returns (no impulse response recorded)"
+    from clsim.waveforms.decompose._template import template_from_returns
+
+    h = template_from_returns([y[m] for y, m in zip(signal, mask)])
+    return h / h.sum(), _peak(h), "the median of the file's 20 strongest single returns (no impulse response recorded)"
 
 
 def prepare(pulses, *, false_alarm: float = 0.01) -> Prepared:

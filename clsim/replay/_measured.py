@@ -42,7 +42,8 @@ import numpy as np
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
 
-__all__ = ["MeasuredPulses", "GeometryFit", "read_neon", "rebuild_positions", "scan_lines"]
+__all__ = ["MeasuredPulses", "GeometryFit", "common_point", "read_las_pulses", "read_neon", "rebuild_positions",
+           "scan_lines", "straight_trajectory"]
 
 #: NEON's stored precision of x and y (7 significant digits at UTM magnitudes), metres.
 NEON_ROUNDING_M = (0.1, 1.0)
@@ -362,3 +363,135 @@ def read_neon(folder, *, divergence_mrad: float = 0.25) -> MeasuredPulses:
             residual_x_max_m=float(res[:, 0].max()), residual_y_max_m=float(res[:, 1].max()),
             residual_x_p95_m=float(np.percentile(res[:, 0], 95)),
             residual_y_p95_m=float(np.percentile(res[:, 1], 95)))))
+
+
+def common_point(points, directions) -> np.ndarray:
+    """(3,) the point nearest, in least squares, to the lines through ``points`` along ``directions``.
+
+    Every pulse of one scan line leaves the scanner: where a file gives each
+    pulse's line but not its origin, the lines' common point is the scanner.
+
+    >>> d = np.array([[0.1, 0, -1], [-0.1, 0.05, -1], [0, -0.1, -1]])
+    >>> (common_point(np.array([0.0, 0, 1000]) + 9000 * d, d).round(6) + 0.0).tolist()
+    [0.0, 0.0, 1000.0]
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    u = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]  # (I - u u^T) per line
+    A = proj.sum(axis=0)
+    b = np.einsum("nij,nj->i", proj, p)
+    if np.linalg.cond(A) > 1e12:
+        raise InputError("the pulses' lines are (nearly) parallel: their common point, the scanner, cannot be found")
+    return np.linalg.solve(A, b)
+
+
+def straight_trajectory(points, directions, times) -> tuple[np.ndarray, np.ndarray]:
+    """The straight, steady flight ``S(t) = S0 + v t`` nearest, in least squares, to every pulse's line.
+
+    Pulse ``i`` left the sensor at ``S(t_i)`` along its line through
+    ``points[i]``: the perpendicular distances of ``S(t_i)`` from the lines are
+    linear in ``S0`` and ``v``.
+
+    Returns ``S0`` (3,) metres and ``v`` (3,) metres per unit of ``times``.
+
+    >>> t = np.linspace(0, 1, 50)
+    >>> d = np.c_[0.1 * np.sin(40 * t), 0.1 * np.cos(33 * t), -np.ones(50)]
+    >>> truth = np.array([0.0, 0, 1000]) + t[:, None] * [60.0, 0, 0]
+    >>> S0, v = straight_trajectory(truth + 5000 * d, d, t)
+    >>> S0.round(3).tolist(), v.round(3).tolist()
+    ([0.0, 0.0, 1000.0], [60.0, 0.0, 0.0])
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    u = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
+    A = np.concatenate([proj, proj * t[:, None, None]], axis=2).reshape(-1, 6)  # rows: (I - uu^T)[S0, v t]
+    b = np.einsum("nij,nj->ni", proj, p).reshape(-1)
+    sol, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+    if rank < 6:
+        raise InputError("the pulses' lines and times do not fix a flight (too few pulses, or all parallel)")
+    return sol[:3], sol[3:]
+
+
+def read_las_pulses(path, *, divergence_mrad: float = 0.11, wavelength_nm: float = 1064.0) -> MeasuredPulses:
+    """Pulses of a LAS 1.3/1.4 file with waveform packets, one per GPS time (the first point's packet).
+
+    The file gives each waveform's sample 0 and its line (the points'
+    parametric ``x(t), y(t), z(t)``) but not the sensor's position: a straight
+    flight at a steady speed is fitted to the lines and the GPS times
+    (:func:`straight_trajectory`), and each pulse's origin is the point of its
+    own line nearest to the sensor at its time.  Scan lines: the runs of pulses
+    between gaps in time.  Files without an outgoing
+    pulse or impulse response get the pulse estimated from their own strongest
+    single returns when they are prepared (:func:`clsim.replay.prepare`).
+
+    Parameters
+    ----------
+    path : str or path
+        ``.las`` with its ``.wdp`` beside (or waveforms in the file).
+    divergence_mrad : float
+        Beam divergence half angle at 1/e^2 (not in the file; the default is
+        Leica's ALS50-II, 0.22 mrad full angle at 1/e^2: state yours).
+    wavelength_nm : float
+
+    Returns
+    -------
+    MeasuredPulses
+        ``meta["returns_ns"]``: per pulse, the times (ns from its sample 0) of
+        the file's discrete returns; ``meta["geometry"]``: the scanners found.
+    """
+    from clsim.waveforms.io import read_las_waveforms
+
+    las = read_las_waveforms(path)
+    has = np.flatnonzero(las.packet >= 0)
+    if not has.size:
+        raise InputError(f"{Path(path).name}: no point has a waveform packet; nothing to replay")
+    times = las.gps_time[has]
+    order = np.lexsort((las.return_number[has], times))
+    has, times = has[order], times[order]
+    first = np.r_[True, np.diff(times) != 0]
+    group = np.cumsum(first) - 1
+    heads = has[first]
+    n = len(heads)
+    specs = {int(las.packet_descriptor[las.packet[i]]) for i in heads}
+    spacing = {las.descriptors[k].spacing_ps for k in specs}
+    if len(spacing) != 1:
+        raise InputError(f"{Path(path).name}: the waveforms use {len(spacing)} sample spacings {sorted(spacing)} ps; "
+                         "a replay needs one sample clock")
+    dt_ns = spacing.pop() / 1000.0
+    width = max(las.descriptors[k].n_samples for k in specs)
+    samples = np.zeros((n, width))
+    valid = np.zeros((n, width), dtype=bool)
+    bin0 = np.zeros((n, 3))
+    per_ns = np.zeros((n, 3))
+    for j, i in enumerate(heads):
+        y = las.samples(int(i), volts=False).astype(np.float64)
+        samples[j, : y.size] = y
+        valid[j, : y.size] = True
+        bin0[j], per_ns[j] = las.waveform_origin(int(i))
+    returns = [[] for _ in range(n)]
+    for g, i in zip(group, has):
+        # the return's time from the head pulse's sample 0 (points of one pulse may carry their own packets)
+        o, d = las.waveform_origin(int(i))
+        returns[g].append(float(las.return_location_ps[i]) / 1000.0 + float((o - bin0[g]) @ d / (d @ d)))
+    step = per_ns * dt_ns
+    unit = step / np.linalg.norm(step, axis=1, keepdims=True)
+    t = las.gps_time[heads] - las.gps_time[heads].min()
+    gaps = np.diff(t)
+    line = np.r_[0, np.cumsum(gaps > 20 * np.median(gaps))] if n > 1 else np.zeros(1, np.int64)
+    S0, v = straight_trajectory(bin0, unit, t)
+    S = S0 + t[:, None] * v
+    s = np.einsum("ij,ij->i", bin0 - S, unit)
+    origin = bin0 - s[:, None] * unit
+    miss = np.linalg.norm(np.cross(S - bin0, unit), axis=1)
+    return MeasuredPulses(
+        samples=samples, valid=valid, dt_ns=dt_ns, bin0=bin0, step=step, origin=origin, line=line,
+        divergence_mrad=divergence_mrad, wavelength_nm=wavelength_nm, name=Path(path).stem,
+        meta=dict(source="LAS waveform packets", returns_ns=[np.array(r) for r in returns],
+                  geometry=dict(rebuilt=True, lines=int(line.max() + 1),
+                                scanner_height_m=float(np.median(S[:, 2] - bin0[:, 2])),
+                                speed_m_s=float(np.linalg.norm(v)),
+                                note="sensor positions: a straight, steady flight fitted to the pulses' lines",
+                                off_line_median_m=float(np.median(miss)), off_line_max_m=float(miss.max()))))

@@ -3,7 +3,7 @@
 :func:`cross_validate` splits the pulses into folds (``interleaved``: pulse
 ``i`` in fold ``i mod k``; ``lines``: one scan line held out at a time, the
 scene made from the other lines, which cross the same canopy at other
-angles).  For each fold, from the training pulses only, it builds
+angles; with more than ``2 k`` lines, every ``k``-th line together).  For each fold, from the training pulses only, it builds
 
 - ``simulation``: the forward model (:mod:`clsim.replay._forward`): a scene
   from the training pulses' echoes, each test pulse simulated as fired, with
@@ -45,7 +45,7 @@ class Scheme(str, Choice):
     """How pulses are held out."""
 
     INTERLEAVED = "interleaved"  # pulse i in fold i mod k
-    LINES = "lines"  # one scan line at a time
+    LINES = "lines"  # one scan line at a time (every k-th line where there are more than 2k)
 
 
 def folds(pulses, scheme="interleaved", *, k: int = 5) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -57,10 +57,12 @@ def folds(pulses, scheme="interleaved", *, k: int = 5) -> list[tuple[np.ndarray,
             raise InputError(f"k={k!r} folds need 2 <= k <= {n} pulses")
         fold = np.arange(n) % int(k)
     else:
-        fold = np.asarray(pulses.line)
-        if len(np.unique(fold)) < 2:
+        lines, rank = np.unique(np.asarray(pulses.line), return_inverse=True)
+        if len(lines) < 2:
             raise InputError("leave-one-line-out needs pulses from at least 2 scan lines; this file has 1 (use "
                              "--scheme interleaved)")
+        # one line per fold; a file of many short lines (a tile cut from a flight) holds out every k-th line
+        fold = rank if len(lines) <= 2 * int(k) else rank % int(k)
     return [(np.flatnonzero(fold == f), np.flatnonzero(fold != f)) for f in np.unique(fold)]
 
 

@@ -16,7 +16,10 @@ energy-weighted mean shift; an extended target spreads over several shifts).
 An echo is kept when its matched-filter signal-to-noise ratio
 ``E ||h||_2 / sigma_eff`` passes the detection threshold of
 :func:`clsim.waveforms.decompose._matched.threshold` for the false-alarm
-rate, where ``sigma_eff^2 = sigma^2 + (tolerance * m)^2`` adds to the noise a
+rate (the noise ``sigma`` at least one digitiser step: a slowly varying
+record's rounding error is not white; and at least what the filter itself
+reads over the record's quiet stretches, where a slow baseline wander shows),
+where ``sigma_eff^2 = sigma^2 + (tolerance * m)^2`` adds to the noise a
 share ``tolerance`` of the other echoes' model ``m`` at its time: the pulse
 changes a little from shot to shot, and the misfit of a strong echo's tail
 must not pass for a weak echo.
@@ -158,7 +161,8 @@ def _design(n: int, h: np.ndarray, peak: float, shifts: np.ndarray) -> np.ndarra
 
 
 def decompose_template(waveforms, template, *, dt_ns: float = 1.0, t0_ns=0.0, false_alarm: float = FALSE_ALARM,
-                       tolerance: float = TOLERANCE, merge_ns: float | None = None) -> TemplateEchoes:
+                       tolerance: float = TOLERANCE, merge_ns: float | None = None,
+                       min_relative: float = 0.0) -> TemplateEchoes:
     """Decompose waveforms into shifted, scaled copies of the system template (module docstring).
 
     Parameters
@@ -179,6 +183,11 @@ def decompose_template(waveforms, template, *, dt_ns: float = 1.0, t0_ns=0.0, fa
     tolerance : float
         Share of the model counted as noise near other echoes (shot-to-shot
         change of the pulse), 0 to switch off.
+    min_relative : float
+        Drop echoes whose peak is under this share of the waveform's
+        strongest echo (0: keep every significant echo, as a scene that needs
+        all the energy does; an instrument's own discrete returns seldom go
+        below a few per cent, docs/bench/decompose_returns.md).
     merge_ns : float, optional
         Non-zero shifts closer than this are one echo; default the template's
         Gaussian-equivalent standard deviation (FWHM / 2.355): two targets
@@ -194,6 +203,8 @@ def decompose_template(waveforms, template, *, dt_ns: float = 1.0, t0_ns=0.0, fa
         raise InputError(f"false_alarm must be in (0, 1), got {false_alarm!r}")
     if not 0 <= tolerance < 1:
         raise InputError(f"tolerance must be in [0, 1), got {tolerance!r}")
+    if not 0 <= min_relative < 1:
+        raise InputError(f"min_relative must be in [0, 1), got {min_relative!r}")
     from scipy.optimize import nnls
 
     h, peak = _unit_template(template)
@@ -215,6 +226,11 @@ def decompose_template(waveforms, template, *, dt_ns: float = 1.0, t0_ns=0.0, fa
         ok = np.ones(y.size, bool) if ok is None else ok
         b, s = noise_level(y[ok])
         b = clipped_baseline(y[ok], s, b)  # the lowest fifth's median sits about 1.3 sigma under the noise's mean
+        # a record that sits still between steps of the digitiser has no white noise to average: its rounding
+        # error follows the slow signal and a matched filter does not beat it down; floor at one step
+        steps = np.abs(np.diff(y[ok]))
+        steps = steps[steps > 0]
+        s = max(s, float(steps.min()) if steps.size else 0.0)
         base[i], noise[i] = b, s
         shifts = np.arange(-2 * _GRID, _GRID * (y.size + 1)) / _GRID
         A = _design(y.size, h, peak, shifts)[ok]
@@ -229,16 +245,28 @@ def decompose_template(waveforms, template, *, dt_ns: float = 1.0, t0_ns=0.0, fa
         model = [(_design(y.size, h, peak, shifts[r]) @ e[r]) for r in runs]
         total = np.sum(model, axis=0)
         u = threshold(int(ok.sum()), unit, false_alarm=false_alarm)
+        peaks = np.array([m.max() for m in model])
+        # the noise as the matched filter sees it: its output over the record's quiet stretches (no sample
+        # 3 sigma off the baseline under the template), which holds a slow wander that white noise does not
+        sigma_e = s / hnorm
+        yb = np.where(ok, y - b, 0.0)
+        loud = np.convolve((np.abs(yb) > 3.0 * s).astype(float), np.ones(h.size), mode="full")[h.size - 1:]
+        quiet = np.flatnonzero(loud[: max(y.size - h.size + 1, 0)] == 0)
+        if quiet.size >= 10:
+            est = np.correlate(yb, h, mode="valid")[quiet] / float((h * h).sum())
+            sigma_e = max(sigma_e, 1.4826 * float(np.median(np.abs(est - np.median(est)))))
         for k, r in enumerate(runs):
+            if peaks[k] < min_relative * peaks.max():
+                continue
             at = int(np.clip(round(loc[k]), 0, y.size - 1))
             others = total[at] - model[k][at]
-            snr = energy[k] * hnorm / np.sqrt(s * s + (tolerance * others) ** 2)
+            snr = energy[k] / np.sqrt(sigma_e ** 2 + (tolerance * others / hnorm) ** 2)
             if snr < u:
                 continue
             cols["waveform"].append(i)
             cols["location_ns"].append(t0[i] + loc[k] * dt_ns)
             cols["energy"].append(energy[k] * dt_ns)
-            cols["amplitude"].append(float(model[k].max()))
+            cols["amplitude"].append(float(peaks[k]))
             cols["extent_ns"].append(ext[k] * dt_ns)
             cols["snr"].append(snr)
     arr = {k: np.asarray(v, dtype=np.int64 if k == "waveform" else np.float64) for k, v in cols.items()}

@@ -76,3 +76,37 @@ def test_read_neon_bad_folders(tmp_path):
     (tmp_path / "geolocation.csv").write_text("index,x,y\n1,0,0\n2,0,0\n")
     with pytest.raises(InputError, match="bin0_x"):
         read_neon(tmp_path)
+
+
+def test_read_las_pulses_finds_the_flight_of_the_leica_tile(shared_data):
+    from clsim.replay import read_las_pulses
+
+    m = read_las_pulses(shared_data / "leica-fwf-las13" / "fwf.las")
+    geo = m.meta["geometry"]
+    # one pulse per GPS time, every discrete return kept with its pulse
+    assert len(m) == 1778 and sum(r.size for r in m.meta["returns_ns"]) == 2250
+    assert m.dt_ns == 2.0 and m.samples.shape[1] == 256
+    # a straight, steady flight passes within 2 cm of all 1,778 lines: the file's geometry is one flight
+    assert geo["off_line_max_m"] < 0.02
+    assert 1000 < geo["scanner_height_m"] < 2000 and 40 < geo["speed_m_s"] < 100
+    # each pulse's origin lies on its own line
+    rel = m.bin0 - m.origin
+    assert np.allclose(np.linalg.norm(np.cross(rel, m.direction), axis=1), 0.0, atol=1e-6)
+    assert geo["lines"] == 78
+
+
+def test_the_lines_scheme_groups_many_short_lines():
+    from clsim.replay import folds
+
+    class P:
+        line = np.repeat(np.arange(30), 4)
+
+        def __len__(self):
+            return 120
+
+    splits = folds(P(), "lines", k=5)
+    assert len(splits) == 5  # 30 lines > 2 k: every fifth line together
+    test0 = splits[0][0]
+    assert set(P.line[test0]) == {0, 5, 10, 15, 20, 25}
+    P.line = np.repeat(np.arange(8), 4)
+    assert len(folds(P(), "lines", k=5)) == 8  # 8 lines: one line per fold

@@ -72,3 +72,24 @@ def test_bad_templates_and_options():
         decompose_template([np.ones(20)], _template(), false_alarm=2)
     with pytest.raises(InputError, match="strong single returns"):
         template_from_returns([np.ones(30)])
+
+
+def test_min_relative_drops_what_is_weaker_than_a_share_of_the_strongest(rng):
+    h = _template()
+    y = np.full(150, 10.0) + rng.normal(0, 0.2, 150)
+    for a, m in ((100.0, 30.0), (3.0, 100.0)):  # a weak bump far behind the main echo
+        y += a * np.interp(np.arange(150) - m + 6.0, np.arange(h.size), h, left=0, right=0)
+    every = decompose_template([y], h)
+    assert np.any(np.abs(every.location_ns - 100.0) < 1.0)  # the weak echo is significant (SNR about 25)
+    kept = decompose_template([y], h, min_relative=0.05)
+    assert kept.counts[0] == 1 and abs(kept.location_ns[0] - 30.0) < 0.5
+    with pytest.raises(InputError, match="min_relative"):
+        decompose_template([y], h, min_relative=1.5)
+
+
+def test_quantised_records_are_not_decomposed_into_their_steps(rng):
+    h = _template()
+    # an 8-bit record: a slow baseline wander of one or two steps behind a strong echo
+    y = 12.0 + np.round(0.8 * np.sin(np.arange(200) / 9.0))
+    y += np.round(90 * np.interp(np.arange(200) - 30 + 6.0, np.arange(h.size), h, left=0, right=0))
+    assert decompose_template([y], h).counts[0] <= 2
