@@ -64,6 +64,7 @@ def test_a_scene_that_does_not_cover_the_pulses_is_one_clear_error(neon):
         simulate_pulses(neon, scene, [0], photons=64)
 
 
+@pytest.mark.slow  # two replays, about a minute on 2 cores
 def test_a_scene_from_every_pulse_replays_them_better_than_held_out(shared_data, tmp_path, capsys):
     """--scene-out writes the scene from all pulses; replayed over it (--scene) each pulse's own echoes are in the
     scene, so the pulses must read closer than held out (the in-sample ceiling of the forward model)."""
