@@ -151,12 +151,11 @@ def cmd_replay(args) -> int:
     if args.scene_out is not None:
         import numpy as np
 
-        from clsim.replay import scene_from_pulses
-        from clsim.replay._replay import _pool_sigma
+        from clsim.replay import pool_sigma, scene_from_pulses
 
         every = np.arange(len(measured))
         whole = scene_from_pulses(prepared, every, voxel_size=args.voxel_size,
-                                  pool_m=_pool_sigma(prepared, every, args.beams_per_footprint))
+                                  pool_m=pool_sigma(prepared, every, args.beams_per_footprint))
         whole.save(args.scene_out)
         print(f"wrote the scene from all {len(measured)} pulses ({whole.n_voxels:,} voxels of {args.voxel_size:g} m, "
               f"plant area density) to {args.scene_out}")

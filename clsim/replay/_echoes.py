@@ -18,6 +18,7 @@ import numpy as np
 
 from clsim.errors import InputError
 from clsim.waveforms.decompose._noise import noise_level
+from clsim.waveforms.decompose._template import subsample_peak
 
 __all__ = ["Prepared", "prepare", "pulse_shape"]
 
@@ -68,17 +69,6 @@ class Prepared:
         return np.bincount(self.echo_pulse, minlength=len(self.signal))
 
 
-def _peak(h: np.ndarray) -> float:
-    """Sub-sample position of the maximum (parabola through three samples)."""
-    i = int(np.argmax(h))
-    if 0 < i < h.size - 1:
-        a, b, c = h[i - 1:i + 2]
-        den = a - 2 * b + c
-        if den < 0:
-            return i + 0.5 * (a - c) / den
-    return float(i)
-
-
 def pulse_shape(pulses, signal=None, mask=None) -> tuple[np.ndarray, float, str]:
     """The instrument's pulse on the record clock: unit sum, its sub-sample peak, where it came from.
 
@@ -90,13 +80,13 @@ def pulse_shape(pulses, signal=None, mask=None) -> tuple[np.ndarray, float, str]
     if pulses.impulse is not None:
         h = np.clip(np.asarray(pulses.impulse, dtype=np.float64), 0.0, None)
         if h.sum() > 0:
-            return h / h.sum(), _peak(h), "measured system impulse response"
+            return h / h.sum(), subsample_peak(h), "measured system impulse response"
     if signal is None:
         raise InputError("no system impulse response and no records to estimate one from")
     from clsim.waveforms.decompose._template import template_from_returns
 
     h = template_from_returns([y[m] for y, m in zip(signal, mask)])
-    return h / h.sum(), _peak(h), "the median of the file's 20 strongest single returns (no impulse response recorded)"
+    return h / h.sum(), subsample_peak(h), "the median of the file's 20 strongest single returns (no impulse response recorded)"
 
 
 def prepare(pulses, *, false_alarm: float = 0.01) -> Prepared:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clsim.errors import InputError
-from clsim.sensor import Sensor
+from clsim.sensor import C_M_PER_NS, Sensor
 
 __all__ = ["Calibration", "SimulatedPulses", "calibrate", "scene_from_pulses", "simulate_pulses"]
 
@@ -97,10 +97,6 @@ class SimulatedPulses:
     energy: list
     seconds: float
     outside: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-
-    def total(self) -> np.ndarray:
-        """(K,) received energy of each pulse."""
-        return np.array([e.sum() for e in self.energy])
 
     def responses(self, prepared, *, sub: int = 10) -> tuple[np.ndarray, np.ndarray]:
         """The received energy convolved with the instrument's pulse, on a grid ``1/sub`` sample apart.
@@ -214,7 +210,7 @@ def simulate_pulses(prepared, scene, index, *, simulator=None, photons: int = 40
         e = res.fine.sum(axis=(0, 1))
         centres = 0.5 * (res.fine_edges_ns[:-1] + res.fine_edges_ns[1:])
         S = sensor.position(target)
-        t_rec0 = 2.0 * float(np.linalg.norm(p.bin0[i] - S)) / 0.299792458
+        t_rec0 = 2.0 * float(np.linalg.norm(p.bin0[i] - S)) / C_M_PER_NS
         per_sample = float(p.sample_time_ns()[i])
         at.append((centres - t_rec0) / per_sample)
         energy.append(e)

@@ -33,7 +33,7 @@ from clsim.replay._baselines import blair_hofton, nearest_pulse
 from clsim.replay._scores import score_pulse, summarize
 from voxlidar.choices import Choice
 
-__all__ = ["BH_SIGMAS_M", "METHODS", "ReplayResult", "Scheme", "cross_validate", "folds", "peak_counts"]
+__all__ = ["BH_SIGMAS_M", "METHODS", "ReplayResult", "Scheme", "cross_validate", "folds", "peak_counts", "pool_sigma"]
 
 #: Footprint standard deviations (m) the Blair-Hofton baseline chooses from on training pulses.
 BH_SIGMAS_M = (0.15, 0.2, 0.3, 0.4, 0.5, 0.75)
@@ -133,7 +133,7 @@ def _bh_choice(prepared, train, *, kind, sigmas=BH_SIGMAS_M, sample: int = 80, s
     return best[1], best[2]
 
 
-def _pool_sigma(prepared, train, beams_per_footprint: float) -> float:
+def pool_sigma(prepared, train, beams_per_footprint: float) -> float:
     """The pooling width that gathers ``beams_per_footprint`` training beams: sqrt(k / (2 pi density))."""
     xy = prepared.pulses.bin0[train, :2]
     lo, hi = xy.min(axis=0), xy.max(axis=0)
@@ -233,7 +233,7 @@ def cross_validate(prepared, *, scheme="interleaved", k: int = 5, photons: int =
                 tracer = Tracer()
             cal = np.sort(rng.choice(train, size=min(calibration_pulses, len(train) // 2), replace=False))
             if scene is None:
-                pool = _pool_sigma(prepared, train, beams_per_footprint)
+                pool = pool_sigma(prepared, train, beams_per_footprint)
                 fold_scene = scene_from_pulses(prepared, train, voxel_size=voxel_size, pool_m=pool, tracer=tracer)
                 # the calibration pulses are replayed over a scene made without them, as the test pulses are:
                 # over their own echoes they would read brighter and the gain would come out low

@@ -9,11 +9,7 @@ import numpy as np
 
 from voxlidar.safeio import json_text, staged
 
-__all__ = ["OUTPUTS", "write_replay"]
-
-#: The files a replay writes, per scheme where the name has ``{scheme}``.
-OUTPUTS = ("metrics.csv", "summary.json", "waveforms.npz", "overlay-{scheme}.png", "radargram-{scheme}.png",
-           "scores-{scheme}.png")
+__all__ = ["output_paths", "write_replay"]
 
 
 def _columns(rows):
@@ -63,7 +59,7 @@ def write_replay(prepared, results, out, *, plots: bool = True, plot_count: int 
             for row in rows:
                 w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
         summary = {"file": p.name, "pulses": len(p), "geometry": p.meta.get("geometry"),
-                   "pulse_shape": prepared.shape_source if hasattr(prepared, "shape_source") else None,
+                   "pulse_shape": prepared.shape_source,
                    "echoes_per_pulse": float(prepared.echo_counts().mean()),
                    "schemes": {r.scheme: {"summary": r.summary, "settings": r.settings, "seconds": r.seconds,
                                           "folds": [{k: v for k, v in f.items() if k != "test_pulses"}

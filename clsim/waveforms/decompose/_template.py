@@ -42,7 +42,7 @@ from clsim.errors import InputError
 from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse, clipped_baseline, threshold
 from clsim.waveforms.decompose._noise import _gaps, noise_level
 
-__all__ = ["TemplateEchoes", "decompose_template", "template_from_returns"]
+__all__ = ["TemplateEchoes", "decompose_template", "subsample_peak", "template_from_returns"]
 
 #: Shifts per sample of the template grid.
 _GRID = 2
@@ -100,14 +100,19 @@ def _unit_template(template, name="template"):
                          "removed")
     above = np.flatnonzero(h >= 0.01 * h.max())
     h = h[above[0]: above[-1] + 1]
+    return h / h.sum(), subsample_peak(h)
+
+
+def subsample_peak(h) -> float:
+    """Position of the maximum of ``h``, samples, refined by a parabola through the three samples around it."""
+    h = np.asarray(h, dtype=np.float64)
     i = int(np.argmax(h))
-    peak = float(i)
     if 0 < i < h.size - 1:
         a, b, c = h[i - 1: i + 2]
         den = a - 2 * b + c
         if den < 0:
-            peak = i + 0.5 * (a - c) / den
-    return h / h.sum(), peak
+            return i + 0.5 * (a - c) / den
+    return float(i)
 
 
 def template_from_returns(waveforms, *, count: int = 20, width: int = 40) -> np.ndarray:
