@@ -135,7 +135,9 @@ def main(argv=None) -> int:
                  ("pooling width", "2 beams per footprint", dict(beams_per_footprint=2.0)),
                  ("pooling width", "5 beams per footprint", dict(beams_per_footprint=5.0)),
                  ("voxel size", f"{2 * voxel:g} m", dict(voxel_size=2 * voxel)),
+                 *([("voxel size", f"{voxel / 2:g} m", dict(voxel_size=voxel / 2))] if args.set == "leica" else []),
                  ("estimator", "bcMLE", dict(_estimator="bcmle")),
+                 ("echo profile", "each echo at its mean range (no profile)", dict(_spread=False)),
                  ("full-hit energy", "99th percentile", dict(_full=99.0)),
                  ("full-hit energy", "85th percentile", dict(_full=85.0))]
         if args.terms:
@@ -145,8 +147,10 @@ def main(argv=None) -> int:
             est = kw.pop("_estimator", None)
             full = kw.pop("_full", None)
             wide = kw.pop("_divergence", None)
-            if est or full:
-                extra = {k: v for k, v in (("estimator", est), ("full_percentile", full)) if v is not None}
+            spread = kw.pop("_spread", None)
+            if est or full or spread is not None:
+                extra = {k: v for k, v in (("estimator", est), ("full_percentile", full), ("spread", spread))
+                         if v is not None}
                 _forward.scene_from_pulses = lambda *a, _e=extra, **k: orig(*a, **dict(k, **_e))
             if wide:
                 prepared.pulses.divergence_mrad = wide

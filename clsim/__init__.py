@@ -14,7 +14,7 @@ from clsim.transport.simulator import Detect, Mode, SimulationResult, Simulator,
 from clsim.transport.reference import ReferenceSimulator
 from clsim.waveforms.io import read_las_waveforms, read_pulsewaves, write_las_waveforms
 
-__version__ = "0.1.0"
+from voxlidar import __version__  # one version for the distribution (pyproject.toml)
 
 #: names whose modules load on first use (the decomposition pulls in scipy.ndimage and scipy.optimize)
 _LAZY = {"Components": "clsim.waveforms.decompose", "decompose": "clsim.waveforms.decompose"}

@@ -101,7 +101,8 @@ def ws(tmp_path_factory):
     Scan(xyz=np.random.default_rng(0).normal(size=(200, 3)), name="plain").write(d / "plain.las")
     for name, text in (("zero.las", ""), ("zero.laz", ""), ("notlas.las", "hello, I am not a LAS file\n"),
                        ("x.txt", "1,2,3\n"), ("text.csv", "a,b,c\nfoo,bar\n"), ("empty.csv", ""),
-                       ("nan.csv", "10,12,nan,90,40,12,10\n"), ("zeros.csv", "0\n0\n0\n0\n"),
+                       ("nan.csv", "10,12,nan,90,40,12,10\n"),
+                       ("badcell.csv", "1,2,3,4,5\n1,2,x3,4,5\n"), ("zeros.csv", "0\n0\n0\n0\n"),
                        ("impulse.csv", "0.1\n0.5\n1.0\n0.5\n0.1\n"), ("broken.json", "{\"scans\": [\n"),
                        ("other.json", json.dumps({"hello": "world"})), ("empty.ply", "")):
         (d / name).write_text(text)

@@ -37,3 +37,15 @@ def test_readme_shell_block_runs_verbatim(tmp_path):
     for name in ("oak.ply", "scan1.laz", "scan2.laz", "scan1.png", "merged.laz", "scene.npz", "wf.npz", "wf.png",
                  "classified/histograms.png"):
         assert (tmp_path / "out" / name).stat().st_size > 0, name
+
+
+@pytest.mark.slow
+def test_readme_python_block_runs(tmp_path):
+    """The README's Python quickstart, as a user pastes it (about 30 s: two scans of the oak)."""
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index("## Use it from Python"):]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    (tmp_path / "out").mkdir()
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "out" / "scan1.laz").stat().st_size > 0

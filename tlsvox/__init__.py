@@ -18,9 +18,32 @@ from voxlidar.versions import show_versions
 from tlsvox.voxel.voxlad import voxelize
 from tlsvox.voxel.weights import EchoWeights
 
-__version__ = "0.1.0"
+from voxlidar import __version__  # one version for the distribution (pyproject.toml)
+
+#: the user's verbs whose modules load on first use (the synthetic tree and the scanner pull in Open3D)
+_LAZY = {"Scan": "tlsvox.scan", "scene_from_scans": "tlsvox.pipeline", "TreeParams": "tlsvox.truth.synthetic",
+         "make_tree": "tlsvox.truth.synthetic", "ScannerPreset": "tlsvox.truth.scanner",
+         "paper_scan_poses": "tlsvox.truth.scanner", "simulate_scan": "tlsvox.truth.scanner",
+         "voxelize_beams": "tlsvox.voxel.airborne"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'tlsvox' has no attribute {name!r}")
+
 
 __all__ = [
+    "Scan",
+    "ScannerPreset",
+    "TreeParams",
+    "make_tree",
+    "paper_scan_poses",
+    "scene_from_scans",
+    "simulate_scan",
+    "voxelize_beams",
     "PointClass",
     "RegistrationError",
     "classify_scan",

@@ -76,7 +76,7 @@ class GroundPlane:
 
 
 def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, num_iterations: int = 2000,
-               seed: int = 0) -> GroundPlane:
+               seed: int = 0, max_tilt_deg: float | None = None) -> GroundPlane:
     """Fit the ground plane by RANSAC on the lowest point of each column.
 
     Parameters
@@ -90,6 +90,10 @@ def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, n
         RANSAC iterations.
     seed : int
         Seeds the RANSAC.
+    max_tilt_deg : float, optional
+        Only planes tilted less than this from horizontal are candidates (a
+        narrow airborne strip's lowest points also line up on steep planes
+        across it); default any.
 
     Returns
     -------
@@ -113,7 +117,7 @@ def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, n
             f"only {len(low)} ground columns of {cell} m: the points cover too small an area; use a smaller cell"
         )
     plane = ransac_plane(low, distance_m=float(distance_threshold), rng=np.random.default_rng(seed),
-                         n_iter=int(num_iterations))
+                         n_iter=int(num_iterations), max_tilt_deg=max_tilt_deg)
     inliers = np.abs(low @ plane[:3] + plane[3]) < float(distance_threshold)
     a, b, c, d = (float(v) for v in plane)
     if c < 0:
@@ -133,7 +137,7 @@ def ground_mask(points, plane: GroundPlane, *, tolerance: float = 0.15) -> np.nd
 
 
 def ransac_plane(xyz: np.ndarray, *, distance_m: float, rng: np.random.Generator,
-                 n_iter: int = 1000, max_points: int = 20_000) -> np.ndarray:
+                 n_iter: int = 1000, max_points: int = 20_000, max_tilt_deg: float | None = None) -> np.ndarray:
     """The dominant plane of a point set: seeded RANSAC, then a least-squares refit.
 
     The one plane fit of tlsvox (the ground under a scene, the ground band of
@@ -150,6 +154,9 @@ def ransac_plane(xyz: np.ndarray, *, distance_m: float, rng: np.random.Generator
         Random 3-point samples.
     max_points : int
         Points scored per sample (a random subset beyond this).
+    max_tilt_deg : float, optional
+        Only samples whose plane is tilted less than this from horizontal
+        count (and the refit must stay so, else the best sample is kept).
 
     Returns
     -------
@@ -169,6 +176,11 @@ def ransac_plane(xyz: np.ndarray, *, distance_m: float, rng: np.random.Generator
     nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     ln = np.linalg.norm(nrm, axis=1)
     good = ln > 1e-12
+    if max_tilt_deg is not None:
+        good &= np.abs(nrm[:, 2]) >= np.cos(np.radians(float(max_tilt_deg))) * ln
+        if not good.any():
+            raise InputError(f"no three of the points span a plane tilted less than {max_tilt_deg} degrees: they "
+                             "are not ground")
     nrm = nrm[good] / ln[good, None]
     off = -np.einsum("hi,hi->h", nrm, tri[good, 0])
     count = np.array([np.count_nonzero(np.abs(pts @ n + d) < distance_m) for n, d in zip(nrm, off)])
@@ -176,5 +188,7 @@ def ransac_plane(xyz: np.ndarray, *, distance_m: float, rng: np.random.Generator
     n, d = nrm[k], off[k]
     inl = np.abs(pts @ n + d) < distance_m  # least-squares refit on the inliers
     c = pts[inl].mean(axis=0)
-    n = np.linalg.svd(pts[inl] - c, full_matrices=False)[2][2]
-    return np.append(n, -n @ c)
+    refit = np.linalg.svd(pts[inl] - c, full_matrices=False)[2][2]
+    if max_tilt_deg is not None and abs(refit[2]) < np.cos(np.radians(float(max_tilt_deg))):
+        return np.append(n, d)
+    return np.append(refit, -refit @ c)

@@ -16,7 +16,12 @@ from voxlidar.scene import Scene
 preload_tbb()  # before Open3D can load its older oneTBB (see voxlidar/_preload.py)
 _moved.install()  # old module paths (tlsvox.trace, clsim.decompose, ...) for one release
 
-__version__ = "0.1.0"
+try:  # the one version: pyproject.toml's, as installed
+    from importlib.metadata import PackageNotFoundError as _NotFound, version as _version
+
+    __version__ = _version("voxlidar")
+except _NotFound:  # run from a source tree that was never installed
+    __version__ = "0+unknown"
 
 __all__ = ["DeviceError", "InputError", "LeafAngle", "LeafAngleKind", "Material", "Optics", "Scene",
            "VoxlidarError", "__version__"]

@@ -21,11 +21,33 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 
 from voxlidar.errors import VoxlidarError, exit_code
 
-__all__ = ["Parser", "number", "numbers", "run", "with_debug"]
+__all__ = ["Parser", "join_negative_values", "number", "numbers", "run", "with_debug"]
+
+#: A value that starts like a negative number: ``-5``, ``-0.5,1``, ``-.5e3``.
+_NEGATIVE = re.compile(r"^-(\d|\.\d)[\d.,eE+-]*$")
+
+
+def join_negative_values(argv) -> list[str]:
+    """``--opt -5,0,0.5`` as ``--opt=-5,0,0.5``: argparse reads a value starting with '-' as an option.
+
+    Only a token that starts like a negative number, right after a long
+    option written without ``=``, is joined to it.
+
+    >>> join_negative_values(["voxelize", "--scan-origin", "-5,0,0.5", "-q", "--seed", "-1"])
+    ['voxelize', '--scan-origin=-5,0,0.5', '-q', '--seed=-1']
+    """
+    out: list[str] = []
+    for tok in argv:
+        if out and _NEGATIVE.match(tok) and out[-1].startswith("--") and "=" not in out[-1] and out[-1] != "--":
+            out[-1] = f"{out[-1]}={tok}"
+        else:
+            out.append(tok)
+    return out
 
 
 class Parser(argparse.ArgumentParser):
@@ -136,7 +158,7 @@ def run(prog: str, parser: argparse.ArgumentParser, argv=None) -> int:
     >>> run("demo", p, ["hello"])
     0
     """
-    args = parser.parse_args(argv)
+    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else [str(a) for a in argv]))
     fn = getattr(args, "func", None)
     if fn is None:
         parser.print_help()

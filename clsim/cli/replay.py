@@ -17,7 +17,7 @@ from pathlib import Path
 from voxlidar.cli import number
 from clsim.errors import InputError
 
-__all__ = ["register", "cmd_replay", "load_measured"]
+__all__ = ["register", "cmd_replay"]
 
 
 def register(subparsers) -> None:
@@ -55,8 +55,12 @@ def register(subparsers) -> None:
                    help="each voxel's sums are pooled over a horizontal Gaussian holding this many training "
                         "beams (airborne pulses are too sparse for one voxel's own)")
     p.add_argument("--divergence-mrad", type=number(lo=0, lo_open=True, unit="mrad"), default=None,
-                   help="beam divergence half angle at 1/e^2 (default: the reader's: NEON 0.25 mrad, LAS 0.11 mrad "
-                        "as a Leica ALS50-II; files do not record it)")
+                   help="beam divergence half angle at 1/e^2 (default: the reader's: NEON 0.25 mrad; LAS: the clsim "
+                        "preset a clsim survey file names, else 0.11 mrad as a Leica ALS50-II; files do not record "
+                        "it)")
+    p.add_argument("--wavelength-nm", type=number(lo=0, lo_open=True, unit="nm"), default=None,
+                   help="the sensor's wavelength, for the scene's leaf and ground optics (default as for "
+                        "--divergence-mrad: NEON 1064 nm, LAS the named clsim preset's or 1064 nm)")
     p.add_argument("--max-order", type=number(int, lo=1, hi=16), default=3, help="highest scattering order")
     p.add_argument("--no-hotspot", action="store_true",
                    help="single scattering returns through the canopy independently (a turbid medium's two-way "
@@ -76,34 +80,10 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_replay)
 
 
-def load_measured(path: Path, *, divergence_mrad=None):
-    """The measured pulses of ``path``: a NEON record folder (or its ``return.csv``), or a LAS file with
-    waveform packets (``.wdp`` beside)."""
-    from clsim.replay import read_las_pulses, read_neon
-
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{str(path)!r} does not exist")
-    kwargs = {} if divergence_mrad is None else {"divergence_mrad": float(divergence_mrad)}
-    if path.is_file() and path.suffix.lower() in (".las", ".laz"):
-        if path.suffix.lower() == ".laz":
-            raise InputError(f"{path.name}: LASzip files do not carry the waveform packets; give the .las with its "
-                             ".wdp beside")
-        return read_las_pulses(path, **kwargs)
-    if path.is_file() and path.suffix.lower() == ".pls":
-        raise InputError(f"{path.name}: clsim replay reads NEON record folders and LAS waveform packets; PulseWaves "
-                         "is not replayed yet (decompose it with clsim decompose)")
-    folder = path if path.is_dir() else path.parent
-    if not (folder / "return.csv").is_file():
-        raise InputError(f"{str(folder)!r} holds no return.csv: pass a NEON record folder (return.csv, "
-                         "geolocation.csv) or a LAS file with waveform packets")
-    return read_neon(folder, **kwargs)
-
-
 def cmd_replay(args) -> int:
     from voxlidar.safeio import check_outputs
 
-    from clsim.replay import METHODS, Scheme, cross_validate, prepare, write_replay
+    from clsim.replay import METHODS, Scheme, cross_validate, prepare, read_measured, write_replay
     from clsim.replay._write import output_paths
 
     schemes = [Scheme.parse(s.strip(), "--scheme").value for s in str(args.scheme).split(",") if s.strip()]
@@ -134,7 +114,8 @@ def cmd_replay(args) -> int:
             raise InputError("--scene is replayed by the simulation; it needs simulation in --methods and no "
                              "--baselines-only")
         scene = Scene.load(args.scene)
-    measured = load_measured(args.measured, divergence_mrad=args.divergence_mrad)
+    measured = read_measured(args.measured, divergence_mrad=args.divergence_mrad,
+                             wavelength_nm=args.wavelength_nm)
     prepared = prepare(measured)
     simulator = None
     if "simulation" in methods:
@@ -160,9 +141,15 @@ def cmd_replay(args) -> int:
         print(f"wrote the scene from all {len(measured)} pulses ({whole.n_voxels:,} voxels of {args.voxel_size:g} m, "
               f"plant area density) to {args.scene_out}")
     geo = measured.meta.get("geometry") or {}
-    print(f"{measured.name}: {len(measured)} pulses, {geo.get('lines', '?')} scan lines (positions rebuilt: "
-          f"95 % within {geo.get('residual_x_p95_m', float('nan')):.2f} m in x, "
-          f"{geo.get('residual_y_p95_m', float('nan')):.2f} m in y of the stored values); pulse shape: "
+    if "residual_x_p95_m" in geo:
+        where = (f"positions rebuilt: 95 % within {geo['residual_x_p95_m']:.2f} m in x, "
+                 f"{geo['residual_y_p95_m']:.2f} m in y of the stored values")
+    elif "off_line_median_m" in geo:
+        where = (f"sensor: a straight, steady flight fitted to the pulses' lines, {geo['off_line_median_m']:.3f} m "
+                 "off them (median)")
+    else:
+        where = "positions as stored"
+    print(f"{measured.name}: {len(measured)} pulses, {geo.get('lines', '?')} scan line(s) ({where}); pulse shape: "
           f"{prepared.shape_source}")
     for r in results:
         print(f"{r.scheme} folds ({r.settings['multi_echo_pulses']} pulses with 2+ peaks):")
@@ -173,7 +160,8 @@ def cmd_replay(args) -> int:
                   f"{a['energy_ratio_q25']:5.2f}-{a['energy_ratio_q75']:<5.2f} {a['rh50_bias']:+10.2f} "
                   f"{a['rh98_bias']:+10.2f}")
         if r.settings.get("uncovered_pulses"):
-            print(f"  {r.settings['uncovered_pulses']} pulses lie outside their fold's scene and are left out of "
-                  "every method's scores")
+            where = "the given scene's grid" if scene is not None else "their fold's scene"
+            print(f"  {r.settings['uncovered_pulses']} pulses lie outside {where} and are left out of every method's "
+                  "scores")
     print(f"wrote {len(paths)} files to {out}/", file=sys.stdout)
     return 0

@@ -46,8 +46,7 @@ def register(subparsers) -> None:
     p.add_argument("--target", default=None, metavar="X,Y[,Z]",
                    type=numbers(2, 3, what="X,Y or X,Y,Z in metres", example="1.5,-2"),
                    help="where the beam axis meets the ground, metres in the scene's frame "
-                        "(default: the centre of the grid at ground level); a negative X needs '=': "
-                        "--target=-1.5,2")
+                        "(default: the centre of the grid at ground level), e.g. --target -1.5,2")
     p.add_argument("--targets", default=None, metavar="CSV",
                    help="a file of targets, one X,Y[,Z] per row (a header row allowed): one pulse each, "
                         "all in one NPZ (arrays with a leading target axis)")

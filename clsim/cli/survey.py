@@ -45,8 +45,8 @@ def register(subparsers) -> None:
     p.add_argument("--sensor", default="riegl-lms-q680i",
                    help=f"preset with a [survey] table ({', '.join(list_presets())}) or a .toml file")
     p.add_argument("--start", default=None, metavar="X,Y", type=numbers(2, what="X,Y in metres", example="-20,0"),
-                   help="start of the line, metres (default: the scene's west edge at its middle y); a "
-                        "negative X needs '=': --start=-20,0")
+                   help="start of the line, metres (default: the scene's west edge at its middle y), e.g. "
+                        "--start -20,0")
     p.add_argument("--end", default=None, metavar="X,Y", type=numbers(2, what="X,Y in metres", example="20,0"),
                    help="end of the line (default: the scene's east edge)")
     p.add_argument("--altitude", type=number(lo=0, lo_open=True, unit="m"), default=None,
@@ -65,6 +65,9 @@ def register(subparsers) -> None:
     span.add_argument("--pulses", type=number(int, lo=1), default=None, help="simulate the first N pulses")
     p.add_argument("--photons", type=number(int, lo=1), default=1000, help="photons per pulse")
     p.add_argument("--max-order", type=number(int, lo=1, hi=64), default=3, help="highest scattering order")
+    p.add_argument("--hotspot", action="store_true",
+                   help="single scattering returns along its free incoming path (the hot spot of a small footprint; "
+                        "docs/method.md) instead of through the canopy independently")
     p.add_argument("--seed", type=number(int, lo=0), default=1, help="base seed: pulse k gets seed + k")
     p.add_argument("--batch-size", type=number(int, lo=1), default=256, help="pulses per task and per file")
     p.add_argument("--workers", type=number(int, lo=0), default=os.cpu_count() or 1,
@@ -113,7 +116,7 @@ def cmd_survey(args) -> int:
         count = pulse_count(args.duration, pattern.pulse_rate_hz)         # the pulses with t_k < duration
     job = SurveyJob(scene_path=args.scene, trajectory=tr, pattern=pattern, sensor=sensor, photons=args.photons,
                     count=count, seed=args.seed, batch_size=args.batch_size, max_order=args.max_order,
-                    device=args.device)
+                    hotspot=args.hotspot, device=args.device)
     out = Path(args.output)
     if args.restart and out.is_dir():
         shutil.rmtree(out / "batches", ignore_errors=True)

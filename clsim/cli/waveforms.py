@@ -77,6 +77,15 @@ def register(subparsers) -> None:
     dec.add_argument("--geolocation", type=Path,
                      help="NEON-style geolocation CSV (bin0_x..bin0_dz) for CSV input")
     dec.add_argument("--limit", type=number(int, lo=1), default=None, help="only the first N waveforms")
+    dec.add_argument("--template", default=None, metavar="returns|CSV",
+                     help="echoes as the instrument's own pulse shifted and scaled instead of Gaussians, so a real "
+                          "system's ringing and trailing tail are part of each echo: 'returns' (the pulse of the "
+                          "file's strongest narrow single returns) or a CSV whose first column is a hard target's "
+                          "return (e.g. NEON's system_impulse.csv); writes location_ns, energy, extent_ns, snr per "
+                          "echo (docs/waveforms.md, template decomposition)")
+    dec.add_argument("--min-relative", type=number(lo=0, hi=1, hi_open=True), default=0.0,
+                     help="with --template: drop echoes under this share of their waveform's strongest (0; the "
+                          "instruments' own discrete returns seldom go under 0.05)")
     dec.set_defaults(func=cmd_decompose)
 
     from tlsvox.cli.georegister import register as register_georegister
@@ -102,17 +111,30 @@ class _Waveforms:
 
 
 def _read_csv_rows(path: Path) -> list:
+    """One array per row of numbers; the first row may be a header; trailing empty cells are padding."""
     text = path.read_text()
     rows = list(csv.reader(io.StringIO(text)))
     out = []
-    for r in rows:
-        try:
-            vals = [float(v) for v in r if v.strip() != ""]
-        except ValueError:
-            if out:
-                raise InputError(f"{path.name}: non-numeric value in row {len(out) + 1}; one "
-                                 "waveform per row, numbers only (a header row is allowed)")
-            continue  # header
+    for k, r in enumerate(rows):
+        cells = list(r)
+        while cells and cells[-1].strip() == "":
+            cells.pop()
+        if not cells:
+            continue
+        vals = []
+        for j, v in enumerate(cells):
+            try:
+                vals.append(float(v))
+            except ValueError:
+                vals = None
+                bad = (j, v)
+                break
+        if vals is None:
+            if k == 0:
+                continue  # the header
+            j, v = bad
+            raise InputError(f"{path.name}: row {k + 1}, column {j + 1} is {v.strip()[:20]!r}, not a number; one "
+                             "waveform per row, numbers only (a header row is allowed)")
         out.append(np.array(vals))
     if not out:
         raise InputError(f"{path.name}: no numeric rows")
@@ -235,7 +257,17 @@ def cmd_decompose(args) -> int:
                          "drop --impulse, --min-amplitude and --detection amplitude")
     if args.device is not None and not args.batch:
         raise InputError("--device chooses where --batch fits; add --batch or drop --device")
+    if args.template is not None:
+        clash = [f for f, v in (("--batch", args.batch), ("--impulse", args.impulse), ("--plot", args.plot),
+                                ("--min-amplitude", args.min_amplitude), ("--detection", args.detection),
+                                ("--pulse-sigma-ns", args.pulse_sigma_ns)) if v]
+        if clash:
+            raise InputError(f"--template decomposes with the instrument's pulse; drop {', '.join(clash)}")
+    elif args.min_relative:
+        raise InputError("--min-relative needs --template (it drops weak template echoes)")
     wf = load_waveforms(args.file, dt_ns=args.dt_ns, geolocation=args.geolocation)
+    if args.template is not None:
+        return _decompose_template(wf, args)
     impulse = None
     if args.impulse is not None:
         try:
@@ -295,6 +327,59 @@ def cmd_decompose(args) -> int:
             plot_decomposition(tmp[args.plot], wf, results, int(args.plot_count), Path(args.file).name)
     n_echo = sum(len(c) for c in results if c is not None)
     print(f"{n} waveforms, {n_echo} echoes -> {args.output}" + (f"; plot -> {args.plot}" if args.plot else ""))
+    return 0
+
+
+def _decompose_template(wf, args) -> int:
+    """``clsim decompose --template``: one CSV row per template echo."""
+    from clsim.waveforms.decompose import echo_positions
+    from clsim.waveforms.decompose._template import decompose_template, template_from_returns
+
+    n = len(wf.waves) if args.limit is None else min(len(wf.waves), int(args.limit))
+    waves = [np.asarray(wf.waves[i], dtype=np.float64) for i in range(n)]
+    if str(args.template).lower() == "returns":
+        template = template_from_returns(waves)
+        source = "the file's strongest narrow single returns"
+    else:
+        path = Path(args.template)
+        check_inputs([("--template", path)])
+        try:
+            template = np.array([r[0] for r in _read_csv_rows(path)], dtype=np.float64)
+        except InputError as err:
+            raise InputError(f"--template {err}") from None
+        if template.size < 3 or not np.all(np.isfinite(template)):
+            raise InputError(f"--template {path}: its first column must hold a hard target's return (3 or more "
+                             "finite samples)")
+        template = template - np.median(np.sort(template)[: max(3, template.size // 5)])  # its baseline off
+        source = str(path)
+    dts = {float(wf.dt_ns[i]) for i in range(n)}
+    if len(dts) != 1:
+        raise InputError(f"--template needs one sample spacing; the file's waveforms have {sorted(dts)} ns")
+    table = decompose_template(waves, template, dt_ns=dts.pop(), false_alarm=args.false_alarm,
+                               min_relative=args.min_relative)
+    header = ["waveform", "pulse_id", "gps_time", "echo", "amplitude", "location_ns", "energy", "extent_ns", "snr",
+              "baseline", "x", "y", "z"]
+
+    def write(tmp):
+        with open(tmp, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            rank = np.zeros(len(table.waveform), dtype=np.int64)
+            for j in range(1, len(rank)):
+                rank[j] = rank[j - 1] + 1 if table.waveform[j] == table.waveform[j - 1] else 0
+            for j, i in enumerate(table.waveform):
+                geo = wf.geometry[i]
+                xyz = (echo_positions(table.location_ns[j: j + 1], origin=geo[0], direction=geo[1])[0]
+                       if geo is not None else np.full(3, np.nan))
+                t = wf.gps_time[i]
+                w.writerow([int(i), wf.pulse_id[i], f"{t:.6f}" if np.isfinite(t) else "", int(rank[j]),
+                            f"{table.amplitude[j]:.6g}", f"{table.location_ns[j]:.6g}", f"{table.energy[j]:.6g}",
+                            f"{table.extent_ns[j]:.6g}", f"{table.snr[j]:.6g}", f"{table.baseline[i]:.6g}"]
+                           + [("" if not np.isfinite(v) else f"{v:.4f}") for v in xyz])
+
+    with staged([args.output]) as tmp:
+        write(tmp[args.output])
+    print(f"{n} waveforms, {len(table.waveform)} template echoes (template: {source}) -> {args.output}")
     return 0
 
 

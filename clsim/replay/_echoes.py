@@ -44,6 +44,10 @@ class Prepared:
         samples), spread in range (samples).
     echo_xyz : (E, 3) float64, metres
     shape_source : str, where the pulse shape came from
+    part_echo : (P,) int64, optional; part_sample, part_energy : (P,) float64
+        The template shifts each echo is the sum of (its deconvolved
+        profile in range): echo, location (samples), energy; None where
+        the echoes are points (a file's discrete returns).
     """
 
     pulses: object
@@ -58,6 +62,9 @@ class Prepared:
     echo_sigma: np.ndarray
     echo_xyz: np.ndarray
     shape_source: str = ""
+    part_echo: np.ndarray | None = None
+    part_sample: np.ndarray | None = None
+    part_energy: np.ndarray | None = None
 
     @property
     def energy(self) -> np.ndarray:
@@ -117,4 +124,6 @@ def prepare(pulses, *, false_alarm: float = 0.01) -> Prepared:
     energy = table.energy / pulses.dt_ns
     return Prepared(pulses=pulses, signal=signal, mask=mask, noise=noise, shape=h, shape_peak=peak,
                     echo_pulse=e_pulse, echo_sample=loc, echo_energy=energy,
-                    echo_sigma=table.extent_ns / pulses.dt_ns, echo_xyz=xyz, shape_source=source)
+                    echo_sigma=table.extent_ns / pulses.dt_ns, echo_xyz=xyz, shape_source=source,
+                    part_echo=table.part_echo, part_sample=table.part_location_ns / pulses.dt_ns,
+                    part_energy=table.part_energy / pulses.dt_ns)

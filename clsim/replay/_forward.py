@@ -25,11 +25,72 @@ import numpy as np
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS, Sensor
 
-__all__ = ["Calibration", "SimulatedPulses", "calibrate", "scene_from_pulses", "simulate_pulses"]
+__all__ = ["Calibration", "SimulatedPulses", "calibrate", "scene_echoes", "scene_from_pulses", "simulate_pulses"]
+
+#: Where a scene's echoes come from, and how they share their pulse.
+ECHO_SOURCES = ("waveform", "returns")
+ECHO_WEIGHTS = ("energy", "uniform")
+
+
+def scene_echoes(prepared, *, source: str = "waveform", weights: str = "energy"):
+    """The echoes a scene is made from: the waveforms' or the file's discrete returns, weighted by energy or 1/n.
+
+    Parameters
+    ----------
+    prepared : Prepared
+    source : str
+        ``waveform`` (default): the template decomposition of the records
+        (:func:`clsim.replay.prepare`). ``returns``: the file's own discrete
+        returns (LAS files; ``meta["returns_ns"]``), each with the energy of
+        a template echo as high as the record's sample there.
+    weights : str
+        ``energy`` (default): each echo's energy, to be set against a full
+        hit's (the share of the beam it stopped). ``uniform``: 1/n of its
+        pulse, as for a discrete-return file without intensity.
+
+    Returns
+    -------
+    Prepared
+        ``prepared`` with its echoes replaced (the records and pulse shape unchanged).
+    """
+    import dataclasses
+
+    if source not in ECHO_SOURCES:
+        raise InputError(f"echo source {source!r}: choose {' or '.join(ECHO_SOURCES)}")
+    if weights not in ECHO_WEIGHTS:
+        raise InputError(f"echo weights {weights!r}: choose {' or '.join(ECHO_WEIGHTS)}")
+    p = prepared.pulses
+    out = prepared
+    if source == "returns":
+        returns = p.meta.get("returns_ns")
+        if returns is None:
+            raise InputError(f"{p.name} has no discrete returns (a {p.meta.get('source', 'record')} file); use the "
+                             "waveforms' echoes")
+        pulse = np.concatenate([np.full(len(r), i, np.int64) for i, r in enumerate(returns)] or [np.zeros(0, np.int64)])
+        loc = np.concatenate([np.asarray(r, dtype=np.float64) for r in returns] or [np.zeros(0)]) / p.dt_ns
+        keep = (loc >= 0) & (loc <= p.n_samples[pulse] - 1)
+        pulse, loc = pulse[keep], loc[keep]
+        cols = np.arange(prepared.signal.shape[1])
+        height = np.array([np.interp(x, cols, prepared.signal[i]) for i, x in zip(pulse, loc)])
+        energy = np.clip(height, 0.0, None) / float(prepared.shape.max())
+        xyz = p.bin0[pulse] + loc[:, None] * p.step[pulse]
+        out = dataclasses.replace(prepared, echo_pulse=pulse, echo_sample=loc, echo_energy=energy,
+                                  echo_sigma=np.zeros(loc.size), echo_xyz=xyz, part_echo=None, part_sample=None,
+                                  part_energy=None)
+    if weights == "uniform":
+        n = np.bincount(out.echo_pulse, minlength=len(p))
+        uniform = 1.0 / n[out.echo_pulse].astype(np.float64)
+        parts = {}
+        if out.part_echo is not None:  # each echo's profile keeps its shape, scaled to 1/n
+            scale = uniform / np.maximum(out.echo_energy, 1e-300)
+            parts = dict(part_energy=out.part_energy * scale[out.part_echo])
+        out = dataclasses.replace(out, echo_energy=uniform, **parts)
+    return out
 
 
 def scene_from_pulses(prepared, train, *, voxel_size: float = 0.25, pool_m: float = 0.3, n_min: int = 1,
-                      full_percentile: float = 95.0, estimator: str = "beer_lambert", tracer=None):
+                      full_percentile: float = 95.0, estimator: str = "beer_lambert", spread: bool = True,
+                      return_path: str = "hotspot", ground=None, bounds=None, tracer=None, progress: bool = False):
     """A plant-area scene from the training pulses ``train`` (see the module docstring).
 
     Parameters
@@ -50,7 +111,21 @@ def scene_from_pulses(prepared, train, *, voxel_size: float = 0.25, pool_m: floa
         exact for a turbid layer (tests/tlsvox/voxel/test_airborne.py), while
         the bcMLE's small-sample correction, made for hits of weight 1, takes
         about 1/(2N) off with N pooled beams (a sixth with 3).
+    spread : bool
+        Each echo along the beam as its profile in range: the template
+        shifts it is the sum of (an extended target such as a crown layer is
+        one echo over several shifts, the deconvolved profile of its return).
+        False: each echo at its mean range.
+    return_path : {"hotspot", "turbid"}
+        As :func:`tlsvox.voxel.airborne.airborne_beams`: how echo energies
+        become shares of the beam.
+    ground : None, "ransac" or float
+        As :func:`tlsvox.voxel.airborne.voxelize_beams`: None (the replay's
+        default) counts the ground echoes as a dense lowest layer.
+    bounds : (2, 3) float, metres, optional
+        Default: the echoes' box widened by the pooling's reach.
     tracer : Tracer, optional
+    progress : bool
 
     Returns
     -------
@@ -66,14 +141,26 @@ def scene_from_pulses(prepared, train, *, voxel_size: float = 0.25, pool_m: floa
     per_pulse = np.bincount(local, weights=prepared.echo_energy[sel], minlength=len(train))
     full = full_hit_energy(per_pulse, percentile=full_percentile)
     rng = np.linalg.norm(prepared.echo_xyz[sel] - p.origin[prepared.echo_pulse[sel]], axis=1)
+    energy = prepared.echo_energy[sel]
+    if spread and prepared.part_echo is not None:
+        on = sel[prepared.part_echo]
+        pe = prepared.part_echo[on]
+        pulse = prepared.echo_pulse[pe]
+        local = np.searchsorted(train, pulse)
+        # a part's range: its echo's, moved by the part's offset from the echo's mean sample
+        rng = rng[np.searchsorted(np.flatnonzero(sel), pe)] + (
+            prepared.part_sample[on] - prepared.echo_sample[pe]) * p.metres_per_sample[pulse]
+        energy = prepared.part_energy[on]
     end = p.range0()[train] + p.n_samples[train] * p.metres_per_sample[train]
     beams = airborne_beams(p.origin[train], p.direction[train], echo_pulse=local, echo_range=rng,
-                           echo_energy=prepared.echo_energy[sel], full_energy=full, record_end=end)
+                           echo_energy=energy, full_energy=full, record_end=end, return_path=return_path)
     # the echoes' box, widened by the pooling's reach so that the pooled sums spread beyond the outer beams
     pts = beams.echo_points()
     reach = np.array([3.0 * pool_m, 3.0 * pool_m, 0.0])
+    if bounds is None:
+        bounds = np.array([pts.min(axis=0) - reach, pts.max(axis=0) + reach])
     scene = voxelize_beams(beams, voxel_size=voxel_size, n_min=n_min, pool_m=pool_m, tracer=tracer, estimator=estimator,
-                           bounds=np.array([pts.min(axis=0) - reach, pts.max(axis=0) + reach]))
+                           bounds=bounds, ground=ground, progress=progress)
     scene.meta["airborne"]["full_hit_energy"] = full
     scene.meta["airborne"]["full_hit_percentile"] = full_percentile
     return scene

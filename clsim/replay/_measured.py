@@ -40,9 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from clsim.errors import InputError
-from clsim.sensor import C_M_PER_NS
+from clsim.sensor import C_M_PER_NS, Sensor
 
-__all__ = ["MeasuredPulses", "GeometryFit", "common_point", "read_las_pulses", "read_neon", "rebuild_positions",
+__all__ = ["MeasuredPulses", "GeometryFit", "common_point", "read_las_pulses", "read_measured", "read_neon", "rebuild_positions",
            "scan_lines", "straight_trajectory"]
 
 #: NEON's stored precision of x and y (7 significant digits at UTM magnitudes), metres.
@@ -301,7 +301,7 @@ def _trimmed(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(valid, rows, 0.0), valid
 
 
-def read_neon(folder, *, divergence_mrad: float = 0.25) -> MeasuredPulses:
+def read_neon(folder, *, divergence_mrad: float = 0.25, wavelength_nm: float = 1064.0) -> MeasuredPulses:
     """Read NEON full-waveform records exported as CSV (the waveformlidar layout).
 
     Parameters
@@ -313,6 +313,8 @@ def read_neon(folder, *, divergence_mrad: float = 0.25) -> MeasuredPulses:
     divergence_mrad : float
         Beam divergence half angle at 1/e^2 (NEON's Optech Gemini: 0.25 mrad,
         the narrow setting; Kampe et al. 2010).
+    wavelength_nm : float
+        NEON's Optech Gemini: 1064 nm.
 
     Returns
     -------
@@ -356,7 +358,7 @@ def read_neon(folder, *, divergence_mrad: float = 0.25) -> MeasuredPulses:
     res = np.abs(fit.residual)
     return MeasuredPulses(
         samples=samples, valid=valid, dt_ns=1.0, bin0=fit.bin0, step=step, origin=fit.origin, line=line,
-        outgoing=outgoing, impulse=impulse, divergence_mrad=divergence_mrad, wavelength_nm=1064.0,
+        outgoing=outgoing, impulse=impulse, divergence_mrad=divergence_mrad, wavelength_nm=wavelength_nm,
         name=folder.name,
         meta=dict(source="NEON CSV", geometry=dict(
             rebuilt=True, lines=int(line.max() + 1), scanner_z_m=fit.scanner[:, 2].round(2).tolist(),
@@ -415,7 +417,32 @@ def straight_trajectory(points, directions, times) -> tuple[np.ndarray, np.ndarr
     return sol[:3], sol[3:]
 
 
-def read_las_pulses(path, *, divergence_mrad: float = 0.11, wavelength_nm: float = 1064.0) -> MeasuredPulses:
+#: What a LAS file does not say, for a file that names no clsim preset: Leica's ALS50-II.
+LAS_DEFAULTS = {"divergence_mrad": 0.11, "wavelength_nm": 1064.0}
+
+
+def _sensor_defaults(path) -> tuple[dict, str]:
+    """Divergence and wavelength for a LAS file: the clsim preset its system identifier names
+    (``clsim NAME``, as ``clsim survey`` writes), else :data:`LAS_DEFAULTS`; and where they came from."""
+    import laspy
+
+    try:
+        with laspy.open(path) as f:
+            ident = str(f.header.system_identifier).strip("\x00 ")
+    except Exception:  # noqa: BLE001 - the waveform reader says what is wrong with the file
+        ident = ""
+    if ident.startswith("clsim "):
+        try:
+            sensor = Sensor.preset(ident.split()[1])
+        except Exception:  # noqa: BLE001 - an unknown name: the defaults
+            sensor = None
+        if sensor is not None:
+            return ({"divergence_mrad": float(sensor.divergence_mrad), "wavelength_nm": float(sensor.wavelength_nm)},
+                    f"the file's system identifier names clsim's preset {sensor.name}")
+    return dict(LAS_DEFAULTS), "not in the file: Leica ALS50-II values assumed (0.11 mrad, 1064 nm)"
+
+
+def read_las_pulses(path, *, divergence_mrad: float | None = None, wavelength_nm: float | None = None) -> MeasuredPulses:
     """Pulses of a LAS 1.3/1.4 file with waveform packets, one per GPS time (the first point's packet).
 
     The file gives each waveform's sample 0 and its line (the points'
@@ -431,20 +458,29 @@ def read_las_pulses(path, *, divergence_mrad: float = 0.11, wavelength_nm: float
     ----------
     path : str or path
         ``.las`` with its ``.wdp`` beside (or waveforms in the file).
-    divergence_mrad : float
-        Beam divergence half angle at 1/e^2 (not in the file; the default is
-        Leica's ALS50-II, 0.22 mrad full angle at 1/e^2: state yours).
-    wavelength_nm : float
+    divergence_mrad : float, optional
+        Beam divergence half angle at 1/e^2.  Not in a LAS file: by default
+        the clsim preset the file's system identifier names (``clsim NAME``,
+        a ``clsim survey`` file), else Leica's ALS50-II, 0.22 mrad full angle
+        at 1/e^2: state yours.
+    wavelength_nm : float, optional
+        As ``divergence_mrad`` (the ALS50-II: 1064 nm).
 
     Returns
     -------
     MeasuredPulses
-        ``meta["returns_ns"]``: per pulse, the times (ns from its sample 0) of
+        ``meta["sensor"]`` says where the divergence and wavelength came
+        from; ``meta["returns_ns"]``: per pulse, the times (ns from its sample 0) of
         the file's discrete returns; ``meta["geometry"]``: the scanners found.
     """
     from clsim.waveforms.io import read_las_waveforms
 
     las = read_las_waveforms(path)
+    defaults, said = _sensor_defaults(path)
+    if divergence_mrad is None:
+        divergence_mrad = defaults["divergence_mrad"]
+    if wavelength_nm is None:
+        wavelength_nm = defaults["wavelength_nm"]
     has = np.flatnonzero(las.packet >= 0)
     if not has.size:
         raise InputError(f"{Path(path).name}: no point has a waveform packet; nothing to replay")
@@ -490,8 +526,33 @@ def read_las_pulses(path, *, divergence_mrad: float = 0.11, wavelength_nm: float
         samples=samples, valid=valid, dt_ns=dt_ns, bin0=bin0, step=step, origin=origin, line=line,
         divergence_mrad=divergence_mrad, wavelength_nm=wavelength_nm, name=Path(path).stem,
         meta=dict(source="LAS waveform packets", returns_ns=[np.array(r) for r in returns],
+                  sensor={"divergence_mrad": float(divergence_mrad), "wavelength_nm": float(wavelength_nm),
+                          "defaults": said},
                   geometry=dict(rebuilt=True, lines=int(line.max() + 1),
                                 scanner_height_m=float(np.median(S[:, 2] - bin0[:, 2])),
                                 speed_m_s=float(np.linalg.norm(v)),
                                 note="sensor positions: a straight, steady flight fitted to the pulses' lines",
                                 off_line_median_m=float(np.median(miss)), off_line_max_m=float(miss.max()))))
+
+
+def read_measured(path, *, divergence_mrad=None, wavelength_nm=None) -> MeasuredPulses:
+    """The measured pulses of ``path``: a NEON record folder (or its ``return.csv``), or a LAS file with
+    waveform packets (``.wdp`` beside); ``divergence_mrad`` (half angle at 1/e^2) else each reader's default."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{str(path)!r} does not exist")
+    kwargs = {k: float(v) for k, v in (("divergence_mrad", divergence_mrad), ("wavelength_nm", wavelength_nm))
+              if v is not None}
+    if path.is_file() and path.suffix.lower() in (".las", ".laz"):
+        if path.suffix.lower() == ".laz":
+            raise InputError(f"{path.name}: LASzip files do not carry the waveform packets; give the .las with its "
+                             ".wdp beside")
+        return read_las_pulses(path, **kwargs)
+    if path.is_file() and path.suffix.lower() == ".pls":
+        raise InputError(f"{path.name}: replays read NEON record folders and LAS waveform packets; PulseWaves "
+                         "is not read as pulses yet (decompose it with clsim decompose)")
+    folder = path if path.is_dir() else path.parent
+    if not (folder / "return.csv").is_file():
+        raise InputError(f"{str(folder)!r} holds no return.csv: pass a NEON record folder (return.csv, "
+                         "geolocation.csv) or a LAS file with waveform packets")
+    return read_neon(folder, **kwargs)

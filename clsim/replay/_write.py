@@ -59,6 +59,8 @@ def write_replay(prepared, results, out, *, plots: bool = True, plot_count: int 
             for row in rows:
                 w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
         summary = {"file": p.name, "pulses": len(p), "geometry": p.meta.get("geometry"),
+                   "sensor": {"divergence_mrad": float(p.divergence_mrad), "wavelength_nm": float(p.wavelength_nm),
+                              **({"defaults": p.meta["sensor"]["defaults"]} if "sensor" in p.meta else {})},
                    "pulse_shape": prepared.shape_source,
                    "echoes_per_pulse": float(prepared.echo_counts().mean()),
                    "schemes": {r.scheme: {"summary": r.summary, "settings": r.settings, "seconds": r.seconds,

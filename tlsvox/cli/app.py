@@ -238,8 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default="riegl-vz400", help="scanner preset name or TOML path")
     p.add_argument("--position", type=numbers(3, what="X,Y,Z in metres", example="0,-20,1.7"),
                    default=(0.0, -20.0, 1.7), metavar="X,Y,Z",
-                   help="scanner position, metres (default 0,-20,1.7); a negative X takes '=': "
-                        "--position=-5,0,1.7")
+                   help="scanner position, metres (default 0,-20,1.7), e.g. --position -5,0,1.7")
     p.add_argument("--yaw", type=number(), default=0.0, help="scanner yaw, degrees")
     p.add_argument("--pitch", type=number(lo=-90, hi=90), default=0.0, help="scanner pitch (tilt), degrees")
     p.add_argument("--roll", type=number(lo=-90, hi=90), default=0.0, help="scanner roll (tilt), degrees")

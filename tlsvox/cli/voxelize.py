@@ -45,6 +45,15 @@ leaf echoes (truth material or the leaf class of 'tlsvox classify'): plane fits
 at leaf scale, weighted for visibility, corrected for range noise, per crown
 layer (docs/voxelize.md, docs/bench/leaf_angles.md for its accuracy).
 
+Airborne full-waveform files (a NEON record folder, a LAS 1.3/1.4 file with
+waveform packets) are voxelised too: each pulse is a beam from the sensor,
+its echoes from the waveforms (or the file's discrete returns) weighted by
+their energy against a full hit's (or 1/n), the voxels' sums pooled over a
+footprint of neighbouring pulses, Beer-Lambert by default. Every echo counts
+as vegetation (plant area density), the ground too unless --ground ransac or
+a height makes its echoes stop the beams as ground (docs/replay.md, scenes
+from airborne data).
+
 Output: the scene NPZ (docs/formats.md) and, with --vox, an AMAPVox .vox file.
 """
 
@@ -53,6 +62,7 @@ examples:
   tlsvox voxelize scan0.laz scan1.laz --voxel-size 0.2 --leaf-angle uniform --estimator bcmle -o scene.npz
   tlsvox voxelize tls_scan.laz --scanner-frame --angular-grid 30,0.048,2082,0,0.622,580 \\
       --scanner-rpy 1.026,0.746,-110.019 --voxel-size 0.2 -o plot.npz --vox plot.vox
+  tlsvox voxelize neon-harvard-waveforms/ --voxel-size 0.5 -o neon.npz
 """
 
 
@@ -67,7 +77,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("scans", nargs="+", metavar="SCAN",
                    help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars), or pulse-grouped text exports "
-                        "(x y z time return_index return_count, miss rows for empty pulses: .txt/.csv/.asc)")
+                        "(x y z time return_index return_count, miss rows for empty pulses: .txt/.csv/.asc); or "
+                        "one airborne full-waveform file: a NEON record folder or a LAS file with waveform packets")
     p.add_argument("-o", "--output", required=True, help="scene file to write (.npz)")
     p.add_argument("--vox", help="also write an AMAPVox .vox file")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
@@ -97,8 +108,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                            "or its leaf area shared by the fine voxels' leaf echo weight (echoes)")
     grid.add_argument("--plan", action="store_true",
                       help="print what the grid will cost in memory for each layout, and exit (writes nothing)")
-    grid.add_argument("--ground", default="ransac",
-                      help="'ransac' (fit the lowest echoes), 'none', or a ground height in metres")
+    grid.add_argument("--ground", default=None,
+                      help="'ransac' (fit the lowest echoes; the default for scans), 'none' (the default for "
+                           "airborne files, whose records often end above the ground: every echo is then "
+                           "vegetation), or a ground height in metres")
     model = p.add_argument_group("the leaf and wood model")
     model.add_argument("--leaf-angle", default=None, choices=[k.value for k in LeafAngleKind] + ["measured"],
                        help="leaf inclination distribution for G(theta) (default uniform, the paper; the "
@@ -113,8 +126,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     model.add_argument("--leaf-azimuth", default="uniform", choices=[a.value for a in LeafAzimuth],
                        help="leaf normal azimuths: any (default), or facing away from the crown axis, which then "
                             "gives each voxel the G of outward leaves for each beam (and the simulator uses it)")
-    model.add_argument("--estimator", default="bcmle", choices=[e.value for e in Estimator],
-                       help="LAD estimator (default bcmle, Pimont et al. 2018)")
+    model.add_argument("--estimator", default=None, choices=[e.value for e in Estimator],
+                       help="LAD estimator (default bcmle, Pimont et al. 2018; airborne files: beer_lambert, exact "
+                            "with energy echo weights)")
     model.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
                        help="wood model (default count_stretch, the paper)")
     model.add_argument("--qsm", action="store_true",
@@ -131,7 +145,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                             "of the nearest seen crown voxels (neighbourhood; dense layout), or with that mean "
                             "times the ratio the scans measure where one hides what another sees (calibrated; "
                             "dense layout, two or more scans)")
-    model.add_argument("--n-min", type=int, default=5, help="beams a voxel needs (else occluded; default 5)")
+    model.add_argument("--n-min", type=int, default=None,
+                       help="beams a voxel needs (else occluded; default 5; airborne files: 1 pooled beam)")
     model.add_argument("--min-explored", type=float, default=0.05,
                        help="explored depth fraction a voxel needs (else occluded; default 0.05)")
     model.add_argument("--leaf-size", type=float, default=0.05, help="leaf size in metres for the large-leaf flag")
@@ -168,6 +183,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     poses.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
     poses.add_argument("--scan-origin", type=numbers(3),
                        help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
+    air = p.add_argument_group("airborne full-waveform files (NEON record folders, LAS with waveform packets)")
+    air.add_argument("--airborne-echoes", default="waveform", choices=["waveform", "returns"],
+                     help="echoes from the waveforms' template decomposition (default) or the LAS file's own "
+                          "discrete returns; --echo-weights uniform gives each 1/n of its pulse, else its energy "
+                          "over a full hit's")
+    air.add_argument("--beams-per-footprint", type=float, default=3.0,
+                     help="each voxel's sums are pooled over a horizontal Gaussian holding this many pulses "
+                          "(default 3)")
+    air.add_argument("--no-hotspot", action="store_true",
+                     help="the echoes' light came back through the canopy independently (two-way attenuation: a "
+                          "target behind transmittance T returns T^2 of a full hit), not through the gap it went "
+                          "down (the small-footprint hot spot, the default)")
+    air.add_argument("--divergence-mrad", type=float, default=None,
+                     help="beam divergence half angle at 1/e^2, mrad (not in the files; default: NEON 0.25; LAS: "
+                          "the clsim preset a clsim survey file names, else 0.11 as a Leica ALS50-II)")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -228,7 +258,13 @@ def run(args) -> int:
     from tlsvox.scan import AngularGrid, sidecar_paths
     from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import voxelize
+    from tlsvox.cli.airborne import airborne_kind, run_airborne
 
+    if any(airborne_kind(path) for path in args.scans):
+        return run_airborne(args, _defaults())
+    args.estimator = args.estimator or "bcmle"
+    args.ground = args.ground or "ransac"
+    args.n_min = 5 if args.n_min is None else args.n_min
     if args.bounds is not None and not np.all(np.reshape(args.bounds, (2, 3))[1] > np.reshape(args.bounds, (2, 3))[0]):
         raise InputError(f"--bounds {args.bounds}: give xmin,ymin,zmin,xmax,ymax,zmax with each max above its min")
     check_distinct("scan", args.scans)
@@ -346,6 +382,13 @@ def run(args) -> int:
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
     return 0
+
+
+def _defaults() -> dict:
+    """The options' defaults, to tell which ones a run set."""
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    return vars(p.parse_args(["scan", "-o", "scene.npz"]))
 
 
 def main(argv=None) -> int:

@@ -55,7 +55,7 @@ def full_hit_energy(pulse_energy, *, percentile: float = 95.0) -> float:
 
 
 def airborne_beams(origin, direction, *, echo_pulse, echo_range, echo_energy, full_energy: float,
-                   record_end) -> Beams:
+                   record_end, return_path: str = "hotspot") -> Beams:
     """Beams of airborne pulses with echo weights from their energies.
 
     Parameters
@@ -74,6 +74,14 @@ def airborne_beams(origin, direction, *, echo_pulse, echo_range, echo_energy, fu
         The energy of a full hit (:func:`full_hit_energy`).
     record_end : (B,) float, metres
         Range where each record ends: the tail weight is followed that far.
+    return_path : {"hotspot", "turbid"}
+        How an echo's light came back.  ``hotspot`` (default): through the
+        gap it went down (a small footprint's correlated return), so an
+        echo's energy share is its share of the beam.  ``turbid``: through
+        the canopy again, independently, so a target behind a one-way
+        transmittance ``T`` returns ``T^2`` of a full hit: each echo's share
+        of the beam is ``sqrt(1 - S_before) - sqrt(1 - S_after)`` with ``S``
+        the cumulative energy share along the pulse.
 
     Returns
     -------
@@ -102,19 +110,64 @@ def airborne_beams(origin, direction, *, echo_pulse, echo_range, echo_energy, fu
     end = np.broadcast_to(np.asarray(record_end, dtype=np.float64), (b,)).copy()
     order = np.lexsort((rng, pulse))
     pulse, rng, energy = pulse[order], rng[order], energy[order]
-    w = energy / float(full_energy)
-    total = np.bincount(pulse, weights=w, minlength=b)
-    scale = np.where(total > 1.0, 1.0 / np.maximum(total, 1e-300), 1.0)
-    w = w * scale[pulse]
-    total = np.minimum(total, 1.0)
+    if return_path not in ("hotspot", "turbid"):
+        raise InputError(f"return_path={return_path!r} must be 'hotspot' or 'turbid'")
+    w, tail, capped = _shares(pulse, energy, float(full_energy), b, return_path)
     start = np.concatenate([[0], np.cumsum(np.bincount(pulse, minlength=b))])
     end = np.maximum(end, np.where(np.bincount(pulse, minlength=b) > 0,
                                    np.maximum.reduceat(np.r_[rng, 0.0], start[:-1]) if rng.size else 0.0, 0.0))
     beams = Beams(origin=origin, direction=d, echo_start=start, echo_range=rng, echo_weight=w,
-                  echo_kind=np.full(rng.size, EchoKind.LEAF, np.uint8), tail=np.clip(1.0 - total, 0.0, 1.0),
-                  max_range=end)
-    beams.meta["capped"] = int(np.sum(scale < 1.0))
+                  echo_kind=np.full(rng.size, EchoKind.LEAF, np.uint8), tail=tail, max_range=end)
+    beams.meta["capped"] = capped
+    beams.meta["echo_energy"] = energy  # in the beams' echo order, for a reweighing by material
+    beams.meta["full_energy"] = float(full_energy)
+    beams.meta["return_path"] = return_path
     return beams
+
+
+def _shares(pulse, energy, full, b, return_path="hotspot"):
+    """Echo weights from ``energy / full`` (per echo, sorted by pulse then range), scaled down where a pulse's
+    sum passes 1; the tails; the pulses scaled.  ``turbid``: the energy shares are two-way, the beam's
+    one-way transmittance after each echo ``sqrt(1 - cumulative share)``."""
+    w = energy / full
+    total = np.bincount(pulse, weights=w, minlength=b)
+    scale = np.where(total > 1.0, 1.0 / np.maximum(total, 1e-300), 1.0)
+    w = w * scale[pulse]
+    if return_path == "turbid" and w.size:
+        start = np.r_[0, np.cumsum(np.bincount(pulse, minlength=b))[:-1]]
+        cum = np.cumsum(w)
+        cum -= np.r_[0.0, cum][start][pulse]  # within each pulse
+        after = np.sqrt(np.clip(1.0 - cum, 0.0, 1.0))
+        before = np.sqrt(np.clip(1.0 - (cum - w), 0.0, 1.0))
+        w = before - after
+        return w, np.clip(1.0 - np.bincount(pulse, weights=w, minlength=b), 0.0, 1.0), int(np.sum(scale < 1.0))
+    return w, np.clip(1.0 - np.minimum(total, 1.0), 0.0, 1.0), int(np.sum(scale < 1.0))
+
+
+def ground_regression(veg_energy, ground_energy) -> tuple[float, float] | None:
+    """Full hits of vegetation and ground from the pulses' energies (Armston et al. 2013).
+
+    With the beam's share ``1 - P`` stopped by vegetation and ``P`` by the
+    ground, a pulse returns ``Ev = Ev_full (1 - P)`` and ``Eg = Eg_full P``
+    (the return coming back through the gap it went down: the hot spot of a
+    small footprint), so over many pulses ``Ev = Ev_full - (Ev_full / Eg_full) Eg``:
+    a straight line whose intercepts are the two full hits.  Fitted by least
+    squares on the pulses with any energy; None when the line does not fall
+    (too few pulses, or no pulse that both sees ground and vegetation).
+
+    Returns
+    -------
+    (Ev_full, Eg_full) or None
+    """
+    ev = np.asarray(veg_energy, dtype=np.float64)
+    eg = np.asarray(ground_energy, dtype=np.float64)
+    ok = (ev + eg) > 0
+    if ok.sum() < 10 or not ((ev[ok] > 0) & (eg[ok] > 0)).any() or np.ptp(eg[ok]) <= 0:
+        return None
+    slope, intercept = np.polyfit(eg[ok], ev[ok], 1)
+    if not (slope < 0 and intercept > 0):
+        return None
+    return float(intercept), float(intercept / -slope)
 
 
 def pool_layers(stats, sigma_m: float):
@@ -146,7 +199,8 @@ def pool_layers(stats, sigma_m: float):
 
 def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="bcmle", n_min: int = 2,
                    min_explored: float = 0.0, leaf_angle="spherical", pool_m: float = 0.0, widen=(2.0, 4.0),
-                   tracer=None, progress: bool = False):
+                   ground=None, ground_tolerance: float = 0.3, reweigh: bool = True, tracer=None,
+                   progress: bool = False):
     """A plant-area scene from beams whose echoes all count as vegetation.
 
     Parameters
@@ -175,6 +229,25 @@ def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="b
         worth) takes the estimate pooled over ``pool_m`` times each of these
         factors in turn, the narrowest that sees it (the finest footprint with
         enough beams); it stays flagged ``occluded``.
+    ground : None, "ransac" or float
+        None (default): the ground echoes count as vegetation like every other
+        (a dense lowest layer, as a replay of the same records wants).
+        ``"ransac"``: a plane fitted to the lowest echo of each 1 m column
+        (:func:`tlsvox.ground.fit_ground`, inliers within ``ground_tolerance``,
+        within 20 degrees of level), or a given height in metres: echoes
+        within ``ground_tolerance`` of it stop their beams as ground, not
+        vegetation, the scene gets the plane's height as ``ground_z`` and
+        keeps no voxel below it.
+    ground_tolerance : float, metres
+        Half the ground echoes' band about the plane (airborne ranges are
+        coarser than TLS ones: a 1 ns sample is 0.15 m).
+    reweigh : bool
+        With a ground and beams from :func:`airborne_beams`: the full hits of
+        vegetation and of ground apart, from the pulses' energies
+        (:func:`ground_regression`; leaves and soil reflect differently, so
+        one full hit for both puts the canopy's share off by their ratio),
+        the echo weights recomputed from them; kept as given when the fit
+        fails (said in ``meta["airborne"]["full_hits"]``).
     tracer : Tracer, optional
     progress : bool
 
@@ -197,6 +270,18 @@ def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="b
     # G of each beam's angle from the vertical (G(theta) = G(pi - theta): down or up alike)
     beams.g = np.clip(np.asarray(la.G(np.arccos(np.abs(beams.direction[:, 2]))), dtype=np.float64), 1e-6, None)
     pts = beams.echo_points()
+    # the plane from echoes that stopped at least 5 % of their beam: a decomposition's faint misfits around a
+    # strong ground echo (a few per mille of it, on noise-free records) must not pull it down
+    strong = pts[beams.echo_weight >= 0.05]
+    plane = _ground_plane(ground, strong if len(strong) >= 3 else pts, ground_tolerance)
+    fulls = None
+    if plane is not None:
+        on = plane.distance(pts) <= float(ground_tolerance)  # on the ground, or below it
+        beams.echo_kind = np.where(on, np.uint8(EchoKind.OTHER), beams.echo_kind).astype(np.uint8)
+        fulls = _reweigh(beams, on) if reweigh else None
+        if bounds is None and (~on).any():  # the vegetation's box, down to the ground
+            veg = pts[~on]
+            pts = np.vstack([veg, [[*veg[0, :2], plane.z_center]]])
     lo, hi = (pts.min(axis=0), pts.max(axis=0)) if bounds is None else np.asarray(bounds, dtype=np.float64)
     grid = VoxelGrid.from_bounds(lo, hi, voxel_size=voxel_size, snap=True)
     grid.check_memory(200, what="tracing airborne beams")
@@ -216,15 +301,65 @@ def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="b
         values[take] = wide.lad[take]
         widened += int(take.sum())
         todo &= ~take
-    ijk = np.argwhere((values > 0) | lad.occluded)
+    keep = (values > 0) | lad.occluded
+    if plane is not None:  # nothing at or below the ground
+        top = grid.lower[2] + (np.arange(grid.shape[2]) + 1) * grid.voxel_size
+        keep &= (top > plane.z_center)[None, None, :]
+    ijk = np.argwhere(keep)
     sel = tuple(ijk.T)
     reached = int(np.count_nonzero(stats.field("count") > 0))
     meta = {"airborne": {"beams": len(beams), "pool_m": float(pool_m), "widened_voxels": widened,
+                         "return_path": beams.meta.get("return_path", "hotspot"),
                          "widen": [float(f) for f in widen], "echoes": beams.n_echoes, "capped_pulses": beams.meta.get("capped"),
                          "occluded_voxels": int(lad.occluded[sel].sum()), "voxels": len(ijk),
                          "reached_voxels": reached,
                          "note": "every echo counted as vegetation: lad is plant area density (leaves, wood, and the "
                                  "ground where the records reach it)"},
             "estimator": str(getattr(lad.estimator, "value", lad.estimator)), "flags": lad.counts()}
+    if plane is not None:
+        meta["airborne"]["ground_echoes"] = int(np.sum(beams.echo_kind == EchoKind.OTHER))
+        meta["airborne"]["full_hits"] = (fulls or {"rule": "one full hit for every echo (the vegetation/ground "
+                                                           "regression was not used or did not fit)"})
+        meta["airborne"]["note"] = ("every echo off the ground counted as vegetation: lad is plant area density "
+                                    "(leaves and wood)")
+        meta["ground"] = {"coefficients": list(plane.coefficients), "z_center": plane.z_center,
+                          "tolerance_m": float(ground_tolerance)}
     return Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=values[sel],
-                 occluded=lad.occluded[sel], lad_std=lad.lad_std[sel], leaf_angle=la, meta=meta)
+                 occluded=lad.occluded[sel], lad_std=lad.lad_std[sel], leaf_angle=la,
+                 ground_z=None if plane is None else plane.z_center, meta=meta)
+
+
+def _reweigh(beams, on_ground) -> dict | None:
+    """Echo weights from separate full hits of vegetation and ground (:func:`ground_regression`), in place."""
+    energy = beams.meta.get("echo_energy")
+    if energy is None or len(energy) != beams.n_echoes:
+        return None
+    b = len(beams)
+    pulse = np.repeat(np.arange(b), np.diff(beams.echo_start))
+    eg = np.bincount(pulse, weights=np.where(on_ground, energy, 0.0), minlength=b)
+    ev = np.bincount(pulse, weights=np.where(on_ground, 0.0, energy), minlength=b)
+    fit = ground_regression(ev, eg)
+    if fit is None:
+        return None
+    full = np.where(on_ground, fit[1], fit[0])
+    beams.echo_weight, beams.tail, beams.meta["capped"] = _shares(pulse, energy, full, b,
+                                                                  beams.meta.get("return_path", "hotspot"))
+    return {"rule": "vegetation and ground full hits from the pulses' energies (Armston et al. 2013)",
+            "vegetation": fit[0], "ground": fit[1], "ratio_vegetation_over_ground": fit[0] / fit[1]}
+
+
+def _ground_plane(ground, points, tolerance):
+    from tlsvox.ground import GroundPlane, fit_ground
+
+    if ground is None or isinstance(ground, GroundPlane):
+        return ground
+    if isinstance(ground, str):
+        if ground.lower() == "none":
+            return None
+        if ground.lower() == "ransac":  # within 20 degrees of level (a strip's lowest points line up across it too)
+            return fit_ground(points, distance_threshold=float(tolerance), max_tilt_deg=20.0)
+        raise InputError(f"ground={ground!r} must be None, 'ransac' or a height in metres")
+    z = float(ground)
+    if not np.isfinite(z):
+        raise InputError(f"ground={ground!r} must be a finite height in metres")
+    return GroundPlane.horizontal(z)

@@ -42,7 +42,8 @@ from clsim.errors import InputError
 from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse, clipped_baseline, threshold
 from clsim.waveforms.decompose._noise import _gaps, noise_level
 
-__all__ = ["TemplateEchoes", "decompose_template", "subsample_peak", "template_from_returns"]
+__all__ = ["TemplateEchoes", "decompose_template", "echo_template", "receiver_response", "subsample_peak",
+           "template_from_returns"]
 
 #: Shifts per sample of the template grid.
 _GRID = 2
@@ -70,6 +71,11 @@ class TemplateEchoes:
     snr : (E,) float64
         Matched-filter signal-to-noise ratio of each echo.
     baseline, noise_sigma : (N,) float64
+    part_echo : (P,) int64
+        The non-zero template shifts each echo is the sum of (the
+        deconvolved profile of an extended target): their echo,
+    part_location_ns, part_energy : (P,) float64
+        time (ns on the waveform clock) and energy (as ``energy``).
     """
 
     waveform: np.ndarray
@@ -80,6 +86,9 @@ class TemplateEchoes:
     snr: np.ndarray
     baseline: np.ndarray
     noise_sigma: np.ndarray
+    part_echo: np.ndarray = None
+    part_location_ns: np.ndarray = None
+    part_energy: np.ndarray = None
 
     def __len__(self) -> int:
         return int(self.baseline.size)
@@ -103,6 +112,71 @@ def _unit_template(template, name="template"):
     return h / h.sum(), subsample_peak(h)
 
 
+def _above_base(y) -> np.ndarray:
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    return y - np.median(np.sort(y)[: max(3, y.size // 5)])
+
+
+def receiver_response(outgoing, returns, *, length: int = 40, lead: int = 8) -> np.ndarray:
+    """The receiver's response to the recorded outgoing pulse, fitted on hard-target returns.
+
+    A file that records each shot's outgoing pulse (RIEGL PulseWaves) records
+    it through another path than the returns: a return is the outgoing pulse
+    convolved with the receiver's response ``r`` (wider, with a trailing
+    tail at a few per cent of the peak), so the outgoing pulse alone is not
+    the echo shape, and its misfit reads as extra echoes.  ``r`` is the
+    non-negative least-squares solution of ``y_j(t) = sum_k r_k o_j(t - s_j - k)``
+    over the given pairs, each return ``y_j`` scaled to unit peak and lined up
+    on its outgoing pulse ``o_j`` by their peaks (``s_j``, less ``lead``
+    samples so that ``r`` can start before the peak).  Fit it on other pulses
+    than the ones decomposed with it (the benchmark holds each out).
+
+    Parameters
+    ----------
+    outgoing, returns : sequences of (n_j,) array_like
+        The pairs, raw samples of one shot's outgoing pulse and of its return
+        from a single hard target.
+    length : int
+        Samples of ``r``.
+    lead : int
+        Samples of ``r`` before the peaks' alignment.
+
+    Returns
+    -------
+    (length,) float64, non-negative
+    """
+    from scipy.optimize import nnls
+
+    if len(outgoing) != len(returns) or not len(returns):
+        raise InputError(f"receiver_response needs pairs of outgoing and returning waveforms, got {len(outgoing)} "
+                         f"and {len(returns)}")
+    if not 0 <= lead < length:
+        raise InputError(f"lead must be in [0, length), got {lead!r} with length {length!r}")
+    rows, rhs = [], []
+    for o, y in zip(outgoing, returns):
+        o = np.clip(_above_base(o), 0.0, None)
+        y = _above_base(y)
+        if not (o.max() > 0 and y.max() > 0):
+            raise InputError("an outgoing or returning waveform has no samples above its baseline")
+        start = int(np.argmax(y)) - int(np.argmax(o)) - lead
+        m = np.zeros((y.size, length))
+        for k in range(length):
+            lo = start + k  # o's sample 0 lands on the return's sample lo
+            a, b = max(0, lo), min(y.size, lo + o.size)
+            if b > a:
+                m[a:b, k] = o[a - lo: b - lo]
+        rows.append(m / y.max())
+        rhs.append(y / y.max())
+    r, _ = nnls(np.vstack(rows), np.concatenate(rhs))
+    return r
+
+
+def echo_template(outgoing, response) -> np.ndarray:
+    """One shot's echo shape: its recorded outgoing pulse convolved with the receiver's response."""
+    o = np.clip(_above_base(outgoing), 0.0, None)
+    return np.convolve(o, np.asarray(response, dtype=np.float64))
+
+
 def subsample_peak(h) -> float:
     """Position of the maximum of ``h``, samples, refined by a parabola through the three samples around it."""
     h = np.asarray(h, dtype=np.float64)
@@ -115,12 +189,24 @@ def subsample_peak(h) -> float:
     return float(i)
 
 
-def template_from_returns(waveforms, *, count: int = 20, width: int = 40) -> np.ndarray:
-    """A system template from a file's own returns: the median of its strongest single-peaked waveforms.
+def _half_width(y, half) -> float:
+    """Width at half height of the one run ``half`` around the peak of ``y``, samples (linear crossings)."""
+    lo, hi = int(half[0]), int(half[-1])
+    top = 0.5 * y[half].max()
+    left = lo - ((y[lo] - top) / (y[lo] - y[lo - 1]) if lo > 0 and y[lo] > y[lo - 1] else 0.0)
+    right = hi + ((y[hi] - top) / (y[hi] - y[hi + 1]) if hi < y.size - 1 and y[hi] > y[hi + 1] else 0.0)
+    return float(right - left)
+
+
+def template_from_returns(waveforms, *, count: int = 20, width: int = 40, widen: float = 1.25) -> np.ndarray:
+    """A system template from a file's own returns: the median of its strongest narrow single-peaked waveforms.
 
     For files that record no outgoing pulse or impulse response (the Leica
-    LAS 1.3 tile): each of the ``count`` waveforms with the highest peak whose
-    samples above half that peak form one run (one hard return) is cut
+    LAS 1.3 tile): of the waveforms whose samples above half their peak
+    form one run (one return) and whose peak stands 20 noise sigma up, those
+    whose half-height width is at most ``widen`` times the narrowest tenth's
+    are the hard targets (an extended target such as a crown or a leaf
+    layer widens its return); each of the ``count`` highest of those is cut
     ``width`` samples either side of its peak, scaled to unit peak and the
     median taken sample by sample.
 
@@ -128,11 +214,16 @@ def template_from_returns(waveforms, *, count: int = 20, width: int = 40) -> np.
     ----------
     waveforms : sequence of (n_i,) array_like
     count, width : int
+    widen : float >= 1
+        Widest half-height width kept, over the 10th percentile of the
+        single returns' widths (``inf``: the strongest regardless of width).
 
     Returns
     -------
     (2 width,) float64, unit peak at index ``width``, baseline removed
     """
+    if not widen >= 1:
+        raise InputError(f"widen must be >= 1, got {widen!r}")
     picks = []
     for w in waveforms:
         y = np.asarray(w, dtype=np.float64)
@@ -146,13 +237,16 @@ def template_from_returns(waveforms, *, count: int = 20, width: int = 40) -> np.
         half = np.flatnonzero(y >= 0.5 * y[p])
         if half[-1] - half[0] + 1 != half.size:  # two returns above half height
             continue
-        picks.append((y[p], y, p))
+        picks.append((y[p], y, p, _half_width(y, half)))
     if len(picks) < 3:
         raise InputError(f"found {len(picks)} strong single returns to build a template from (need 3); pass the "
                          "system's impulse response")
+    widths = np.array([t[3] for t in picks])
+    cut = max(float(np.sort(widths)[2]), widen * float(np.percentile(widths, 10)))
+    picks = [t for t in picks if t[3] <= cut]
     picks.sort(key=lambda t: -t[0])
     stack = []
-    for top, y, p in picks[:count]:
+    for top, y, p, _ in picks[:count]:
         seg = np.zeros(2 * width)
         lo, hi = max(0, p - width), min(y.size, p + width)
         seg[lo - p + width: hi - p + width] = y[lo:hi] / top
@@ -223,6 +317,7 @@ def decompose_template(waveforms, template, *, dt_ns: float = 1.0, t0_ns=0.0, fa
         raise InputError(f"merge_ns must be >= 0 ns, got {merge_ns!r}")
     hnorm = float(np.sqrt((h * h).sum()))
     cols = {k: [] for k in ("waveform", "location_ns", "energy", "amplitude", "extent_ns", "snr")}
+    parts = {k: [] for k in ("part_echo", "part_location_ns", "part_energy")}
     base, noise = np.zeros(len(rows)), np.zeros(len(rows))
     for i, y in enumerate(rows):
         if y.size < 4 or not np.all(np.isfinite(y)):
@@ -274,5 +369,10 @@ def decompose_template(waveforms, template, *, dt_ns: float = 1.0, t0_ns=0.0, fa
             cols["amplitude"].append(float(peaks[k]))
             cols["extent_ns"].append(ext[k] * dt_ns)
             cols["snr"].append(snr)
+            parts["part_echo"].append(np.full(r.size, len(cols["snr"]) - 1))
+            parts["part_location_ns"].append(t0[i] + shifts[r] * dt_ns)
+            parts["part_energy"].append(e[r] * dt_ns)
     arr = {k: np.asarray(v, dtype=np.int64 if k == "waveform" else np.float64) for k, v in cols.items()}
+    arr.update({k: np.concatenate(v) if v else np.zeros(0, np.int64 if k == "part_echo" else np.float64)
+                for k, v in parts.items()})
     return TemplateEchoes(**arr, baseline=base, noise_sigma=noise)

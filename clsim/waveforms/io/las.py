@@ -107,6 +107,10 @@ class WavePacketDescriptor:
         reader accepts it only where every packet still has its raw size, and
         otherwise says the packets are compressed (LASzip writes type 1 and
         compressed packets, in a ``.wdz`` beside a ``.laz``)."""
+        if self.bits_per_sample == 0 and self.n_samples == 0 and self.spacing_ps == 0:
+            raise InputError(f"wave packet descriptor {self.index}, which is empty (no sample size, count or "
+                             "spacing: an exporter's placeholder record); re-export the file with the descriptor "
+                             "its points use")
         if self.bits_per_sample not in _SAMPLE_DTYPES:
             raise InputError(f"wave packet descriptor {self.index}: bits_per_sample="
                              f"{self.bits_per_sample}; supported: 8, 16, 32")
@@ -353,8 +357,6 @@ def read_las_waveforms(path: "str | os.PathLike", *, wdp: "str | os.PathLike | N
         raise InputError(f"{path.name}: point format {pf} has no waveform packets; expected "
                          f"one of {_WAVEFORM_POINT_FORMATS} (LAS 1.3/1.4 full waveform)")
     descriptors = _read_descriptors(hdr)
-    for d in descriptors.values():
-        d.check(reading=True)
     n = len(las.points)
     desc_idx = np.asarray(las["wavepacket_index"], dtype=np.uint8)
     offs = np.asarray(las["wavepacket_offset"], dtype=np.uint64)
@@ -368,6 +370,18 @@ def read_las_waveforms(path: "str | os.PathLike", *, wdp: "str | os.PathLike | N
             f"no LASF_Spec VLR with record id {[99 + i for i in missing]} (present: {have}). "
             "The descriptor VLR was lost, e.g. by a tool that drops unknown VLRs; re-export "
             "the file with its waveform descriptors.")
+    # a descriptor is wrong only when a point uses it: exporters write placeholder records (RiPROCESS: 100,
+    # two used); the unused ones that this reader could not read are left out
+    for idx in used:
+        try:
+            descriptors[int(idx)].check(reading=True)
+        except InputError as err:
+            raise InputError(f"{path.name}: {int(np.sum(desc_idx == idx))} point(s) use {err}") from None
+    for k in [k for k in descriptors if k not in set(int(i) for i in used)]:
+        try:
+            descriptors[k].check(reading=True)
+        except InputError:
+            del descriptors[k]
     has = desc_idx > 0
     expect = np.zeros(n, dtype=np.uint64)
     for idx in used:

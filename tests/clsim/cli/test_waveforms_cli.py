@@ -155,3 +155,31 @@ def test_decompose_names_each_pulse_and_its_gps_time(shared_data, tmp_path):
         assert float(r["amplitude_v"]) == pytest.approx(d.gain * float(r["amplitude"]), rel=1e-5)
         assert float(r["baseline_v"]) == pytest.approx(d.offset + d.gain * float(r["baseline"]), rel=1e-5, abs=1e-9)
     assert (tmp_path / "fit.png").stat().st_size > 1000
+
+
+@pytest.mark.realdata
+def test_decompose_with_the_instruments_pulse_as_template(shared_data, tmp_path, capsys):
+    from clsim.waveforms.decompose._template import decompose_template
+
+    d = shared_data / "neon-harvard-waveforms"
+    out = tmp_path / "t.csv"
+    assert run(["decompose", d / "return.csv", "-o", out, "--limit", "20", "--geolocation", d / "geolocation.csv",
+                "--template", d / "system_impulse.csv"]) == 0
+    rows = list(csv.DictReader(io.StringIO(out.read_text())))
+    assert set(rows[0]) >= {"location_ns", "energy", "extent_ns", "snr", "z"}
+    # the rows are decompose_template's echoes of the same records, in order
+    waves = []
+    for line in (d / "return.csv").read_text().splitlines()[1:21]:
+        v = np.array([float(x) for x in line.split(",")])
+        waves.append(v[: np.flatnonzero(v)[-1] + 1])
+    impulse = np.array([float(r.split(",")[0]) for r in (d / "system_impulse.csv").read_text().splitlines()[1:]])
+    want = decompose_template(waves, impulse - np.median(np.sort(impulse)[: impulse.size // 5]))  # baseline off
+    assert np.allclose([float(r["location_ns"]) for r in rows], want.location_ns, atol=1e-4)
+    first = [r for r in rows if r["waveform"] == "0"][0]
+    assert abs(float(first["z"]) - 334.69) < 1.5  # NEON's first-return position of pulse 0
+    # the options that belong to the Gaussian fit are refused with --template, one line
+    assert run(["decompose", d / "return.csv", "-o", tmp_path / "x.csv", "--template", "returns", "--batch"]) == 2
+    assert "drop --batch" in capsys.readouterr().err
+    assert run(["decompose", d / "return.csv", "-o", tmp_path / "x.csv", "--min-relative", "0.05"]) == 2
+    assert "--min-relative needs --template" in capsys.readouterr().err
+    assert not (tmp_path / "x.csv").exists()

@@ -201,3 +201,30 @@ def test_leica_laz_copy_says_its_packets_are_compressed(leica_dir):
     clear error naming the fix, not 'compression=1; only uncompressed packets are defined'."""
     with pytest.raises(InputError, match=r"packets are compressed .*compression type 1, packets of 80 bytes.*fix:"):
         read_las_waveforms(leica_dir / "fwf.laz")
+
+
+def test_unused_empty_descriptor_records_are_left_out(tmp_path, rng):
+    """An exporter's placeholder descriptors (RiPROCESS writes 100, two used): read while no point uses one."""
+    n, s = 10, 32
+    w = rng.integers(0, 200, (n, s)).astype(float)
+    data = LasWaveforms.from_arrays(rng.uniform(0, 10, (n, 3)), w, spacing_ps=1000,
+                                    return_location_ps=np.full(n, 5e3), xyz_t=[0.0, 0.0, 1.5e-4])
+    las_path, _ = write_las_waveforms(tmp_path / "rp.las", data)
+    las = laspy.read(las_path)
+    first = next(v for v in las.header.vlrs if v.record_id == 100)
+    body = first.record_data_bytes() if hasattr(first, "record_data_bytes") else bytes(first.record_data)
+    las.header.vlrs.append(laspy.VLR(user_id="LASF_Spec", record_id=101, description="", record_data=body))
+    for rid in range(102, 200):  # 98 empty placeholders
+        las.header.vlrs.append(laspy.VLR(user_id="LASF_Spec", record_id=rid, description="", record_data=bytes(26)))
+    index = np.asarray(las["wavepacket_index"]).copy()
+    index[::2] = 2  # half the points use the second (identical) descriptor
+    las["wavepacket_index"] = index
+    las.write(las_path)
+    back = read_las_waveforms(las_path)
+    assert sorted(back.descriptors) == [1, 2]
+    np.testing.assert_array_equal(back.raw[back.packet], data.raw[data.packet])
+    index[3] = 7  # a point that uses an empty one: one clear line
+    las["wavepacket_index"] = index
+    las.write(las_path)
+    with pytest.raises(InputError, match="1 point\\(s\\) use wave packet descriptor 7, which is empty"):
+        read_las_waveforms(las_path)

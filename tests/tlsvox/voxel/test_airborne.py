@@ -69,3 +69,32 @@ def test_pooling_sums_a_footprint_of_beams():
     acc.reshape(*grid.shape, NF)[:, :, 0] = 1.0
     pooled = pool_layers(VoxelStats(grid, acc), 0.5)
     assert pooled.field("count")[:, :, 1].max() == 0.0 and pooled.field("count")[:, :, 0].max() > 0
+
+
+def _layer_over_ground(ground_z=5.0):
+    """The layer's beams, each ending on the ground: what the layer left of it stopped there."""
+    b = _layer_beams(bottom=10.0)
+    n = len(b)
+    pulse = np.repeat(np.arange(n), np.diff(b.echo_start))
+    rng = np.r_[b.echo_range, np.full(n, 100.0 - ground_z)]
+    energy = np.r_[b.echo_weight, b.tail]
+    return airborne_beams(b.origin, b.direction, echo_pulse=np.r_[pulse, np.arange(n)], echo_range=rng,
+                          echo_energy=energy, full_energy=1.0, record_end=np.full(n, 100.0 - ground_z + 1.0))
+
+
+@pytest.mark.parametrize("ground", ["ransac", 5.0])
+def test_ground_echoes_stop_beams_as_ground_not_leaves(ground):
+    beams = _layer_over_ground()
+    scene = voxelize_beams(beams, voxel_size=0.5, ground=ground, estimator="beer_lambert")
+    assert scene.ground_z == pytest.approx(5.0, abs=1e-6)
+    assert scene.meta["airborne"]["ground_echoes"] == len(beams)
+    centre_z = scene.origin[2] + (scene.ijk[:, 2] + 0.5) * scene.voxel_size
+    assert centre_z.min() > 5.0  # nothing stored at or below the ground
+    inner = np.all((scene.ijk[:, :2] >= 1) & (scene.ijk[:, :2] <= 2), axis=1) & (centre_z > 10) & (centre_z < 12)
+    assert np.allclose(scene.lad[inner & ~scene.occluded], 1.0, rtol=0.002)
+    # without a ground the whole rest of each beam is a dense layer at z = 5
+    plain = voxelize_beams(_layer_over_ground(), voxel_size=0.5)
+    low = plain.origin[2] + (plain.ijk[:, 2] + 0.5) * plain.voxel_size < 5.5
+    assert plain.ground_z is None and plain.lad[low].min() > 3.0 and plain.meta["flags"]["saturated"] > 0
+    with pytest.raises(InputError, match="ground"):
+        voxelize_beams(_layer_over_ground(), voxel_size=0.5, ground="lowest")
