@@ -87,7 +87,14 @@ def voxelize_coarse_lad(call: dict):
         coarse_plan = voxelize(scans, **coarse_call)
         cg = coarse_plan.grid
         fine_plan = voxelize(scans, **dict(fine_call, bounds=np.array([cg.lower, cg.upper])))
-        return max(coarse_plan, fine_plan, key=lambda p: p.need)
+        big = max(coarse_plan, fine_plan, key=lambda p: p.need)
+        fg = fine_plan.grid
+        note = (f"the scene's grid {' x '.join(map(str, fg.shape))} of {fg.voxel_size:g} m (wood and ground), its LAD "
+                f"estimated on {' x '.join(map(str, cg.shape))} of {cg.voxel_size:g} m; the larger of the two runs, "
+                f"the {'coarse' if big is coarse_plan else 'fine'} one")
+        import dataclasses
+
+        return dataclasses.replace(big, note=note)
     coarse = voxelize(scans, **coarse_call)
     cg = coarse.grid
     outward = str(call["leaf_azimuth"]).lower() == "outward"

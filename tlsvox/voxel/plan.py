@@ -70,6 +70,7 @@ class MemoryPlan:
     fill: int = 0  #: bytes of ``fill="neighbourhood"``'s temporaries on top (and the per-scan sums of "calibrated")
     build: int = 0  #: peak bytes while the beams are made, joined and their echoes' voxels found
     echoes: int = 0  #: echoes of the beams (voxelize keeps each scan echo's class, 1 byte, through the run)
+    note: str = ""  #: what the plan is of, when a run holds more than one grid (``lad_voxel_size``)
 
     @property
     def run(self) -> int:
@@ -94,7 +95,7 @@ class MemoryPlan:
                 f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}{extra}")
 
     def describe(self) -> str:
-        return (f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
+        return ((f"{self.note}: " if self.note else "") + f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
                 f"{format_bytes(self.limit)} available (arrays: making the beams {format_bytes(self.build)}, "
                 f"tracing and estimating {format_bytes(self.run)}; and {ALLOCATOR_SHARE:.0%} on top for the "
                 "allocator)")

@@ -112,6 +112,10 @@ def test_plan_only_gives_the_larger_runs_plan(box_scans):  # noqa: F811
     fine = voxelize(box_scans, voxel_size=0.1, plan_only=True, **{**KW, "bounds": [cg.lower, cg.upper]})
     assert isinstance(plan, MemoryPlan) and fine.grid.shape == tuple(3 * n for n in cg.shape)
     assert plan.need == max(coarse.need, fine.need)
+    # the plan names the grid the run writes, not only the larger run's (issue 37: "a grid of 0.1 m")
+    text = plan.describe()
+    assert text.startswith(f"the scene's grid {' x '.join(map(str, fine.grid.shape))} of 0.1 m")
+    assert f"LAD estimated on {' x '.join(map(str, cg.shape))} of 0.3 m" in text
 
 
 @pytest.mark.parametrize("placement", ["even", "echoes"])
