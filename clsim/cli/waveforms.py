@@ -333,6 +333,7 @@ def cmd_decompose(args) -> int:
 def _decompose_template(wf, args) -> int:
     """``clsim decompose --template``: one CSV row per template echo."""
     from clsim.waveforms.decompose import echo_positions
+    from clsim.waveforms.decompose import noise_level
     from clsim.waveforms.decompose._template import decompose_template, template_from_returns
 
     n = len(wf.waves) if args.limit is None else min(len(wf.waves), int(args.limit))
@@ -350,7 +351,7 @@ def _decompose_template(wf, args) -> int:
         if template.size < 3 or not np.all(np.isfinite(template)):
             raise InputError(f"--template {path}: its first column must hold a hard target's return (3 or more "
                              "finite samples)")
-        template = template - np.median(np.sort(template)[: max(3, template.size // 5)])  # its baseline off
+        template = template - noise_level(template)[0]  # its baseline off
         source = str(path)
     dts = {float(wf.dt_ns[i]) for i in range(n)}
     if len(dts) != 1:
@@ -364,9 +365,8 @@ def _decompose_template(wf, args) -> int:
         with open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(header)
-            rank = np.zeros(len(table.waveform), dtype=np.int64)
-            for j in range(1, len(rank)):
-                rank[j] = rank[j - 1] + 1 if table.waveform[j] == table.waveform[j - 1] else 0
+            first = np.searchsorted(table.waveform, table.waveform)  # sorted by waveform: its first echo's row
+            rank = np.arange(len(table.waveform)) - first
             for j, i in enumerate(table.waveform):
                 geo = wf.geometry[i]
                 xyz = (echo_positions(table.location_ns[j: j + 1], origin=geo[0], direction=geo[1])[0]

@@ -70,8 +70,9 @@ def scene_echoes(prepared, *, source: str = "waveform", weights: str = "energy")
         loc = np.concatenate([np.asarray(r, dtype=np.float64) for r in returns] or [np.zeros(0)]) / p.dt_ns
         keep = (loc >= 0) & (loc <= p.n_samples[pulse] - 1)
         pulse, loc = pulse[keep], loc[keep]
-        cols = np.arange(prepared.signal.shape[1])
-        height = np.array([np.interp(x, cols, prepared.signal[i]) for i, x in zip(pulse, loc)])
+        i0 = np.minimum(np.floor(loc).astype(np.int64), prepared.signal.shape[1] - 2)
+        f = loc - i0
+        height = (1 - f) * prepared.signal[pulse, i0] + f * prepared.signal[pulse, i0 + 1]
         energy = np.clip(height, 0.0, None) / float(prepared.shape.max())
         xyz = p.bin0[pulse] + loc[:, None] * p.step[pulse]
         out = dataclasses.replace(prepared, echo_pulse=pulse, echo_sample=loc, echo_energy=energy,

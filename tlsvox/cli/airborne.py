@@ -91,14 +91,6 @@ def run_airborne(args, parser_defaults: dict) -> int:
         raise InputError(f"--divergence-mrad {args.divergence_mrad} must be a half angle above 0 mrad (e.g. 0.25)")
     if not (np.isfinite(args.beams_per_footprint) and args.beams_per_footprint > 0):
         raise InputError(f"--beams-per-footprint {args.beams_per_footprint} must be > 0 (e.g. 3)")
-    ground = args.ground or "none"
-    if ground == "none":
-        ground = None
-    elif ground != "ransac":
-        try:
-            ground = float(ground)
-        except ValueError:
-            raise InputError(f"--ground={ground!r} must be 'ransac', 'none' or a height in metres") from None
     from clsim.replay import pool_sigma, prepare, read_measured, scene_echoes, scene_from_pulses
 
     t0 = time.perf_counter()
@@ -116,7 +108,7 @@ def run_airborne(args, parser_defaults: dict) -> int:
     bounds = None if args.bounds is None else np.reshape(args.bounds, (2, 3))
     scene = scene_from_pulses(echoes, every, voxel_size=args.voxel_size, pool_m=pool,
                               n_min=1 if args.n_min is None else args.n_min, estimator=args.estimator or "beer_lambert",
-                              ground=ground, bounds=bounds, tracer=tracer, progress=not args.quiet,
+                              ground=args.ground or "none", bounds=bounds, tracer=tracer, progress=not args.quiet,
                               return_path="turbid" if args.no_hotspot else "hotspot")
     air = scene.meta["airborne"]
     air.update(source=str(src), reader=measured.meta.get("source", "NEON records"), pulses=len(measured),

@@ -140,8 +140,7 @@ def _shares(pulse, energy, full, b, return_path="hotspot"):
         after = np.sqrt(np.clip(1.0 - cum, 0.0, 1.0))
         before = np.sqrt(np.clip(1.0 - (cum - w), 0.0, 1.0))
         w = before - after
-        return w, np.clip(1.0 - np.bincount(pulse, weights=w, minlength=b), 0.0, 1.0), int(np.sum(scale < 1.0))
-    return w, np.clip(1.0 - np.minimum(total, 1.0), 0.0, 1.0), int(np.sum(scale < 1.0))
+    return w, np.clip(1.0 - np.bincount(pulse, weights=w, minlength=b), 0.0, 1.0), int(np.sum(scale < 1.0))
 
 
 def ground_regression(veg_energy, ground_energy) -> tuple[float, float] | None:
@@ -335,7 +334,7 @@ def _reweigh(beams, on_ground) -> dict | None:
     if energy is None or len(energy) != beams.n_echoes:
         return None
     b = len(beams)
-    pulse = np.repeat(np.arange(b), np.diff(beams.echo_start))
+    pulse = beams.echo_beam()
     eg = np.bincount(pulse, weights=np.where(on_ground, energy, 0.0), minlength=b)
     ev = np.bincount(pulse, weights=np.where(on_ground, 0.0, energy), minlength=b)
     fit = ground_regression(ev, eg)
@@ -358,8 +357,10 @@ def _ground_plane(ground, points, tolerance):
             return None
         if ground.lower() == "ransac":  # within 20 degrees of level (a strip's lowest points line up across it too)
             return fit_ground(points, distance_threshold=float(tolerance), max_tilt_deg=20.0)
-        raise InputError(f"ground={ground!r} must be None, 'ransac' or a height in metres")
-    z = float(ground)
+    try:
+        z = float(ground)
+    except (TypeError, ValueError):
+        raise InputError(f"ground={ground!r} must be None, 'none', 'ransac' or a height in metres") from None
     if not np.isfinite(z):
         raise InputError(f"ground={ground!r} must be a finite height in metres")
     return GroundPlane.horizontal(z)

@@ -194,16 +194,20 @@ class Beams:
         """(B,) zenith angle of each beam, radians (0 = straight up)."""
         return np.arccos(np.clip(self.direction[:, 2], -1.0, 1.0))
 
+    def echo_beam(self) -> np.ndarray:
+        """(E,) int64: the beam of each echo (from ``echo_start``)."""
+        return np.repeat(np.arange(len(self)), np.diff(self.echo_start))
+
     def echo_points(self) -> np.ndarray:
         """(E, 3) world positions of the echoes."""
-        beam = np.repeat(np.arange(len(self)), np.diff(self.echo_start))
+        beam = self.echo_beam()
         return self.origin[beam] + self.direction[beam] * self.echo_range[:, None]
 
 
 def echo_positions(beams: Beams, kinds=(EchoKind.LEAF, EchoKind.WOOD), *, nudge: float = 0.0) -> np.ndarray:
     """(E, 3) world positions of the beams' echoes of ``kinds``, each moved ``nudge`` metres along its beam."""
     sel = np.isin(beams.echo_kind, np.asarray(kinds, dtype=np.uint8))
-    b = np.repeat(np.arange(len(beams)), np.diff(beams.echo_start))[sel]
+    b = beams.echo_beam()[sel]
     return beams.origin[b] + beams.direction[b] * (beams.echo_range[sel] + nudge)[:, None]
 
 
@@ -214,7 +218,7 @@ def echo_voxels(grid: VoxelGrid, beams: Beams) -> np.ndarray:
     the voxels just before and just after it along its beam are both taken.
     """
     sel = np.isin(beams.echo_kind, np.array([EchoKind.LEAF, EchoKind.WOOD], dtype=np.uint8))
-    b = np.repeat(np.arange(len(beams)), np.diff(beams.echo_start))[sel]
+    b = beams.echo_beam()[sel]
     return voxels_along(grid, beams.origin[b], beams.direction[b], beams.echo_range[sel])
 
 

@@ -545,7 +545,7 @@ def unrecorded_echoes(beams, grid, lad_of, model: DetectionModel, leaf_angle, *,
     add_b = np.concatenate(new_b)
     info["added"] = (add_b, add_r)
     add_w = given[add_b] / echoes_per_tail
-    old_b = np.repeat(np.arange(len(beams)), np.diff(beams.echo_start))
+    old_b = beams.echo_beam()
     all_b = np.concatenate([old_b, add_b])
     all_r = np.concatenate([beams.echo_range, add_r])
     order = np.lexsort((all_r, all_b))

@@ -113,8 +113,9 @@ def _unit_template(template, name="template"):
 
 
 def _above_base(y) -> np.ndarray:
+    """``y`` less its robust baseline (:func:`noise_level`'s)."""
     y = np.asarray(y, dtype=np.float64).reshape(-1)
-    return y - np.median(np.sort(y)[: max(3, y.size // 5)])
+    return y - noise_level(y)[0]
 
 
 def receiver_response(outgoing, returns, *, length: int = 40, lead: int = 8) -> np.ndarray:
