@@ -2,13 +2,24 @@
 PY := .venv/bin/python
 OUT ?= out
 
-.PHONY: setup demo test test-gpu test-slow test-all bench clean
+.PHONY: setup lint docs demo test test-gpu test-slow test-all bench clean
 
 setup:
 	@bash scripts/setup.sh
 
 demo: setup
 	$(PY) examples/demo.py --out $(OUT)
+
+lint: setup
+	.venv/bin/ruff check .
+	$(PY) scripts/check_types.py
+
+# the docs site: warnings are errors, then every internal link checked
+docs: setup
+	rm -rf docs/_build docs/reference/api
+	$(PY) -m sphinx -q -W --keep-going -b html docs docs/_build/html
+	$(PY) scripts/check_links.py docs/_build/html
+	@echo "docs: open docs/_build/html/index.html"
 
 test: setup
 	$(PY) -m pytest -m "not slow and not gpu"
@@ -27,4 +38,4 @@ bench: setup
 	$(PY) benchmarks/collect.py
 
 clean:
-	rm -rf $(OUT) .pytest_cache
+	rm -rf $(OUT) .pytest_cache docs/_build docs/reference/api

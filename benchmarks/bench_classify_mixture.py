@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _bench import machine_line, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,6 +73,7 @@ def _branch_radius(tree, xyz_world):
 def _bark_by_radius(tree, scans):
     """Bark echoes and those the pipeline's classes label leaf, per RADIUS_EDGES bin (summed over scans)."""
     from bench_lad_terms import _label_errors, _pipeline_labels
+
     from voxlidar.materials import Material
 
     labels = _pipeline_labels(scans)
@@ -98,8 +98,9 @@ def fitted(c, scan):
 
 
 def main(argv=None):
-    from tlsvox.classify import classify_scan, fit_two_gaussians, leaf_wood_threshold
     from bench_lad_terms import _oak_scans
+
+    from tlsvox.classify import classify_scan, fit_two_gaussians, leaf_wood_threshold
     from voxlidar.materials import Material
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

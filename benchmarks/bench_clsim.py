@@ -28,14 +28,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _bench import write_page
 
-from clsim.validation import testscenes
 from clsim.cli.simulate import benchmark_scene, device_benchmark
 from clsim.sensor import Sensor
-from clsim.transport.simulator import Simulator, list_devices
 from clsim.transport.reference import ReferenceSimulator
-
-from _bench import write_page
+from clsim.transport.simulator import Simulator, list_devices
+from clsim.validation import testscenes
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -40,8 +40,7 @@ from scipy.optimize import curve_fit
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from clsim.waveforms.decompose import (decompose, decompose_batch, detect_peaks, gaussian_sum,
-                             noise_level)
+from clsim.waveforms.decompose import decompose, decompose_batch, detect_peaks, gaussian_sum, noise_level
 
 GDECOMP_PYTHON = ROOT / ".bench-venv" / "bin" / "python"
 GDECOMP_WORKER = ROOT / "benchmarks" / "gdecomp_worker.py"

@@ -32,7 +32,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _bench import machine_line, write_page  # benchmarks/ is the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,8 +80,12 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
 
     from clsim.waveforms.decompose import decompose, decompose_batch
-    from clsim.waveforms.decompose._template import (decompose_template, echo_template, receiver_response,
-                                                     template_from_returns)
+    from clsim.waveforms.decompose._template import (
+        decompose_template,
+        echo_template,
+        receiver_response,
+        template_from_returns,
+    )
 
     load0 = os.getloadavg()
     waves, returns = leica(args.data)
@@ -140,8 +143,9 @@ def main(argv=None) -> int:
     riegl_lines, riegl_plot = [], []
     pls = args.data / "riegl-pulsewaves" / "140823_183115_1_clipped_test.pls"
     if pls.is_file():
-        from clsim.waveforms.io import read_pulsewaves
         from scipy.signal import find_peaks
+
+        from clsim.waveforms.io import read_pulsewaves
 
         pw = read_pulsewaves(pls)
         outgoing = {s.pulse: s.samples for s in pw.segments if s.kind == "outgoing"}

@@ -28,13 +28,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _bench import write_page
 
 from tlsvox import voxelize
 from tlsvox.truth.meshtruth import area_per_voxel
 from tlsvox.truth.scanner import ScannerPreset, ScanPose, simulate_scan
 from tlsvox.truth.synthetic import make_leaf_slab
-
-from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 BOUNDS = np.array([[-1.0, -1.0, 1.0], [1.0, 1.0, 3.0]])

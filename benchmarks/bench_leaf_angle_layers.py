@@ -37,7 +37,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _bench import machine_line, with_leaves, write_page
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _bench import machine_line, write_page
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -44,9 +44,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import quad
-
 from _bench import write_page  # noqa: E402
+from scipy.integrate import quad
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -156,9 +155,9 @@ def slab_scene(voxel):
 
 
 def oak_scene(voxel):
+    from tlsvox.truth.synthetic import make_tree
     from voxlidar.leafangle import LeafAngle
     from voxlidar.scene import Scene
-    from tlsvox.truth.synthetic import make_tree
 
     s = make_tree(seed=0).truth_scene(voxel)
     s = Scene(origin=s.origin, voxel_size=s.voxel_size, shape=s.shape, ijk=s.ijk, lad=s.lad,

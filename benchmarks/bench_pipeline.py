@@ -149,9 +149,9 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
     import clsim
+    from clsim.sensor import C_M_PER_NS
     from clsim.validation.budget import default_pulses, waveform_metrics
     from clsim.validation.meshref import MeshReferenceSimulator
-    from clsim.sensor import C_M_PER_NS
     from tlsvox.pipeline import scene_from_scans
     from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import make_tree

@@ -29,7 +29,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _bench import machine_line, median_time, write_page
 
 ROOT = Path(__file__).resolve().parents[1]

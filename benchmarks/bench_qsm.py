@@ -145,7 +145,7 @@ def main(argv=None):
              "turbid wood: occlusion gaps, forks, pieces too poorly supported to keep).", "",
              "| true cylinders | count | r | pieces | fitted r, m | offset, mm (median / max) | "
              "angle, deg (median / max) | axis inside |", "|---|---:|---:|---:|---|---|---|---:|"]
-    for name, count, r, length, k, rr, off, ang, cov in fit:
+    for name, count, r, _length, k, rr, off, ang, cov in fit:
         lines.append(f"| {name} | {count} | {r:.4f} | {k} | {rr} | {off} | {ang} | {cov:.2f} |")
     lines += ["", "## 2. Waveforms against the mesh", "",
               f"The four budget pulses ({pn}), {n:,} photons per run and per mesh reference, hot spot on, "

@@ -20,13 +20,12 @@ import argparse
 import platform
 from pathlib import Path
 
+from _bench import median_time, write_page
 
 from tlsvox.classify import classify_scan, score
 from tlsvox.register import RegistrationError, pose_error, register_pair, true_relative_transform
 from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
 from tlsvox.truth.synthetic import TreeParams, make_tree
-
-from _bench import median_time, write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -75,8 +74,8 @@ def main(argv=None):
     out = Path(args.out)
     if args.registration_only:
         old = out.read_text().split("\n")
-        start = next(i for i, l in enumerate(old) if l.startswith("| registration |"))
-        end = next(i for i, l in enumerate(old) if l.startswith("Classification:"))
+        start = next(i for i, line in enumerate(old) if line.startswith("| registration |"))
+        end = next(i for i, line in enumerate(old) if line.startswith("Classification:"))
         out.write_text("\n".join(old[:start] + reg_lines + [""] + old[end:]))
         print(f"wrote the registration rows of {out}")
         return

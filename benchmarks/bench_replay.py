@@ -37,8 +37,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from _bench import machine_line, write_page  # benchmarks/ is the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,8 +101,7 @@ def main(argv=None) -> int:
         print(f"skipped: {source} is absent (../shared/data)")
         return 0
     from clsim import Simulator
-    from clsim.replay import cross_validate, prepare, read_las_pulses, read_neon, write_replay
-    from clsim.replay import _forward
+    from clsim.replay import _forward, cross_validate, prepare, read_las_pulses, read_neon, write_replay
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()

@@ -124,7 +124,7 @@ def main(argv=None) -> int:
             "training pulse. Medians of the per-pulse scores (docs/replay.md defines them).", "",
             "| scene replayed | method | " + " | ".join(k[1] for k in KEYS) + " |",
             "|---|---|" + "---|" * len(KEYS)]
-    for name, (summary, sec) in results.items():
+    for name, (summary, _sec) in results.items():
         for i, row in enumerate(rows(summary["schemes"]["interleaved"]["summary"], "all")):
             page.append(f"| {name if i == 0 else ''} {row}")
     page += ["", "Seconds per replay: " + ", ".join(f"{n} {s:.0f} s" for n, (_, s) in results.items()) + ".", "",

@@ -16,11 +16,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _bench import write_page
 
 from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
 from tlsvox.truth.synthetic import make_tree
-
-from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -59,7 +58,7 @@ def main(argv=None) -> int:
         f"{t_bvh:.1f} s, not counted below), scan from the paper's ~20 m position, angular step {args.step} deg, median of {args.runs} runs. "
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores.",
         "",
-        "Command: `.venv/bin/python benchmarks/bench_scanner.py --runs %d --step %s`" % (args.runs, args.step),
+        f"Command: `.venv/bin/python benchmarks/bench_scanner.py --runs {args.runs} --step {args.step}`",
         "",
         "| sub-rays / pulse | pulses | echoes | median time (s) | pulses/s | sub-rays/s | ratio to 1 sub-ray |",
         "|---:|---:|---:|---:|---:|---:|---:|",

@@ -48,7 +48,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _bench import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,8 +70,8 @@ def default_scene() -> Path:
 
 def make_job(scene_path, *, count: int, photons: int, batch: int, seed: int = 1, device=None):
     """The flight line over the scene's middle, long enough for ``count`` pulses."""
-    from clsim.sensor import Sensor
     from clsim.scenes import load_scene
+    from clsim.sensor import Sensor
     from clsim.survey import SurveyJob, centre_line
 
     scene = load_scene(scene_path)

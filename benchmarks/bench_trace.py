@@ -18,13 +18,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _bench import write_section
 
+from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.voxel.pulses import beams_from_scan, rotation_from_rpy
-from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.trace import Beams, Tracer, trace_reference
-
-from _bench import write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("VOXLIDAR_SHARED_DATA", ROOT.parent / "shared" / "data"))

@@ -17,8 +17,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _bench import write_section
+
 from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, estimate_lad
 from tlsvox.voxel.trace import Tracer

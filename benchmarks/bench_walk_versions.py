@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def registers(sim) -> dict:
     """Per walk, the build log's register lines (NVIDIA only; empty elsewhere)."""
     import pyopencl as cl
+
     from clsim.transport import simulator as S
 
     src, inc = S._kernel_source()

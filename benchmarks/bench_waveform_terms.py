@@ -37,15 +37,15 @@ def main(argv=None):
     ap.add_argument("--no-tls", action="store_true", help="leave out the TLS pipeline's scene")
     ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "waveform_terms.md"))
     args = ap.parse_args(argv)
+    import dataclasses
+
+    import numpy as np
+
     from clsim import Sensor, Simulator
     from clsim.sensor import C_M_PER_NS
     from clsim.validation.budget import default_pulses, waveform_metrics
     from clsim.validation.meshref import MeshReferenceSimulator
     from tlsvox.truth.synthetic import TreeParams, make_tree
-
-    import dataclasses
-
-    import numpy as np
     from voxlidar.materials import Material
 
     load0 = os.getloadavg()

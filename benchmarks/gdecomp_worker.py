@@ -15,9 +15,8 @@ import json
 import sys
 import time
 
-import numpy as np
-
 import gdecomp
+import numpy as np
 
 
 def main() -> int:

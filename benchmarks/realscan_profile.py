@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.estimators import Estimator, estimate_lad
 from tlsvox.voxel.pulses import rotation_from_rpy
-from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.voxlad import voxelize
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,14 +6,13 @@ modules (PyOpenCL, Open3D) are imported only when used.
 """
 
 from clsim.errors import ClsimError, DeviceError, InputError
-from clsim.waveforms.metrics import compare_waveforms, relative_heights
-from clsim.validation import testscenes
-from clsim.waveforms.pointing import fit_pulse_directions, pointing_from_xyzt
 from clsim.sensor import Sensor, list_presets
-from clsim.transport.simulator import Detect, Mode, SimulationResult, Simulator, list_devices
 from clsim.transport.reference import ReferenceSimulator
+from clsim.transport.simulator import Detect, Mode, SimulationResult, Simulator, list_devices
+from clsim.validation import testscenes
 from clsim.waveforms.io import read_las_waveforms, read_pulsewaves, write_las_waveforms
-
+from clsim.waveforms.metrics import compare_waveforms, relative_heights
+from clsim.waveforms.pointing import fit_pulse_directions, pointing_from_xyzt
 from voxlidar import __version__  # one version for the distribution (pyproject.toml)
 
 #: names whose modules load on first use (the decomposition pulls in scipy.ndimage and scipy.optimize)

@@ -10,10 +10,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import finish_figure
 
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
+from voxlidar.safeio import finish_figure
 
 __all__ = ["plot_decomposition", "plot_picks", "plot_result", "plot_traces", "plot_waveforms", "render_traces",
            "settings_caption", "trace_paths"]

@@ -140,7 +140,7 @@ class Sensor:
 
     # -- construction ---------------------------------------------------------
     @classmethod
-    def preset(cls, name: str, **overrides) -> "Sensor":
+    def preset(cls, name: str, **overrides) -> Sensor:
         """A built-in preset by name, or a TOML file by path, with overrides.
 
         The preset's ``[survey]`` table (scan pattern, typical flight) is read
@@ -149,13 +149,13 @@ class Sensor:
         return cls._from_mapping(data, where, overrides)
 
     @classmethod
-    def from_toml(cls, path, **overrides) -> "Sensor":
+    def from_toml(cls, path, **overrides) -> Sensor:
         """Read a sensor from a TOML file (keys are the field names)."""
         data, where = read_preset(Path(path))
         return cls._from_mapping(data, where, overrides)
 
     @classmethod
-    def _from_mapping(cls, data: dict, where: str, overrides: dict) -> "Sensor":
+    def _from_mapping(cls, data: dict, where: str, overrides: dict) -> Sensor:
         data = {k: v for k, v in data.items() if k != SURVEY_TABLE}
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted((set(data) | set(overrides)) - names)
@@ -163,7 +163,7 @@ class Sensor:
             raise InputError(f"{where}: unknown sensor keys {unknown}; valid keys: {sorted(names)}")
         return cls(**{**data, **overrides})
 
-    def replace(self, **changes) -> "Sensor":
+    def replace(self, **changes) -> Sensor:
         """A copy with some fields changed."""
         return self._from_mapping(dataclasses.asdict(self), "replace()", changes)
 

@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 #: the demo's voxelisation: the detection-threshold correction and the fill of occluded voxels
 #: (docs/bench/lad_terms-area.md measures both on this oak)
 DEMO_UNDETECTED = "model"
@@ -103,10 +102,10 @@ def reflectance_histograms(scans, path):
 
 
 def stage_tree_and_scans(rep, args, out):
-    from voxlidar.materials import Material
     from tlsvox.render import reflectance_colors, render
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import TreeParams, make_tree
+    from voxlidar.materials import Material
 
     with rep.stage("tree"):
         params = TreeParams() if args.leaf_area is None else TreeParams(total_leaf_area=args.leaf_area)
@@ -152,8 +151,8 @@ def stage_tree_and_scans(rep, args, out):
 
 def stage_tls_pipeline(rep, args, out, tree, scans):
     from tlsvox.classify import score
-    from tlsvox.pipeline import scene_from_scans
     from tlsvox.classify.plots import plot_reflectance_histograms, render_classified
+    from tlsvox.pipeline import scene_from_scans
     from tlsvox.render import colormap, render, voxel_mesh
     from tlsvox.voxel.quality import score_seen
 
@@ -234,10 +233,10 @@ def stage_tls_pipeline(rep, args, out, tree, scans):
 
 def stage_waveforms(rep, args, out, tree, pr):
     from clsim import Sensor, Simulator
-    from clsim.validation.budget import budget_table, default_pulses, run_budget
     from clsim.figures import plot_waveforms, render_traces
-    from clsim.validation.meshref import MeshReferenceSimulator
     from clsim.sensor import C_M_PER_NS
+    from clsim.validation.budget import budget_table, default_pulses, run_budget
+    from clsim.validation.meshref import MeshReferenceSimulator
 
     sensor = Sensor.preset("ahab-chiroptera-i")
     sim = Simulator()

@@ -22,8 +22,15 @@ import numpy as np
 
 from clsim import Sensor
 from clsim.sensor import C_M_PER_NS
-from clsim.survey import (ScanPattern, Trajectory, plot_point_cloud, plot_radargram,
-                          read_survey_las, survey_pulses, write_survey_las)
+from clsim.survey import (
+    ScanPattern,
+    Trajectory,
+    plot_point_cloud,
+    plot_radargram,
+    read_survey_las,
+    survey_pulses,
+    write_survey_las,
+)
 
 
 def forest(seed=3, n=25, size=80.0):

@@ -41,8 +41,17 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from clsim import Sensor
     from clsim.scenes import make_plot, plot_canopy
-    from clsim.survey import (SurveyJob, centre_line, load_survey, plot_footprints, plot_point_cloud, plot_radargram,
-                              read_survey_las, run_survey, write_survey_las)
+    from clsim.survey import (
+        SurveyJob,
+        centre_line,
+        load_survey,
+        plot_footprints,
+        plot_point_cloud,
+        plot_radargram,
+        read_survey_las,
+        run_survey,
+        write_survey_las,
+    )
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

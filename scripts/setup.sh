@@ -69,12 +69,13 @@ stamp=.venv/.voxlidar-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "setup: installing voxlidar and its dependencies into .venv (first time: a few minutes)"
   .venv/bin/python -m pip install -q --upgrade pip
-  # dev: pytest; survey: Dask distributed for clsim survey (its tests run in CI)
-  extras="dev,survey"
+  # dev: pytest, ruff, mypy; survey: Dask distributed for clsim survey (its tests run in CI);
+  # docs: the docs site (`make docs`, built by CI)
+  extras="dev,survey,docs"
   # Intel's CPU OpenCL runtime (x86-64 Linux wheels only): a second, independent
   # compiler for the kernel tests; voxlidar finds its ICD in .venv by itself.
   if [ "$(uname -s)-$(uname -m)" = "Linux-x86_64" ] && [ "${VOXLIDAR_NO_INTEL:-0}" != "1" ]; then
-    extras="dev,survey,intel"
+    extras="dev,survey,docs,intel"
   fi
   .venv/bin/python -m pip install -q -e ".[$extras]"
   touch "$stamp"

@@ -4,21 +4,20 @@ The public API is re-exported here; Open3D is imported only by the modules
 that use it, so ``import tlsvox`` stays light.
 """
 
-from tlsvox.errors import InputError, TlsvoxError
-from tlsvox.voxel.estimators import Estimator
 from tlsvox.classify import PointClass, classify_scan
-from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.errors import InputError, TlsvoxError
 from tlsvox.io import read_any
 from tlsvox.leafangles import measure_leaf_angles
 from tlsvox.register import RegistrationError, register_pair, register_scans
+from tlsvox.voxel.estimators import Estimator
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.weights import EchoWeights
+from voxlidar import __version__  # one version for the distribution (pyproject.toml)
 from voxlidar.leafangle import LeafAngle, LeafAngleKind
 from voxlidar.materials import Material, Optics
 from voxlidar.scene import Scene
 from voxlidar.versions import show_versions
-from tlsvox.voxel.voxlad import voxelize
-from tlsvox.voxel.weights import EchoWeights
-
-from voxlidar import __version__  # one version for the distribution (pyproject.toml)
 
 #: the user's verbs whose modules load on first use (the synthetic tree and the scanner pull in Open3D)
 _LAZY = {"Scan": "tlsvox.scan", "scene_from_scans": "tlsvox.pipeline", "TreeParams": "tlsvox.truth.synthetic",

@@ -45,7 +45,7 @@ class GroundPlane:
     n_inliers: int = 0
 
     @classmethod
-    def horizontal(cls, z: float, center_xy=(0.0, 0.0)) -> "GroundPlane":
+    def horizontal(cls, z: float, center_xy=(0.0, 0.0)) -> GroundPlane:
         """A given horizontal plane at height ``z`` (metres)."""
         z = float(z)
         if not np.isfinite(z):

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from voxlidar.safeio import describe_kind, file_kind
 from tlsvox.errors import InputError, ScanFileError
 from tlsvox.scan import Scan
+from voxlidar.safeio import describe_kind, file_kind
 
 __all__ = ["ScanFormat", "check_scan", "read_any", "read_open3d"]
 
@@ -48,7 +48,7 @@ class ScanFormat(enum.Enum):
     PULSES = "pulses"  #: pulse-grouped text (tlsvox.multireturn); suffixes .txt, .csv, .asc
 
     @classmethod
-    def parse(cls, value: "str | ScanFormat") -> "ScanFormat":
+    def parse(cls, value: str | ScanFormat) -> ScanFormat:
         """The format named by ``value`` (a member, a name or a file suffix)."""
         if isinstance(value, cls):
             return value
@@ -64,7 +64,7 @@ class ScanFormat(enum.Enum):
             ) from err
 
     @classmethod
-    def from_path(cls, path: "str | os.PathLike") -> "ScanFormat":
+    def from_path(cls, path: str | os.PathLike) -> ScanFormat:
         suffix = Path(path).suffix
         if not suffix:
             valid = ", ".join("." + m.value for m in cls)
@@ -167,7 +167,7 @@ def scan_format(path: Path, format=None) -> ScanFormat:
 _TEXT_FORMATS = (ScanFormat.XYZ, ScanFormat.XYZI, ScanFormat.PTS)
 
 
-def _text_layout(path: Path) -> "ScanFormat | None":
+def _text_layout(path: Path) -> ScanFormat | None:
     """XYZ, XYZI or PTS from a text file's first lines (a PTS starts with its point count);
     None when they do not say."""
     with open(path, "rb") as fh:
@@ -205,7 +205,7 @@ def _read_text(path: Path, fmt: ScanFormat, *, scan_id: int, name: str | None) -
     return Scan(xyz=rows[:, :3], scan_id=scan_id, name=name or path.stem, **fields)
 
 
-def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = None,
+def read_open3d(path: str | os.PathLike, *, format: str | ScanFormat | None = None,
                 scan_id: int = 0, name: str | None = None) -> Scan:
     """Read a PLY or PCD file with Open3D, or XYZ, XYZI or PTS text, into a :class:`Scan`.
 
@@ -263,7 +263,7 @@ def read_open3d(path: "str | os.PathLike", *, format: "str | ScanFormat | None" 
     return Scan(xyz=xyz, scan_id=scan_id, name=name or path.stem, **fields)
 
 
-def read_any(path: "str | os.PathLike", *, format: "str | ScanFormat | None" = None,
+def read_any(path: str | os.PathLike, *, format: str | ScanFormat | None = None,
              require_reflectance: bool = False, min_points: int = 2,
              scan_id: int | None = None, origin=None) -> Scan:
     """Read a scan from LAS, LAZ, PLY, PCD, XYZ, XYZI, PTS or pulse-grouped text.

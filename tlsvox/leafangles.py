@@ -366,8 +366,8 @@ def _fit_scan(xyz, origin, *, radius, min_points, min_spread, n_bins, cap, centr
     d = xyz - origin
     r = np.linalg.norm(d, axis=1)
     d = d / r[:, None]
-    I, J = _pairs(xyz, radius)
-    nrm, cnt, _, spread = _normals(xyz[J], I, len(xyz))
+    pi, J = _pairs(xyz, radius)
+    nrm, cnt, _, spread = _normals(xyz[J], pi, len(xyz))
     cos_a = np.abs(np.einsum("ij,ij->i", nrm, d))
     ok = (cnt >= min_points) & (spread >= min_spread) & (cos_a >= cap)
     outward = np.zeros((len(xyz), 2))
@@ -846,9 +846,9 @@ def measure_leaf_angles(scans, *, layers: int = 4, method="deconvolve", radius: 
         layer, EM iterations (of each fit: with ``"auto"`` the shares' fit
         comes first).
     cap : float
-        Smallest |cos a| between a fitted normal and its beam: fits nearer
+        Smallest ``|cos a|`` between a fitted normal and its beam: fits nearer
         edge-on are dropped (their normals are set by the errors along the
-        beam), in the simulation too; the others are weighted by 1/|cos a|.
+        beam), in the simulation too; the others are weighted by ``1 / |cos a|``.
     second_leaf : bool
         Deconvolution: add occlusion levels where a second leaf behind the
         first lies in the neighbourhood (see :func:`_simulate_kernel`); their

@@ -81,7 +81,7 @@ def _first_lines(path: Path, n: int) -> list[str]:
     return out
 
 
-def looks_pulse_grouped(path: "str | os.PathLike") -> bool:
+def looks_pulse_grouped(path: str | os.PathLike) -> bool:
     """True when a text file reads as a pulse-grouped export.
 
     Either a header line names the return columns, or every one of the first
@@ -156,7 +156,7 @@ def pulse_ids_from_time(time, return_index, return_count, *, where: str = "the f
     return pid.astype(np.int64)
 
 
-def read_pulse_text(path: "str | os.PathLike", *, origin=(0.0, 0.0, 0.0), miss_range: float = DEFAULT_MISS_RANGE_M,
+def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_range: float = DEFAULT_MISS_RANGE_M,
                     scan_id: int = 0, name: str | None = None) -> Scan:
     """Read an ASCII pulse-grouped export (one row per echo, miss rows for empty pulses).
 

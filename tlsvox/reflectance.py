@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from tlsvox.errors import InputError
-from voxlidar.choices import Choice
 from tlsvox.scan import Scan
+from voxlidar.choices import Choice
 
 __all__ = [
     "CalibrationTable",
@@ -169,7 +169,7 @@ class CalibrationTable:
         object.__setattr__(self, "intensity", i)
 
     @classmethod
-    def from_csv(cls, path: "str | os.PathLike", *, reference_reflectance: float = 1.0) -> "CalibrationTable":
+    def from_csv(cls, path: str | os.PathLike, *, reference_reflectance: float = 1.0) -> CalibrationTable:
         """Read a CSV with columns ``range_m`` and ``intensity`` (header row)."""
         path = Path(path)
         with open(path, newline="") as fh:
@@ -205,7 +205,7 @@ class CalibrationTable:
         return self.reference_reflectance * i / self.reference_intensity(range_m, extrapolate=extrapolate)
 
 
-def apparent_reflectance(scan: Scan, *, source: "str | ReflectanceSource" = ReflectanceSource.AUTO,
+def apparent_reflectance(scan: Scan, *, source: str | ReflectanceSource = ReflectanceSource.AUTO,
                          calibration: CalibrationTable | None = None,
                          reference_range_m: float | None = None,
                          allow_relative: bool = False) -> np.ndarray:

@@ -12,10 +12,10 @@ import os
 from pathlib import Path
 
 import numpy as np
-from voxlidar.errors import InputError
-from voxlidar.safeio import atomic_write, save_figure
 
 from tlsvox.errors import RenderError
+from voxlidar.errors import InputError
+from voxlidar.safeio import atomic_write, save_figure
 
 __all__ = ["render", "colormap", "reflectance_colors"]
 

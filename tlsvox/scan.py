@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import describe_kind, file_kind, json_text, staged, write_npz
 
 from tlsvox.errors import InputError, ScanFileError
+from voxlidar.safeio import describe_kind, file_kind, json_text, staged, write_npz
 
 __all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "read_pose_sidecar", "sidecar_paths"]
 
@@ -38,7 +38,7 @@ __all__ = ["AngularGrid", "CLASSIFY_MARK", "PulseTable", "Scan", "las_data", "re
 CLASSIFY_MARK = "tlsvox.classify.PointClass"
 
 
-def sidecar_paths(path: "str | os.PathLike") -> tuple[Path, Path]:
+def sidecar_paths(path: str | os.PathLike) -> tuple[Path, Path]:
     """The pulse-table and pose files that belong to a scan file."""
     path = Path(path)
     stem = path.with_suffix("")
@@ -126,7 +126,7 @@ class PulseTable:
         return write_npz(path, arrays)
 
     @classmethod
-    def load(cls, path) -> "PulseTable":
+    def load(cls, path) -> PulseTable:
         with np.load(path, allow_pickle=False) as z:
             grid = AngularGrid(**json.loads(str(z["grid"]))) if "grid" in z else None
             return cls(z["direction"], z["n_echoes"], z["origin"], grid)
@@ -248,7 +248,7 @@ class Scan:
         return self.xyz @ pose[:3, :3].T + pose[:3, 3]
 
     # -- LAS I/O ------------------------------------------------------------------
-    def write(self, path: "str | os.PathLike") -> Path:
+    def write(self, path: str | os.PathLike) -> Path:
         """Write LAS/LAZ (point format 6 + extra bytes, :func:`las_data`) and the sidecar files.
 
         Every file goes to a temporary name first and is renamed when complete.
@@ -275,7 +275,7 @@ class Scan:
         return path
 
     @classmethod
-    def read(cls, path: "str | os.PathLike", *, scan_id: int | None = None) -> "Scan":
+    def read(cls, path: str | os.PathLike, *, scan_id: int | None = None) -> Scan:
         """Read a LAS/LAZ scan and its sidecar files (when present).
 
         Reflectance comes from the ``reflectance_db`` extra dimension (tlsvox
@@ -356,7 +356,7 @@ class Scan:
         )
 
 
-def read_pose_sidecar(path: "str | os.PathLike") -> dict:
+def read_pose_sidecar(path: str | os.PathLike) -> dict:
     """The ``NAME.pose.json`` beside a scan file as a dict (empty when there is none)."""
     pose_path = sidecar_paths(path)[1]
     if not pose_path.exists():
@@ -367,7 +367,7 @@ def read_pose_sidecar(path: "str | os.PathLike") -> dict:
         raise InputError(f"{pose_path} is not a readable pose JSON ({err}); fix or remove it") from None
 
 
-def las_data(scans: "list[Scan]", xyz: np.ndarray, *, classification=None):
+def las_data(scans: list[Scan], xyz: np.ndarray, *, classification=None):
     """The points of ``scans`` as one ``laspy.LasData``: the one LAS layout of tlsvox.
 
     LAS 1.4 point format 6, scale 0.1 mm, offsets at the floor of the

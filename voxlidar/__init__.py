@@ -17,7 +17,8 @@ preload_tbb()  # before Open3D can load its older oneTBB (see voxlidar/_preload.
 _moved.install()  # old module paths (tlsvox.trace, clsim.decompose, ...) for one release
 
 try:  # the one version: pyproject.toml's, as installed
-    from importlib.metadata import PackageNotFoundError as _NotFound, version as _version
+    from importlib.metadata import PackageNotFoundError as _NotFound
+    from importlib.metadata import version as _version
 
     __version__ = _version("voxlidar")
 except _NotFound:  # run from a source tree that was never installed

@@ -89,7 +89,7 @@ def ross_kernel(theta, t):
     Returns
     -------
     ndarray
-        Mean |cos| between beam and leaf normal over leaf azimuths.
+        Mean ``|cos|`` between beam and leaf normal over leaf azimuths.
 
     Examples
     --------
@@ -292,7 +292,7 @@ class LeafAngle:
         return d
 
     @classmethod
-    def from_dict(cls, d: "dict | str | LeafAngle") -> "LeafAngle":
+    def from_dict(cls, d: dict | str | LeafAngle) -> LeafAngle:
         """Inverse of :meth:`to_dict`; also accepts a name or a LeafAngle."""
         if isinstance(d, LeafAngle):
             return d

@@ -238,7 +238,7 @@ def finish_figure(fig, path, *, caption: str | None = None, dpi: int = 110) -> P
         plt.close(fig)
 
 
-def atomic_write(path: "str | os.PathLike", write) -> Path:
+def atomic_write(path: str | os.PathLike, write) -> Path:
     """Call ``write(tmp_path)`` then rename the temporary file onto ``path``.
 
     A crash half-way leaves the destination untouched (never a half file).
@@ -255,7 +255,7 @@ def atomic_write(path: "str | os.PathLike", write) -> Path:
     return path
 
 
-def write_npz(path: "str | os.PathLike", arrays: dict) -> Path:
+def write_npz(path: str | os.PathLike, arrays: dict) -> Path:
     """Write ``arrays`` (name -> array) as one compressed NPZ, atomically (:func:`atomic_write`).
 
     >>> import tempfile, numpy as np
@@ -273,7 +273,7 @@ def write_npz(path: "str | os.PathLike", arrays: dict) -> Path:
     return atomic_write(path, write)
 
 
-def open_npz(path: "str | os.PathLike", what: str):
+def open_npz(path: str | os.PathLike, what: str):
     """``np.load(path)`` of an NPZ (no pickles), or one :class:`InputError` naming
     the file as not a readable NPZ ``what`` file (``what``: "scene", "plot", ...)."""
     import numpy as np

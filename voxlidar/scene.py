@@ -25,10 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import describe_kind, file_kind, json_text, open_npz, write_npz
 
 from voxlidar.errors import InputError
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
+from voxlidar.safeio import describe_kind, file_kind, json_text, open_npz, write_npz
 
 __all__ = ["Scene", "FORMAT_VERSION", "WOOD_KINDS"]
 
@@ -253,7 +253,7 @@ class Scene:
         return float(r), float(t)
 
     # -- files ----------------------------------------------------------------
-    def save(self, path: "str | os.PathLike") -> Path:
+    def save(self, path: str | os.PathLike) -> Path:
         """Write the scene as compressed NPZ (atomic: temp file + rename)."""
         arrays = dict(
             format_version=np.int32(FORMAT_VERSION),
@@ -283,7 +283,7 @@ class Scene:
         return write_npz(path, arrays)
 
     @classmethod
-    def load(cls, path: "str | os.PathLike") -> "Scene":
+    def load(cls, path: str | os.PathLike) -> Scene:
         """Read a scene NPZ written by :meth:`save` (or by hand, see docs/formats.md)."""
         path = Path(path)
         if not path.exists():

@@ -20,7 +20,6 @@ from clsim.cli import pick, replay, simulate, survey, waveforms
 from voxlidar.cli import Parser, run, with_debug
 
 
-
 def build_parser() -> argparse.ArgumentParser:
     parser = with_debug(Parser(prog="clsim", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter))

@@ -92,10 +92,9 @@ def _window(points, colors, picks, seconds, screenshot):
 
 def cmd_pick(args) -> int:
     """Handler of ``clsim pick``."""
-    from tlsvox.render import colormap
-
-    from clsim.transport.result import save_results
     from clsim.sensor import Sensor
+    from clsim.transport.result import save_results
+    from tlsvox.render import colormap
 
     scene_path = Path(args.scene)
     if not scene_path.is_file():

@@ -14,8 +14,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from voxlidar.cli import number
 from clsim.errors import InputError
+from voxlidar.cli import number
 
 __all__ = ["register", "cmd_replay"]
 
@@ -81,10 +81,9 @@ def register(subparsers) -> None:
 
 
 def cmd_replay(args) -> int:
-    from voxlidar.safeio import check_outputs
-
     from clsim.replay import METHODS, Scheme, cross_validate, prepare, read_measured, write_replay
     from clsim.replay._write import output_paths
+    from voxlidar.safeio import check_outputs
 
     schemes = [Scheme.parse(s.strip(), "--scheme").value for s in str(args.scheme).split(",") if s.strip()]
     if not schemes:

@@ -21,12 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from voxlidar.cli import number, numbers
-from voxlidar.safeio import staged, check_figure_path, check_outputs
-
 from clsim.errors import InputError
 from clsim.sensor import Sensor, list_presets
 from clsim.transport.simulator import Detect, Mode
+from voxlidar.cli import number, numbers
+from voxlidar.safeio import check_figure_path, check_outputs, staged
 
 __all__ = ["register", "cmd_simulate", "cmd_devices", "cmd_bench", "device_benchmark",
            "benchmark_scene"]

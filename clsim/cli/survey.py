@@ -23,9 +23,9 @@ import shutil
 import sys
 from pathlib import Path
 
-from voxlidar.cli import number, numbers
 from clsim.errors import InputError
 from clsim.sensor import list_presets
+from voxlidar.cli import number, numbers
 
 __all__ = ["register", "cmd_survey", "line_through"]
 

@@ -18,10 +18,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from voxlidar.cli import number
-from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, staged
 
 from clsim.errors import InputError
+from voxlidar.cli import number
+from voxlidar.safeio import check_figure_path, check_inputs, check_outputs, staged
 
 __all__ = ["register", "cmd_info", "cmd_decompose", "load_waveforms"]
 
@@ -332,8 +332,7 @@ def cmd_decompose(args) -> int:
 
 def _decompose_template(wf, args) -> int:
     """``clsim decompose --template``: one CSV row per template echo."""
-    from clsim.waveforms.decompose import echo_positions
-    from clsim.waveforms.decompose import noise_level
+    from clsim.waveforms.decompose import echo_positions, noise_level
     from clsim.waveforms.decompose._template import decompose_template, template_from_returns
 
     n = len(wf.waves) if args.limit is None else min(len(wf.waves), int(args.limit))

@@ -21,10 +21,25 @@ Examples
 
 from clsim.replay._baselines import blair_hofton, nearest_pulse
 from clsim.replay._echoes import Prepared, prepare, pulse_shape
-from clsim.replay._forward import (Calibration, SimulatedPulses, calibrate, scene_echoes, scene_from_pulses,
-                                   simulate_pulses)
-from clsim.replay._measured import (GeometryFit, MeasuredPulses, common_point, read_las_pulses, read_measured,
-                                    read_neon, rebuild_positions, scan_lines, straight_trajectory)
+from clsim.replay._forward import (
+                                   Calibration,
+                                   SimulatedPulses,
+                                   calibrate,
+                                   scene_echoes,
+                                   scene_from_pulses,
+                                   simulate_pulses,
+)
+from clsim.replay._measured import (
+                                   GeometryFit,
+                                   MeasuredPulses,
+                                   common_point,
+                                   read_las_pulses,
+                                   read_measured,
+                                   read_neon,
+                                   rebuild_positions,
+                                   scan_lines,
+                                   straight_trajectory,
+)
 from clsim.replay._replay import METHODS, ReplayResult, Scheme, cross_validate, folds, peak_counts, pool_sigma
 from clsim.replay._scores import score_pulse, summarize
 from clsim.replay._write import write_replay

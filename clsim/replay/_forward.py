@@ -318,7 +318,11 @@ class Calibration:
         return {"gain": self.gain, "lag_samples": self.lag, "training_pulses": self.pulses}
 
 
-def calibrate(prepared, simulated: SimulatedPulses, *, lags=np.arange(-6.0, 6.01, 0.25)) -> Calibration:
+#: the time offsets (samples) ``calibrate`` tries by default
+LAGS = tuple(np.arange(-6.0, 6.01, 0.25))
+
+
+def calibrate(prepared, simulated: SimulatedPulses, *, lags=LAGS) -> Calibration:
     """Fit the gain and the time offset on simulated training pulses.
 
     The offset maximises the median Pearson r between measured and simulated

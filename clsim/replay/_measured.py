@@ -150,7 +150,7 @@ class MeasuredPulses:
         """(N,) round-trip time per sample in vacuum nanoseconds (the simulator's clock)."""
         return 2.0 * self.metres_per_sample / C_M_PER_NS
 
-    def subset(self, index) -> "MeasuredPulses":
+    def subset(self, index) -> MeasuredPulses:
         """The pulses at ``index`` (an index array or a boolean mask)."""
         idx = np.asarray(index)
         return MeasuredPulses(

@@ -11,9 +11,9 @@ get a brick of their own, merged by :func:`merge_voxels` as
 from __future__ import annotations
 
 import numpy as np
-from voxlidar.scene import Scene
 
 from clsim.transport.bricks import BRICK, BrickGrid, build_bricks
+from voxlidar.scene import Scene
 
 __all__ = ["SharedBricks", "ceil_div", "merge_voxels"]
 

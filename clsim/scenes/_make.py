@@ -6,9 +6,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from voxlidar.errors import InputError, finite_number
 
 from clsim.scenes._plot import BRICK, PlotScene, Snap
+from voxlidar.errors import InputError, finite_number
 
 __all__ = ["TREE_KINDS", "make_plot", "random_tree_params", "synthetic_tree_scene"]
 

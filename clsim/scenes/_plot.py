@@ -32,14 +32,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from clsim.scenes._bricks import SharedBricks, ceil_div, merge_voxels
+from clsim.transport.bricks import BRICK, WOOD_P_MAX
 from voxlidar.choices import Choice
 from voxlidar.errors import InputError, finite_number
 from voxlidar.leafangle import LeafAngle
 from voxlidar.safeio import json_text, open_npz, write_npz
 from voxlidar.scene import Scene
-
-from clsim.scenes._bricks import SharedBricks, ceil_div, merge_voxels
-from clsim.transport.bricks import BRICK, WOOD_P_MAX
 
 __all__ = ["PlotScene", "Snap", "TABLE_DTYPE"]
 
@@ -465,7 +465,7 @@ class PlotScene(SharedBricks):
             return False
 
     @classmethod
-    def load(cls, path) -> "PlotScene":
+    def load(cls, path) -> PlotScene:
         """Read a plot written by :meth:`save`."""
         path = Path(path)
         if not path.is_file():

@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import check_figure_path, finish_figure
 
 from clsim.errors import InputError
+from voxlidar.safeio import check_figure_path, finish_figure
 
 __all__ = ["plot_canopy"]
 

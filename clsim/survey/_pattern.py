@@ -22,11 +22,11 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from voxlidar.choices import Choice
-from voxlidar.errors import finite_number
 
 from clsim.errors import InputError
 from clsim.sensor import SURVEY_TABLE, read_preset
+from voxlidar.choices import Choice
+from voxlidar.errors import finite_number
 
 __all__ = ["Flight", "ScanKind", "ScanPattern", "typical_flight"]
 
@@ -105,7 +105,7 @@ class ScanPattern:
 
     # -- construction -----------------------------------------------------------
     @classmethod
-    def preset(cls, name, **overrides) -> "ScanPattern":
+    def preset(cls, name, **overrides) -> ScanPattern:
         """The ``[survey]`` table of a sensor preset (by name or ``.toml`` path)."""
         table, where = _survey_table(name)
         names = {f.name for f in dataclasses.fields(cls)}
@@ -115,7 +115,7 @@ class ScanPattern:
             raise InputError(f"unknown scan pattern keys {unknown}; valid keys: {sorted(names)}")
         return cls(**{**data, **overrides})
 
-    def replace(self, **changes) -> "ScanPattern":
+    def replace(self, **changes) -> ScanPattern:
         return dataclasses.replace(self, **changes)
 
     # -- angles ---------------------------------------------------------------

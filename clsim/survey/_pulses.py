@@ -8,11 +8,11 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from clsim.errors import InputError
-from voxlidar.errors import finite_number
 from clsim.sensor import Sensor
 from clsim.survey._pattern import ScanPattern
 from clsim.survey._trajectory import Trajectory
 from clsim.transport.rng import check_seed
+from voxlidar.errors import finite_number
 
 __all__ = ["Pulses", "pulse_count", "pulse_range", "survey_pulses"]
 
@@ -67,7 +67,7 @@ class Pulses:
     def __len__(self) -> int:
         return len(self.index)
 
-    def __getitem__(self, key) -> "Pulses":
+    def __getitem__(self, key) -> Pulses:
         """The pulses at ``key`` (a slice, an index array or a boolean mask)."""
         if isinstance(key, (int, np.integer)):
             key = slice(int(key), int(key) + 1 if int(key) != -1 else None)

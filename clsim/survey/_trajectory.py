@@ -103,14 +103,14 @@ class Trajectory:
         self._heading = np.array([g.heading_deg for g in legs])
 
     @classmethod
-    def line(cls, start_xy, end_xy, *, altitude_m: float, speed_mps: float) -> "Trajectory":
+    def line(cls, start_xy, end_xy, *, altitude_m: float, speed_mps: float) -> Trajectory:
         """One level leg from ``start_xy`` to ``end_xy`` (metres) at ``altitude_m``."""
         (x0, y0), (x1, y1) = np.asarray(start_xy, float).ravel()[:2], np.asarray(end_xy, float).ravel()[:2]
         return cls([Leg((x0, y0, altitude_m), (x1, y1, altitude_m), speed_mps)])
 
     @classmethod
     def lawnmower(cls, start_xy, *, length_m: float, spacing_m: float, lines: int, heading_deg: float = 90.0,
-                  altitude_m: float, speed_mps: float) -> "Trajectory":
+                  altitude_m: float, speed_mps: float) -> Trajectory:
         """``lines`` parallel level legs of ``length_m``, ``spacing_m`` apart,
         flown back and forth; the first starts at ``start_xy`` heading
         ``heading_deg`` and the next lie to its right."""

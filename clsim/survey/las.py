@@ -112,7 +112,7 @@ def _check(pulses, waveforms, t0_ns, bin_ns, sensor):
     return w, t0, b
 
 
-def write_survey_las(path: "str | os.PathLike", pulses, waveforms, *, t0_ns, bin_ns: float,
+def write_survey_las(path: str | os.PathLike, pulses, waveforms, *, t0_ns, bin_ns: float,
                      sensor: Sensor, returns: bool = True, bits: int = 16, gain=None,
                      offset=None, false_alarm: float = 0.01, min_amplitude: float = 0.0,
                      max_returns: int = 8, empty: str = "withheld",
@@ -357,7 +357,7 @@ class SurveyLas:
         return self.origin[p] + j[:, None] * self.step[p]
 
 
-def read_survey_las(path: "str | os.PathLike", *, wdp=None) -> SurveyLas:
+def read_survey_las(path: str | os.PathLike, *, wdp=None) -> SurveyLas:
     """Read a file written by :func:`write_survey_las` (waveforms, geometry, returns).
 
     The waveforms and the geometry come from :func:`clsim.read_las_waveforms`

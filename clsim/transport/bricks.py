@@ -49,6 +49,7 @@ import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from voxlidar.scene import Scene
 
 __all__ = ["BrickGrid", "build_bricks", "bricks_key", "extinction", "uniform_boxes", "uniform_records", "wood_direction",

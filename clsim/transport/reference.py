@@ -24,10 +24,16 @@ import time
 
 import numpy as np
 
-from clsim.transport.reference_geometry import (beam_directions, cosine_dir, in_fov, lattice_unit,
-                                                leaf_avg_f, receiver_view, row_dot)
-from clsim.transport.reference_walk import (ESCAPE, GROUND, LEAF, RR_SURVIVE, RR_THRESHOLD, WOOD,
-                                            SceneWalker)
+from clsim.transport.reference_geometry import (
+    beam_directions,
+    cosine_dir,
+    in_fov,
+    lattice_unit,
+    leaf_avg_f,
+    receiver_view,
+    row_dot,
+)
+from clsim.transport.reference_walk import ESCAPE, GROUND, LEAF, RR_SURVIVE, RR_THRESHOLD, WOOD, SceneWalker
 from clsim.transport.result import SimulationResult, assemble_result
 from clsim.transport.setup import QMC_STEP, STAT_NAMES, TRACE_EVENTS, Detect, RunSetup, prepare_run
 

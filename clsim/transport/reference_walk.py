@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from voxlidar.scene import Scene
-
 from clsim.errors import InputError
 from clsim.transport.bricks import extinction, wood_direction
 from clsim.transport.reference_geometry import cosine_dir, row_dot, wood_majorant, wood_normal, wood_parts
 from clsim.transport.rng import uniforms
 from clsim.transport.setup import NG, NTAB, Mode, RunSetup
+from voxlidar.scene import Scene
 
 __all__ = ["ESCAPE", "GROUND", "LEAF", "RR_SURVIVE", "RR_THRESHOLD", "WOOD", "SceneWalker"]
 

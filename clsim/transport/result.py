@@ -6,12 +6,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+
 import numpy as np
-from voxlidar.safeio import atomic_write
-from voxlidar.safeio import json_text
+
 from clsim.errors import InputError
+from clsim.transport.setup import COUNT_STATS, STAT_NAMES, RunSetup
 from clsim.waveform import digitize
-from clsim.transport.setup import COUNT_STATS, RunSetup, STAT_NAMES
+from voxlidar.safeio import atomic_write, json_text
 
 
 @dataclass
@@ -244,7 +245,7 @@ class PulseWaveforms:
         return len(self.index)
 
     @classmethod
-    def from_rows(cls, index, rows, *, t0_ns, bin_ns: float, energy, kernel_s: float = 0.0) -> "PulseWaveforms":
+    def from_rows(cls, index, rows, *, t0_ns, bin_ns: float, energy, kernel_s: float = 0.0) -> PulseWaveforms:
         """Rows of different lengths, padded with zeros to the longest."""
         n_s = np.array([len(r) for r in rows], dtype=np.int64)
         wf = np.zeros((len(rows), int(n_s.max()) if len(rows) else 0))
@@ -255,7 +256,7 @@ class PulseWaveforms:
                    energy=np.asarray(energy, dtype=np.float64), kernel_s=float(kernel_s))
 
     @classmethod
-    def concat(cls, parts) -> "PulseWaveforms":
+    def concat(cls, parts) -> PulseWaveforms:
         """Several in order (batches of one survey), padded to the longest row."""
         parts = list(parts)
         if not parts:
@@ -284,7 +285,7 @@ class PulseWaveforms:
         return atomic_write(path, write)
 
     @classmethod
-    def load(cls, path) -> "PulseWaveforms":
+    def load(cls, path) -> PulseWaveforms:
         """Read what :meth:`save` wrote."""
         try:
             with np.load(path) as z:

@@ -11,15 +11,16 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-import numpy as np
-from voxlidar.scene import Scene
-from clsim.transport.bricks import BrickGrid, build_bricks
-from voxlidar.choices import Choice
-from clsim.errors import InputError
-from clsim.transport.rng import philox4x32_10, split_seed
-from clsim.sensor import C_M_PER_NS, Sensor
-from clsim.waveform import fine_edges
 
+import numpy as np
+
+from clsim.errors import InputError
+from clsim.sensor import C_M_PER_NS, Sensor
+from clsim.transport.bricks import BrickGrid, build_bricks
+from clsim.transport.rng import philox4x32_10, split_seed
+from clsim.waveform import fine_edges
+from voxlidar.choices import Choice
+from voxlidar.scene import Scene
 
 NTAB = 4097
 
@@ -198,7 +199,7 @@ def _int_arg(name, value, lo, hi):
 def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
                 detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
                 bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
-                hotspot: bool = False, scene_setup: "SceneSetup | None" = None,
+                hotspot: bool = False, scene_setup: SceneSetup | None = None,
                 bricks: BrickGrid | None = None) -> RunSetup:
     """Check the inputs and build the run's parameters (see :meth:`clsim.transport.simulator.Simulator.run`).
 

@@ -16,18 +16,31 @@ from __future__ import annotations
 
 import time
 from importlib import resources
+
 import numpy as np
-from voxlidar.scene import Scene
-from voxlidar.devices import (DeviceInfo, build_program, choose_device, describe, device_report,
-                              open_queue, short_reason)
-from voxlidar.errors import DeviceError as AnyDeviceError
-from clsim.transport.bricks import BRICK, BrickGrid, bricks_key, build_bricks, uniform_records
+
 from clsim.errors import DeviceError, InputError
-from clsim.transport.rng import split_seed
 from clsim.sensor import Sensor
+from clsim.transport.bricks import BRICK, BrickGrid, bricks_key, build_bricks, uniform_records
 from clsim.transport.result import PulseWaveforms, SimulationResult, assemble_result, digitized
-from clsim.transport.setup import (COUNT_STATS, Detect, FIXED_SCALE, Mode, NG, NTAB, RunSetup, STAT_NAMES,
-                                   TRACE_EVENTS, SceneSetup, prepare_run, prepare_scene)
+from clsim.transport.rng import split_seed
+from clsim.transport.setup import (
+    COUNT_STATS,
+    FIXED_SCALE,
+    NG,
+    NTAB,
+    STAT_NAMES,
+    TRACE_EVENTS,
+    Detect,
+    Mode,
+    RunSetup,
+    SceneSetup,
+    prepare_run,
+    prepare_scene,
+)
+from voxlidar.devices import DeviceInfo, build_program, choose_device, describe, device_report, open_queue, short_reason
+from voxlidar.errors import DeviceError as AnyDeviceError
+from voxlidar.scene import Scene
 
 __all__ = ["Detect", "Mode", "PulseWaveforms", "RunSetup", "SceneSetup", "SimulationResult", "Simulator",
            "build_options", "list_devices", "prepare_run", "prepare_scene", "working_devices"]

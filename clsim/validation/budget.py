@@ -28,8 +28,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from clsim.waveforms.metrics import pearson_r, relative_heights
 from clsim.sensor import C_M_PER_NS, Sensor
+from clsim.waveforms.metrics import pearson_r, relative_heights
 
 __all__ = ["PulseSpec", "default_pulses", "waveform_metrics", "run_budget", "budget_table"]
 
@@ -127,8 +127,8 @@ def run_budget(tree, scenes: dict, base_sensor: Sensor, *, pulses=None, photons_
     """
     from tqdm.auto import tqdm
 
-    from clsim.validation.meshref import MeshReferenceSimulator
     from clsim.transport.simulator import Simulator
+    from clsim.validation.meshref import MeshReferenceSimulator
 
     sim = simulator or Simulator()
     if pulses is None:

@@ -34,14 +34,13 @@ import time
 
 import numpy as np
 
-from voxlidar.materials import Material
-
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS
-from clsim.transport.result import assemble_result
-from clsim.transport.setup import STAT_NAMES, Detect, prepare_run
 from clsim.transport.reference_geometry import beam_directions, cosine_dir, receiver_view, row_dot
 from clsim.transport.reference_walk import RR_SURVIVE, RR_THRESHOLD
+from clsim.transport.result import assemble_result
+from clsim.transport.setup import STAT_NAMES, Detect, prepare_run
+from voxlidar.materials import Material
 
 __all__ = ["MeshReferenceSimulator"]
 

@@ -16,9 +16,9 @@ from __future__ import annotations
 import copy
 
 import numpy as np
-from voxlidar.scene import Scene
 
 from clsim.errors import InputError
+from voxlidar.scene import Scene
 
 __all__ = ["homogeneous_layer", "one_voxel", "ground_only", "set_optics"]
 

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from voxlidar.choices import Choice
 from clsim.errors import InputError
+from voxlidar.choices import Choice
 
 __all__ = [
     "Normalization",

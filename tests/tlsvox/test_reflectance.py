@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from tlsvox.errors import InputError
-from tlsvox.reflectance import (CalibrationTable, apparent_reflectance, db_to_reflectance,
-                                range_normalise, reflectance_to_db)
+from tlsvox.reflectance import (
+    CalibrationTable,
+    apparent_reflectance,
+    db_to_reflectance,
+    range_normalise,
+    reflectance_to_db,
+)
 from tlsvox.scan import Scan
 
 

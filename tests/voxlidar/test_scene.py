@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlsvox.voxel.amapvox import read_vox, write_vox
 from tlsvox.errors import InputError
+from tlsvox.voxel.amapvox import read_vox, write_vox
 from voxlidar.leafangle import LeafAngle
 from voxlidar.scene import Scene
 

@@ -73,8 +73,14 @@ threshold), ``_geometry`` (geometric features), ``_classify`` (the methods),
 from tlsvox.classify._classes import TRUTH_CLASS, PointClass
 from tlsvox.classify._classify import Classification, ClassifyMethod, classify_scan
 from tlsvox.classify._geometry import incidence_cosine, isolated, linearity, neighbourhood_mean, refine_geometric
-from tlsvox.classify._mixture import (GaussianMixture, GaussianMixture2, ThresholdRule, fit_gaussians, fit_two_gaussians,
-                                      leaf_wood_threshold)
+from tlsvox.classify._mixture import (
+                                      GaussianMixture,
+                                      GaussianMixture2,
+                                      ThresholdRule,
+                                      fit_gaussians,
+                                      fit_two_gaussians,
+                                      leaf_wood_threshold,
+)
 from tlsvox.classify._score import Score, score
 
 __all__ = [

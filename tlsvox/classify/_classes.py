@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import enum
+
 from voxlidar.materials import Material
 
 

@@ -5,16 +5,24 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+
 import numpy as np
-from tlsvox.errors import InputError
-from voxlidar.choices import Choice
-from tlsvox.io import check_scan
-from voxlidar.materials import DEFAULT_OPTICS, Material
-from tlsvox.reflectance import apparent_reflectance
-from tlsvox.scan import Scan
+
 from tlsvox.classify._classes import PointClass
 from tlsvox.classify._geometry import ground_band_mask, incidence_cosine, isolated, neighbourhood_mean, refine_geometric
-from tlsvox.classify._mixture import GaussianMixture, ThresholdRule, fit_gaussians, leaf_wood_threshold, parse_components
+from tlsvox.classify._mixture import (
+    GaussianMixture,
+    ThresholdRule,
+    fit_gaussians,
+    leaf_wood_threshold,
+    parse_components,
+)
+from tlsvox.errors import InputError
+from tlsvox.io import check_scan
+from tlsvox.reflectance import apparent_reflectance
+from tlsvox.scan import Scan
+from voxlidar.choices import Choice
+from voxlidar.materials import DEFAULT_OPTICS, Material
 
 
 class ClassifyMethod(Choice):
@@ -80,7 +88,7 @@ class Classification:
     fit_single_returns: bool = False
     on_cylinders: int = 0
 
-    def with_bark(self, bark) -> "Classification":
+    def with_bark(self, bark) -> Classification:
         """A copy with the echoes of ``bark`` ((N,) bool: leaf echoes on a fitted cylinder's bark,
         :func:`tlsvox.qsm.bark_echoes`) labelled wood, its counts and ``on_cylinders`` updated."""
         bark = np.asarray(bark, bool)
@@ -97,7 +105,8 @@ class Classification:
                 "leaf_wood_threshold": self.leaf_wood_threshold,
                 "noise_threshold": float(nt) if np.isfinite(nt) else None,
                 "target_threshold": self.target_threshold,
-                "components": m.n_components, "means": m.means.tolist(), "sigmas": m.sigmas.tolist(), "weights": m.weights.tolist(),
+                "components": m.n_components, "means": m.means.tolist(), "sigmas": m.sigmas.tolist(),
+                "weights": m.weights.tolist(),
                 "refined": self.refined, "moved_to_wood": self.moved_to_wood, "on_cylinders": self.on_cylinders,
                 "counts": self.counts}
 
@@ -114,8 +123,8 @@ def _scan_step_deg(scan: Scan) -> float | None:
     return float(min(grid.zenith_step_deg, grid.azimuth_step_deg))
 
 
-def classify_scan(scan: Scan, *, method: "str | ClassifyMethod" = ClassifyMethod.NEIGHBOURHOOD,
-                  rule: "str | ThresholdRule" = ThresholdRule.MIDWAY, components: "int | str" = "bic",
+def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.NEIGHBOURHOOD,
+                  rule: str | ThresholdRule = ThresholdRule.MIDWAY, components: int | str = "bic",
                   incidence_correction: bool = False, fit_single_returns: bool = True,
                   smooth_k: int = 10, normal_k: int = 20,
                   min_cos: float = 0.2, noise_radius_cells: float = 10.0, noise_min_neighbours: int = 1,

@@ -4,9 +4,10 @@
 from __future__ import annotations
 
 import numpy as np
+
+from tlsvox.classify._classes import PointClass
 from tlsvox.errors import InputError
 from tlsvox.ground import ransac_plane
-from tlsvox.classify._classes import PointClass
 
 
 def _covariances(xyz: np.ndarray, k: int) -> np.ndarray:

@@ -29,7 +29,9 @@ Examples
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import numpy as np
+
 from tlsvox.errors import InputError
 from voxlidar.choices import Choice
 
@@ -160,7 +162,7 @@ def _check_values(values) -> np.ndarray:
     return x
 
 
-def parse_components(components) -> "int | str":
+def parse_components(components) -> int | str:
     """``components`` checked: an integer >= 2 (or its digits as text) or ``"bic"``."""
     text = components.strip().lower() if isinstance(components, str) else None
     if text == "bic":
@@ -176,7 +178,7 @@ def parse_components(components) -> "int | str":
     return k
 
 
-def fit_gaussians(values, *, components: "int | str" = "bic", max_iter: int = 500,
+def fit_gaussians(values, *, components: int | str = "bic", max_iter: int = 500,
                   tol: float = 1e-9) -> GaussianMixture:
     """Maximum-likelihood 1-D Gaussian mixture of samples (EM).
 
@@ -216,7 +218,7 @@ def fit_two_gaussians(values, *, max_iter: int = 500, tol: float = 1e-9) -> Gaus
     return fit_gaussians(values, components=2, max_iter=max_iter, tol=tol)
 
 
-def leaf_wood_threshold(mix: GaussianMixture, *, rule: "str | ThresholdRule" = ThresholdRule.MIDWAY) -> float:
+def leaf_wood_threshold(mix: GaussianMixture, *, rule: str | ThresholdRule = ThresholdRule.MIDWAY) -> float:
     """Threshold between the leaf components of ``mix`` and its wood (brightest) component.
 
     ``midway``: halfway between the leaf mean (the weighted mean of all

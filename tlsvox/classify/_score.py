@@ -4,9 +4,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import numpy as np
+
+from tlsvox.classify._classes import TRUTH_CLASS, PointClass
 from tlsvox.errors import InputError
-from tlsvox.classify._classes import PointClass, TRUTH_CLASS
 
 
 @dataclass

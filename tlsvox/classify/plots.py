@@ -7,9 +7,9 @@ import os
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import finish_figure
 
 from tlsvox.classify import Classification, PointClass
+from voxlidar.safeio import finish_figure
 
 __all__ = ["plot_reflectance_histograms", "render_classified", "CLASS_COLORS"]
 
@@ -23,7 +23,7 @@ CLASS_COLORS = {
 }
 
 
-def plot_reflectance_histograms(results: list[Classification], path: "str | os.PathLike", *,
+def plot_reflectance_histograms(results: list[Classification], path: str | os.PathLike, *,
                                 truth: list | None = None, bins: int = 120) -> Path:
     """Histogram of the classification feature per scan with the fitted Gaussians and thresholds.
 
@@ -74,7 +74,8 @@ def plot_reflectance_histograms(results: list[Classification], path: "str | os.P
         comp = c.mixture.leaf_wood_pdf(x)
         n_leaf = c.mixture.n_components - 1
         scale = float(np.mean(val >= c.noise_threshold)) if paper and len(val) else 1.0
-        ax.plot(x, comp[:, 0] * scale, "g-", lw=1.5, label="leaf Gaussian" if n_leaf == 1 else f"leaf Gaussians ({n_leaf}, summed)")
+        leaf_label = "leaf Gaussian" if n_leaf == 1 else f"leaf Gaussians ({n_leaf}, summed)"
+        ax.plot(x, comp[:, 0] * scale, "g-", lw=1.5, label=leaf_label)
         ax.plot(x, comp[:, 1] * scale, "-", color="saddlebrown", lw=1.5, label="wood Gaussian")
         if paper:
             ax.axvline(c.noise_threshold, color="k", ls=":", label=f"noise {c.noise_threshold:.3f}")
@@ -89,7 +90,7 @@ def plot_reflectance_histograms(results: list[Classification], path: "str | os.P
     return finish_figure(fig, path)
 
 
-def render_classified(xyz, labels, path: "str | os.PathLike", *, eye=None, center=None,
+def render_classified(xyz, labels, path: str | os.PathLike, *, eye=None, center=None,
                       width: int = 1000, height: int = 1000, point_size: float = 2.0,
                       show=(PointClass.LEAF, PointClass.WOOD), backend: str = "auto") -> str:
     """Render a classified cloud, leaf green and wood brown (headless Open3D).

@@ -17,21 +17,18 @@ import os
 import sys
 from pathlib import Path
 
+from tlsvox.cli import georegister, register, voxelize
+from tlsvox.errors import TlsvoxError
 from voxlidar.cli import Parser, number, numbers, run, with_debug
 from voxlidar.errors import InputError
 from voxlidar.safeio import check_figure_path, check_outputs
-
-from tlsvox.cli import georegister, register, voxelize
-from tlsvox.errors import TlsvoxError
 from voxlidar.versions import show_versions
-
-
 
 #: picture formats of ``tlsvox view --screenshot`` (Open3D renders a bitmap)
 SCREENSHOT_FORMATS = ("png", "jpg", "jpeg")
 #: what ``tlsvox view`` reads: scans, and the point clouds and meshes Open3D reads
-VIEW_SUFFIXES = (".npz", ".vox", ".las", ".laz", ".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".obj", ".stl", ".off", ".gltf",
-                 ".glb")
+VIEW_SUFFIXES = (".npz", ".vox", ".las", ".laz", ".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".obj", ".stl", ".off",
+                 ".gltf", ".glb")
 
 def _cmd_tree(args) -> int:
     from tlsvox.truth.synthetic import TreeParams, make_tree
@@ -131,7 +128,6 @@ def _cmd_view(args) -> int:
     import numpy as np
 
     from tlsvox.render import colormap, reflectance_colors, render
-
     from tlsvox.scan import sidecar_paths
 
     path = Path(args.file)

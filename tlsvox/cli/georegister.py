@@ -97,9 +97,8 @@ def _parse_init(value) -> np.ndarray | None:
 
 
 def cmd_georegister(args) -> int:
-    from voxlidar.safeio import atomic_write
-
     from tlsvox.register.georegister import georegister, transform_points
+    from voxlidar.safeio import atomic_write
 
     check_outputs([("source", args.source), ("target", args.target)],
                   [("-o", args.output), ("--output-cloud", args.output_cloud)])

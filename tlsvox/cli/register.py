@@ -11,11 +11,11 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from voxlidar.cli import number
-from voxlidar.safeio import check_distinct, check_figure_path, check_outputs, json_text
 
 from tlsvox.errors import InputError, TlsvoxError
 from tlsvox.scan import sidecar_paths
+from voxlidar.cli import number
+from voxlidar.safeio import check_distinct, check_figure_path, check_outputs, json_text
 
 __all__ = ["register", "cmd_register", "cmd_classify"]
 

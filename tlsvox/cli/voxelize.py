@@ -11,10 +11,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from voxlidar.cli import numbers
-from voxlidar.safeio import check_distinct, check_outputs, json_text, staged
 
 from tlsvox.errors import InputError, TlsvoxError
+from voxlidar.cli import numbers
+from voxlidar.safeio import check_distinct, check_outputs, json_text, staged
 
 DESCRIPTION = """\
 Estimate leaf area density per voxel from terrestrial laser scans (VoxLAD).
@@ -61,19 +61,19 @@ EPILOG = """\
 examples:
   tlsvox voxelize scan0.laz scan1.laz --voxel-size 0.2 --leaf-angle uniform --estimator bcmle -o scene.npz
   tlsvox voxelize tls_scan.laz --scanner-frame --angular-grid 30,0.048,2082,0,0.622,580 \\
-      --scanner-rpy 1.026,0.746,-110.019 --voxel-size 0.2 -o plot.npz --vox plot.vox
+  --scanner-rpy 1.026,0.746,-110.019 --voxel-size 0.2 -o plot.npz --vox plot.vox
   tlsvox voxelize neon-harvard-waveforms/ --voxel-size 0.5 -o neon.npz
 """
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of the voxelize subcommand."""
+    from tlsvox.voxel.detection import Undetected
     from tlsvox.voxel.estimators import Estimator, FillMode
     from tlsvox.voxel.voxlad import Layout
-    from voxlidar.leafangle import LeafAngleKind, LeafAzimuth
     from tlsvox.voxel.weights import EchoWeights
-    from tlsvox.voxel.detection import Undetected
     from tlsvox.voxel.wood import WoodMethod
+    from voxlidar.leafangle import LeafAngleKind, LeafAzimuth
 
     p.add_argument("scans", nargs="+", metavar="SCAN",
                    help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars), or pulse-grouped text exports "
@@ -253,12 +253,12 @@ def read_scan(path, scan_id: int, origin=None):
 
 def run(args) -> int:
     """Handler: voxelise ``args.scans`` and write ``args.output``; returns the exit code."""
+    from tlsvox.cli.airborne import airborne_kind, run_airborne
+    from tlsvox.scan import AngularGrid, sidecar_paths
     from tlsvox.voxel.amapvox import write_vox
     from tlsvox.voxel.pulses import rotation_from_rpy
-    from tlsvox.scan import AngularGrid, sidecar_paths
     from tlsvox.voxel.trace import Tracer
     from tlsvox.voxel.voxlad import voxelize
-    from tlsvox.cli.airborne import airborne_kind, run_airborne
 
     if any(airborne_kind(path) for path in args.scans):
         return run_airborne(args, _defaults())

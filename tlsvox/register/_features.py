@@ -12,7 +12,9 @@ Fischler, M. A., Bolles, R. C. (1981). Random sample consensus. Commun.
 from __future__ import annotations
 
 import itertools
+
 import numpy as np
+
 from tlsvox.errors import RegistrationError
 from tlsvox.register._icp import downsample, o3d_cloud
 from tlsvox.register._transforms import apply_transform, batch_kabsch, levelled_fit, pose_error, rigid_fit

@@ -8,14 +8,14 @@ import os
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import json_text, staged
 
 from tlsvox.errors import InputError
 from tlsvox.scan import Scan, las_data
+from voxlidar.safeio import json_text, staged
 
 
-def write_registered(path: "str | os.PathLike", scans: list[Scan], *,
-                     results: list | None = None, transforms_path: "str | os.PathLike | None" = None,
+def write_registered(path: str | os.PathLike, scans: list[Scan], *,
+                     results: list | None = None, transforms_path: str | os.PathLike | None = None,
                      labels: list | None = None) -> tuple[Path, Path]:
     """Write registered scans merged into one LAS/LAZ, and a JSON of their transforms.
 
@@ -68,7 +68,7 @@ def write_registered(path: "str | os.PathLike", scans: list[Scan], *,
     return path, transforms_path
 
 
-def read_transforms(path: "str | os.PathLike") -> dict[str, np.ndarray]:
+def read_transforms(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Scan name -> 4x4 pose from a JSON written by :func:`write_registered`."""
     doc = json.loads(Path(path).read_text())
     return {e["name"]: np.asarray(e["pose"], dtype=np.float64) for e in doc["scans"]}

@@ -10,9 +10,11 @@ Chen, Y., Medioni, G. (1992). Object modelling by registration of multiple
 from __future__ import annotations
 
 import itertools
+
 import numpy as np
-from tlsvox.register._transforms import apply_transform
+
 from tlsvox.ground import ransac_plane
+from tlsvox.register._transforms import apply_transform
 
 
 def o3d_cloud(xyz: np.ndarray):

@@ -5,16 +5,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+
 import numpy as np
+
 from tlsvox.errors import InputError, RegistrationError
-from voxlidar.choices import Choice
 from tlsvox.io import check_scan
-from tlsvox.scan import Scan
 from tlsvox.register._features import consensus_groups, feature_matches, fpfh_features, ransac_transform
-from tlsvox.register._icp import fitness_scores, off_ground, coincidence, refine_icp
+from tlsvox.register._icp import coincidence, fitness_scores, off_ground, refine_icp
 from tlsvox.register._targets import TargetShape, detect_targets, match_targets
 from tlsvox.register._transforms import MAX_TILT_DEG, apply_transform, pose_error, true_relative_transform
-
+from tlsvox.scan import Scan
+from voxlidar.choices import Choice
 
 #: fewest points a scan needs to be registered at all
 MIN_POINTS = 50
@@ -85,10 +86,10 @@ class RegistrationResult:
         return d
 
 
-def register_pair(source: Scan, reference: Scan, *, method: "str | RegistrationMethod" = "auto",
+def register_pair(source: Scan, reference: Scan, *, method: str | RegistrationMethod = "auto",
                   init=None, voxel_sizes=(0.2, 0.08, 0.03), global_voxel_m: float = 0.3,
                   min_fitness: float = 0.25, target_tolerance_m: float = 0.03,
-                  target_shape: "str | TargetShape" = TargetShape.CYLINDER,
+                  target_shape: str | TargetShape = TargetShape.CYLINDER,
                   target_radius_m: float = 0.05, min_target_reflectance_db: float = 0.0,
                   icp_after_targets: bool = False, n_hypotheses: int = 5, min_consensus: int = 1,
                   consensus_rot_deg: float = 1.0, consensus_trans_m: float = 0.1,

@@ -5,11 +5,13 @@ and correspondences between two scans from their inter-target distances.
 from __future__ import annotations
 
 import itertools
+
 import numpy as np
+
 from tlsvox.errors import InputError
-from voxlidar.choices import Choice
+from tlsvox.register._transforms import apply_transform, rigid_fit, tilt_deg
 from tlsvox.scan import Scan
-from tlsvox.register._transforms import apply_transform, tilt_deg, rigid_fit
+from voxlidar.choices import Choice
 
 
 class TargetShape(Choice):
@@ -59,7 +61,7 @@ def _fit_centre(pts: np.ndarray, origin: np.ndarray, shape: TargetShape, radius:
 
 
 def detect_targets(scan: Scan, *, min_reflectance_db: float = 0.0,
-                   target_shape: "str | TargetShape" = TargetShape.CYLINDER,
+                   target_shape: str | TargetShape = TargetShape.CYLINDER,
                    target_radius_m: float = 0.05, max_size_m: float = 0.4, min_points: int = 3,
                    link_m: float | None = None) -> np.ndarray:
     """Centres of the retro-reflective targets in a scan (scanner frame).

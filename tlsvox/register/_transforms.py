@@ -22,9 +22,9 @@ True
 from __future__ import annotations
 
 import numpy as np
+
 from tlsvox.errors import InputError
 from tlsvox.scan import Scan
-
 
 #: largest tilt between two levelled scans' frames: a levelled scanner's
 #: compensator keeps each frame within a fraction of a degree of vertical.

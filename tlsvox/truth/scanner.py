@@ -37,8 +37,8 @@ from importlib import resources
 import numpy as np
 
 from tlsvox.errors import InputError
-from voxlidar.materials import Material, Optics, optics_for
 from tlsvox.scan import AngularGrid, PulseTable, Scan, directions_from_angles
+from voxlidar.materials import Material, Optics, optics_for
 
 __all__ = ["ScannerPreset", "ScanPose", "simulate_scan", "paper_scan_poses", "subray_pattern",
            "scan_window"]
@@ -90,7 +90,7 @@ class ScannerPreset:
                              f"{sorted(_RING_COUNTS)} (a centre ray plus full rings)")
 
     @classmethod
-    def load(cls, name_or_path: str = "riegl-vz400", **overrides) -> "ScannerPreset":
+    def load(cls, name_or_path: str = "riegl-vz400", **overrides) -> ScannerPreset:
         """A preset from ``tlsvox/presets/NAME.toml`` or a TOML path, with overrides."""
         text = None
         try:
@@ -109,7 +109,7 @@ class ScannerPreset:
         return cls(**doc)
 
     @classmethod
-    def riegl_vz400(cls, **overrides) -> "ScannerPreset":
+    def riegl_vz400(cls, **overrides) -> ScannerPreset:
         """The RIEGL VZ-400 preset (the paper's scanner)."""
         return cls.load("riegl-vz400", **overrides)
 
@@ -339,7 +339,10 @@ def simulate_scan(tree, *, pose: ScanPose | np.ndarray, preset: ScannerPreset | 
     pulse = np.concatenate(out["pulse"]) if out["pulse"] else np.zeros(0, np.int64)
     xyz = d_scan[pulse] * ranges[:, None]
     pulses = PulseTable(direction=d_scan, n_echoes=n_echo, origin=np.zeros(3), grid=grid)
-    cat = (lambda key, dt: np.concatenate(out[key]).astype(dt) if out[key] else np.zeros(0, dt))
+
+    def cat(key, dt):
+        return np.concatenate(out[key]).astype(dt) if out[key] else np.zeros(0, dt)
+
     return Scan(
         xyz=xyz, reflectance_db=cat("refl", np.float32), return_number=cat("rank", np.uint8),
         number_of_returns=cat("count", np.uint8), pulse_id=pulse, truth_material=cat("mat", np.uint8),

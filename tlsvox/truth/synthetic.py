@@ -25,14 +25,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from voxlidar.safeio import json_text, staged
 
 from tlsvox.errors import InputError
-from voxlidar.leafangle import LeafAngle, LeafAzimuth, sample_leaf_normals
-from voxlidar.materials import Material
 from tlsvox.truth._mesh import cylinders_mesh, leaf_mesh, orthonormal, polygon_area_factor, segment_distance
 from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
 from tlsvox.voxel.solid import cap_share, cylinder_cells, dilate
+from voxlidar.leafangle import LeafAngle, LeafAzimuth, sample_leaf_normals
+from voxlidar.materials import Material
+from voxlidar.safeio import json_text, staged
 
 __all__ = ["TreeParams", "SyntheticTree", "make_tree", "make_leaf_slab", "make_wall", "load_tree"]
 
@@ -266,9 +266,8 @@ class SyntheticTree:
         -------
         tlsvox.Scene
         """
-        from voxlidar.scene import Scene
-
         from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
+        from voxlidar.scene import Scene
 
         if wood_model not in ("directional", "isotropic"):
             raise InputError(f"wood_model={wood_model!r} must be 'directional' or 'isotropic'")
@@ -409,7 +408,7 @@ class SyntheticTree:
             doc["lai_over_crown_projection"] = self.leaf_area() / (np.pi * self.params.crown_radius**2)
         return doc
 
-    def save(self, path: "str | os.PathLike") -> tuple[Path, Path]:
+    def save(self, path: str | os.PathLike) -> tuple[Path, Path]:
         """Write ``NAME.ply`` (mesh, coloured by material) and ``NAME.json`` (truth).
 
         The JSON holds the parameters and seed, so :func:`load_tree` rebuilds
@@ -579,7 +578,7 @@ def make_tree(params: TreeParams | None = None, *, seed: int = 0) -> SyntheticTr
     )
 
 
-def load_tree(path: "str | os.PathLike") -> SyntheticTree:
+def load_tree(path: str | os.PathLike) -> SyntheticTree:
     """Rebuild a tree from the JSON written by :meth:`SyntheticTree.save`."""
     path = Path(path)
     meta = path.with_suffix(".json") if path.suffix.lower() != ".json" else path

@@ -256,10 +256,10 @@ def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="b
         LAD (plant area density) per voxel; ``occluded``; ``meta["airborne"]``
         with the beams, echoes and the occluded share.
     """
-    from voxlidar.leafangle import LeafAngle
-    from voxlidar.scene import Scene
     from tlsvox.voxel.estimators import estimate_lad
     from tlsvox.voxel.trace import Tracer
+    from voxlidar.leafangle import LeafAngle
+    from voxlidar.scene import Scene
 
     if not (np.isfinite(voxel_size) and voxel_size > 0):
         raise InputError(f"voxel_size must be > 0 metres, got {voxel_size!r}")

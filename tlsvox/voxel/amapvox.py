@@ -58,7 +58,7 @@ SOLID_COLUMNS = ("wood_solid", "wood_cap")
 VOX_MAX_VOXELS = 20_000_000
 
 
-def write_vox(scene: Scene, path: "str | os.PathLike", *, max_pad: float | None = None,
+def write_vox(scene: Scene, path: str | os.PathLike, *, max_pad: float | None = None,
               metadata: bool = True) -> Path:
     """Write ``scene`` as an AMAPVox ``.vox`` file (atomic).
 
@@ -127,7 +127,7 @@ def _numbers(line: str, key: str, path) -> list[float]:
         raise InputError(f"{str(path)!r}: bad {key} line {line.strip()!r} in .vox header") from err
 
 
-def read_vox(path: "str | os.PathLike", *, pad_column: str = "PadBVTotal") -> Scene:
+def read_vox(path: str | os.PathLike, *, pad_column: str = "PadBVTotal") -> Scene:
     """Read an AMAPVox ``.vox`` file into a :class:`~voxlidar.scene.Scene`.
 
     Parameters

@@ -134,7 +134,7 @@ class Beams:
 
     @classmethod
     def from_rays(cls, origin, direction, *, hit_range=None, kind=EchoKind.LEAF,
-                  max_range=np.inf) -> "Beams":
+                  max_range=np.inf) -> Beams:
         """Single-echo beams: each stops at ``hit_range`` (inf = no echo).
 
         Parameters
@@ -165,7 +165,7 @@ class Beams:
                    tail=(~hit).astype(np.float64), max_range=mr)
 
     @classmethod
-    def concat(cls, parts: "list[Beams]") -> "Beams":
+    def concat(cls, parts: list[Beams]) -> Beams:
         """Join beams of several scans (``scan_index`` filled by position)."""
         if not parts:
             raise InputError("no beams to concatenate")

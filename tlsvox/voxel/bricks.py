@@ -84,13 +84,13 @@ class Bricks:
         return len(self.start) - 1
 
     @classmethod
-    def from_points(cls, grid: VoxelGrid, points) -> "Bricks":
+    def from_points(cls, grid: VoxelGrid, points) -> Bricks:
         """Rows for the voxels holding ``points`` (N, 3), metres; points outside the grid are left out."""
         ijk = grid.index_of(points)
         return cls.from_ijk(grid, ijk[grid.contains_index(ijk)])
 
     @classmethod
-    def from_ijk(cls, grid: VoxelGrid, ijk) -> "Bricks":
+    def from_ijk(cls, grid: VoxelGrid, ijk) -> Bricks:
         """Rows for the voxels ``ijk`` (N, 3), inside the grid; repeats are merged."""
         ijk = np.asarray(ijk, dtype=np.int64).reshape(-1, 3)
         if len(ijk) and not np.all(grid.contains_index(ijk)):

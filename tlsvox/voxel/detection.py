@@ -162,7 +162,7 @@ class DetectionModel:
 
     @classmethod
     def for_scan(cls, scan, *, threshold_db: float | None = None, leaf_reflectance: float | None = None,
-                 leaf_length: float = 0.05, leaf_width: float = 0.025) -> "DetectionModel":
+                 leaf_length: float = 0.05, leaf_width: float = 0.025) -> DetectionModel:
         """The model of the instrument that made ``scan`` (its preset in ``scan.meta``), with overrides.
 
         What the scan's preset does not state (all of it, when the scan

@@ -82,8 +82,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tlsvox.errors import InputError
-from voxlidar.choices import Choice
 from tlsvox.voxel.trace import VoxelStats
+from voxlidar.choices import Choice
 
 __all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "brick_layer_means", "brick_occlusion", "estimate_lad",
            "cross_scan_ratio", "fill_layers", "fill_neighbourhood", "hull_mask"]
@@ -601,7 +601,7 @@ def _scan_stats_list(scan_stats, stats) -> list:
     try:
         out = list(scan_stats)
     except TypeError:
-        raise InputError(f"scan_stats must be a list of VoxelStats (one per scan), got {type(scan_stats).__name__}")
+        raise InputError(f"scan_stats must be a list of VoxelStats (one per scan), got {type(scan_stats).__name__}") from None
     check_calibration_scans(len(out))
     bad = [type(s).__name__ for s in out if not isinstance(s, VoxelStats)]
     if bad:

@@ -140,7 +140,7 @@ class VoxelGrid:
     # -- construction ----------------------------------------------------------
     @classmethod
     def from_bounds(cls, lower, upper, *, voxel_size: float, margin: float = 0.0,
-                    snap: bool = True) -> "VoxelGrid":
+                    snap: bool = True) -> VoxelGrid:
         """The smallest grid of ``voxel_size`` voxels covering a box.
 
         Parameters
@@ -171,7 +171,7 @@ class VoxelGrid:
         return cls(origin=tuple(lo), voxel_size=size, shape=tuple(int(v) for v in shape))
 
     @classmethod
-    def from_points(cls, points, *, voxel_size: float, margin: float = 0.0) -> "VoxelGrid":
+    def from_points(cls, points, *, voxel_size: float, margin: float = 0.0) -> VoxelGrid:
         """The grid covering a point cloud ``points`` (N, 3), metres."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if len(p) == 0:

@@ -38,8 +38,8 @@ from tlsvox.voxel.stats import NF
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, echo_voxels
 from voxlidar.choices import Choice
 
-__all__ = ["CALIBRATED_BYTES", "DENSE_AUTO_MAX", "NEIGHBOURHOOD_BYTES", "Layout", "MemoryPlan", "beams_bytes", "build_bytes", "memory_plan",
-           "row_bytes", "ALLOCATOR_SHARE", "undetected_bytes", "with_allocator"]
+__all__ = ["CALIBRATED_BYTES", "DENSE_AUTO_MAX", "NEIGHBOURHOOD_BYTES", "Layout", "MemoryPlan", "beams_bytes", "build_bytes",
+           "memory_plan", "row_bytes", "ALLOCATOR_SHARE", "undetected_bytes", "with_allocator"]
 
 #: estimator work arrays, bytes per voxel (dense) or row (sparse), beside the traced sums
 _ESTIMATE_BYTES = 24 * 8
@@ -95,7 +95,8 @@ class MemoryPlan:
                 f"{format_bytes(self.sparse)}, beams {format_bytes(self.beams)}{extra}")
 
     def describe(self) -> str:
-        return ((f"{self.note}: " if self.note else "") + f"{self.sizes()}; the {self.layout.value} layout needs {format_bytes(self.need)} of the "
+        return ((f"{self.note}: " if self.note else "") + f"{self.sizes()}; the {self.layout.value} layout needs "
+                f"{format_bytes(self.need)} of the "
                 f"{format_bytes(self.limit)} available (arrays: making the beams {format_bytes(self.build)}, "
                 f"tracing and estimating {format_bytes(self.run)}; and {ALLOCATOR_SHARE:.0%} on top for the "
                 "allocator)")

@@ -100,7 +100,7 @@ class VoxelStats:
             raise InputError(f"field={name!r} is not a brick field; choose one of {', '.join(BRICK_FIELDS)}")
         return self.bricks[:, BRICK_FIELDS.index(name)].reshape(self.rows.shape)
 
-    def __add__(self, other: "VoxelStats") -> "VoxelStats":
+    def __add__(self, other: VoxelStats) -> VoxelStats:
         if other.grid != self.grid or (self.rows is None) != (other.rows is None) or (
                 self.sparse and not (np.array_equal(self.rows.start, other.rows.start)
                                      and np.array_equal(self.rows.key, other.rows.key))):

@@ -52,15 +52,14 @@ from importlib import resources
 
 import numpy as np
 
-from voxlidar.devices import build_program, choose_device, describe, open_queue, short_reason
-from voxlidar.errors import DeviceError as AnyDeviceError
-
 from tlsvox.errors import DeviceError, InputError
 from tlsvox.voxel.beams import Beams, EchoKind, echo_rows, echo_voxels
 from tlsvox.voxel.bricks import BRICK, BRICK_FIELDS, Bricks
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 from tlsvox.voxel.stats import FIELDS, NF, VoxelStats
 from tlsvox.voxel.trace_reference import trace_reference
+from voxlidar.devices import build_program, choose_device, describe, open_queue, short_reason
+from voxlidar.errors import DeviceError as AnyDeviceError
 
 __all__ = ["Beams", "EchoKind", "FIELDS", "Tracer", "VoxelStats", "echo_rows", "echo_voxels", "trace", "trace_reference"]
 
@@ -79,7 +78,7 @@ def probe_build(device) -> str | None:
     return None
 
 
-def fixed_point_scale(beams: "Beams", voxel_size: float, *, sparse: bool = False) -> float:
+def fixed_point_scale(beams: Beams, voxel_size: float, *, sparse: bool = False) -> float:
     """Scale of the 64-bit fixed-point sums of the atomic (GPU) tracer.
 
     A beam crosses a voxel once and adds to each field at most its weight W

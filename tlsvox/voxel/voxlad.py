@@ -31,26 +31,47 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tlsvox.errors import InputError
-from tlsvox.voxel.estimators import (CALIBRATION_MIN_VOXELS, DENSE_FILLS, Estimator, FillMode, LadEstimate,
-                                     brick_layer_means, check_calibration_scans, estimate_lad, fill_layers,
-                                     fill_neighbourhood, hull_mask)
-from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.ground import GroundPlane, fit_ground, ground_mask
-from voxlidar.leafangle import LeafAngle, LeafAzimuth
-from tlsvox.voxel.pulses import (beams_from_scan, kinds_from_material, kinds_from_pointclass, layer_g_tables,
-                                 outward_g_table)
 from tlsvox.scan import AngularGrid, Scan
-from voxlidar.scene import Scene
-from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.beams import voxels_along
+from tlsvox.voxel.bricks import BRICK, Bricks
+from tlsvox.voxel.detection import DetectionModel, Undetected, unrecorded_echoes
+from tlsvox.voxel.estimators import (
+    CALIBRATION_MIN_VOXELS,
+    DENSE_FILLS,
+    Estimator,
+    FillMode,
+    LadEstimate,
+    brick_layer_means,
+    check_calibration_scans,
+    estimate_lad,
+    fill_layers,
+    fill_neighbourhood,
+    hull_mask,
+)
+from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.plan import (  # noqa: F401
+    _ESTIMATE_BYTES,
+    DENSE_AUTO_MAX,
+    Layout,
+    MemoryPlan,
+    memory_plan,
+    row_bytes,
+    undetected_bytes,
+)
+from tlsvox.voxel.pulses import (
+    beams_from_scan,
+    kinds_from_material,
+    kinds_from_pointclass,
+    layer_g_tables,
+    outward_g_table,
+)
+from tlsvox.voxel.quality import LAD_PLAUSIBLE_MAX, LINE_FIT_MIN, OCCLUDED_SHARE_MAX, quality_warnings, score_lad  # noqa: F401
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
-from tlsvox.voxel.detection import DetectionModel, Undetected, unrecorded_echoes
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
-from tlsvox.voxel.plan import (_ESTIMATE_BYTES, DENSE_AUTO_MAX, Layout, MemoryPlan,  # noqa: F401
-                               memory_plan, row_bytes, undetected_bytes)
-from tlsvox.voxel.quality import (LAD_PLAUSIBLE_MAX, LINE_FIT_MIN, OCCLUDED_SHARE_MAX,  # noqa: F401
-                                  quality_warnings, score_lad)
+from voxlidar.leafangle import LeafAngle, LeafAzimuth
+from voxlidar.scene import Scene
 
 __all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "score_lad", "undetected_bytes", "voxelize"]
 
@@ -66,7 +87,7 @@ class VoxelizeResult:
     ground: GroundPlane | None
     scans: list = field(default_factory=list)  #: per-scan info dicts
     timings: dict = field(default_factory=dict)  #: seconds per stage
-    coarse: "VoxelizeResult | None" = None  #: with ``lad_voxel_size``: the coarse run the LAD came from
+    coarse: VoxelizeResult | None = None  #: with ``lad_voxel_size``: the coarse run the LAD came from
 
 
 def _kinds_for(scan: Scan, classes, class_codes: str) -> np.ndarray:
@@ -501,7 +522,8 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
         meta["occluded_bricks"] = {"brick_voxels": BRICK, "occluded": int(lad.brick_occluded.sum()),
                                    "total": int(lad.brick_occluded.size)}
     scene = Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=lad_v,
-                  wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la, leaf_azimuth=azimuth.value, crown_center=cc,
+                  wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la,
+                  leaf_azimuth=azimuth.value, crown_center=cc,
                   ground_z=None if plane is None else plane.z_center, meta=meta)
     return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
 

@@ -100,7 +100,7 @@ class NominalReflectance:
                                  "(e.g. 0.267 for a leaf at 1550 nm)")
 
     @classmethod
-    def for_scan(cls, scan, leaf: float | None = None, wood: float | None = None) -> "NominalReflectance":
+    def for_scan(cls, scan, leaf: float | None = None, wood: float | None = None) -> NominalReflectance:
         """The given values, else the leaf and bark optics at the scan's wavelength."""
         from voxlidar.materials import Material, optics_for
 

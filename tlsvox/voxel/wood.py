@@ -35,9 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from tlsvox.errors import InputError
-from voxlidar.choices import Choice
 from tlsvox.voxel.estimators import safe_divide
 from tlsvox.voxel.trace import VoxelStats
+from voxlidar.choices import Choice
 
 __all__ = ["WoodMethod", "WoodEstimate", "estimate_wood", "count_stretch", "wood_area_density"]
 

@@ -39,10 +39,15 @@ import numpy as np
 
 from clsim.errors import InputError
 from clsim.waveforms.decompose._batch_cl import device_fitter
-from clsim.waveforms.decompose._batch_detect import (_batch_pulse, _rice, _saturation,
-                                                     candidates_numpy, noise_stats_numpy)
+from clsim.waveforms.decompose._batch_detect import (
+    _batch_pulse,
+    _rice,
+    _saturation,
+    candidates_numpy,
+    noise_stats_numpy,
+)
 from clsim.waveforms.decompose._batch_fit import fit_group, linear_start
-from clsim.waveforms.decompose._batch_select import _State, _add, _prune, _refit, _rescue
+from clsim.waveforms.decompose._batch_select import _add, _prune, _refit, _rescue, _State
 from clsim.waveforms.decompose._checks import _positive
 from clsim.waveforms.decompose._detect_cl import MAX_CANDIDATES
 from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse

@@ -67,9 +67,8 @@ def probe_build(device) -> str | None:
     layer's probe (:data:`voxlidar.devices.KERNEL_SETS`). Raises on a build failure."""
     import pyopencl as cl
 
-    from voxlidar.devices import build_program, describe
-
     from clsim.waveforms.decompose import _detect_cl
+    from voxlidar.devices import build_program, describe
 
     src, inc = _source()
     build_program(cl.Context([device]), src, [inc] + build_options(describe(device), 1, True))
@@ -175,7 +174,7 @@ class DeviceFitter:
                 self._filters[key] = got
         return got
 
-    def bind(self, y, use, cens, noise) -> "BoundFitter":
+    def bind(self, y, use, cens, noise) -> BoundFitter:
         """Upload a chunk: samples (N, n), the samples that count and the censored
         ones (N, n) bool, the noise sigma (N,)."""
         return BoundFitter(self, y, use, cens, noise)

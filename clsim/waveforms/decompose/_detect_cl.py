@@ -121,7 +121,7 @@ class Detector:
                 self._filters[key] = buf
         return buf
 
-    def bind(self, y, lengths) -> "BoundDetection":
+    def bind(self, y, lengths) -> BoundDetection:
         """Upload a chunk's samples (N, n) and lengths (N,)."""
         return BoundDetection(self, y, lengths)
 

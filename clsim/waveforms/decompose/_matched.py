@@ -38,11 +38,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import correlate1d
 
-from voxlidar.choices import Choice
 from clsim.errors import InputError
 from clsim.waveforms.decompose._checks import _as_waveform, _positive
 from clsim.waveforms.decompose._model import FWHM_PER_SIGMA, Components
 from clsim.waveforms.decompose._noise import noise_level, response_above_baseline
+from voxlidar.choices import Choice
 
 #: Default expected number of false echoes per noise-only waveform.
 FALSE_ALARM = 0.01
@@ -81,13 +81,13 @@ class Pulse:
         return self.shape / float(np.sum(self.shape * self.shape))
 
     @classmethod
-    def gaussian(cls, sigma: float) -> "Pulse":
+    def gaussian(cls, sigma: float) -> Pulse:
         half = int(np.ceil(4.0 * sigma))
         x = np.arange(-half, half + 1, dtype=float)
         return cls(np.exp(-0.5 * (x / sigma) ** 2), half, float(sigma))
 
     @classmethod
-    def measured(cls, samples) -> "Pulse":
+    def measured(cls, samples) -> Pulse:
         """From a measured system response (baseline removed, cut at 1 % of its peak)."""
         h = response_above_baseline(samples, "pulse")
         h = h / h.max()

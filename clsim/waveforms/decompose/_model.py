@@ -79,7 +79,7 @@ class Components(EchoColumns):
         return out
 
     @classmethod
-    def empty(cls, **scalars) -> "Components":
+    def empty(cls, **scalars) -> Components:
         z = np.zeros(0)
         return cls(z, z.copy(), z.copy(), z.copy(), z.copy(), z.copy(), **scalars)
 

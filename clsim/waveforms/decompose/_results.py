@@ -89,7 +89,7 @@ class EchoTable(EchoColumns):
                    header=",".join(rec.dtype.names), comments="", fmt=fmt)
 
     @classmethod
-    def from_components(cls, comps) -> "EchoTable":
+    def from_components(cls, comps) -> EchoTable:
         """Stack a sequence of :class:`Components` (one per waveform)."""
         comps = list(comps)
         counts = np.array([len(c) for c in comps], dtype=np.int64)

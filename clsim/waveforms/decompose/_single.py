@@ -9,9 +9,17 @@ from clsim.errors import InputError
 from clsim.waveforms.decompose._checks import _as_waveform, _positive
 from clsim.waveforms.decompose._deconvolve import deconvolve
 from clsim.waveforms.decompose._detection import _detect
-from clsim.waveforms.decompose._matched import (FALSE_ALARM, Detection, _local_maxima, _subsample, clipped_baseline,
-                       filter_output, resolve_pulse, threshold)
 from clsim.waveforms.decompose._fitting import _linear_start, _split, _standard_errors
+from clsim.waveforms.decompose._matched import (
+    FALSE_ALARM,
+    Detection,
+    _local_maxima,
+    _subsample,
+    clipped_baseline,
+    filter_output,
+    resolve_pulse,
+    threshold,
+)
 from clsim.waveforms.decompose._model import Components
 from clsim.waveforms.decompose._noise import _gaps, _saturated, noise_level
 from clsim.waveforms.decompose._selection import _AmplitudeRule, _MatchedRule, _order_and_fit

@@ -92,7 +92,7 @@ class WavePacketDescriptor:
                            self.spacing_ps, self.gain, self.offset)
 
     @classmethod
-    def from_bytes(cls, index: int, data: bytes) -> "WavePacketDescriptor":
+    def from_bytes(cls, index: int, data: bytes) -> WavePacketDescriptor:
         if len(data) < _DESC_SIZE:
             raise InputError(f"wave packet descriptor VLR {99 + index} has {len(data)} bytes; "
                              f"expected {_DESC_SIZE}. The file is damaged; re-export it.")
@@ -236,7 +236,7 @@ class LasWaveforms:
                     gain: float = 1.0, offset: float = 0.0, bits_per_sample: int = 16,
                     gps_time=None, return_number=None, number_of_returns=None,
                     intensity=None, classification=None, scales=(0.001, 0.001, 0.001),
-                    offsets=None) -> "LasWaveforms":
+                    offsets=None) -> LasWaveforms:
         """Build from simulated (or any) waveforms, one per point.
 
         Parameters
@@ -318,7 +318,7 @@ def _find_wdp(path: Path) -> Path | None:
     return None
 
 
-def read_las_waveforms(path: "str | os.PathLike", *, wdp: "str | os.PathLike | None" = None
+def read_las_waveforms(path: str | os.PathLike, *, wdp: str | os.PathLike | None = None
                        ) -> LasWaveforms:
     """Read the points and waveform packets of a LAS/LAZ 1.3 or 1.4 file.
 
@@ -481,7 +481,7 @@ def _wdp_header(n_bytes: int) -> bytes:
                              b"clsim waveform data packets".ljust(32, b"\0"))
 
 
-def write_las_waveforms(path: "str | os.PathLike", data: LasWaveforms, *, point_fields=None,
+def write_las_waveforms(path: str | os.PathLike, data: LasWaveforms, *, point_fields=None,
                         extra_bytes=None, system_identifier: str | None = None
                         ) -> tuple[Path, Path]:
     """Write LAS 1.4 point format 9 plus an external ``.wdp`` with the packets.

@@ -185,7 +185,7 @@ def _parse_descriptor(index: int, payload: bytes, name: str) -> PulseDescriptor:
     return PulseDescriptor(index, oc2a, extra, units, tuple(samplings))
 
 
-def read_pulsewaves(path: "str | os.PathLike", *, wvs: "str | os.PathLike | None" = None
+def read_pulsewaves(path: str | os.PathLike, *, wvs: str | os.PathLike | None = None
                     ) -> PulseWaves:
     """Read a PulseWaves pulse file and its waves.
 

@@ -10,13 +10,13 @@ import re
 
 import numpy as np
 import pytest
-from voxlidar.errors import InputError
-from voxlidar.scene import Scene
 
-from clsim.scenes import PlotScene, make_plot, merge_voxels, plot_canopy, synthetic_tree_scene, random_tree_params
+from clsim.scenes import PlotScene, make_plot, merge_voxels, plot_canopy, random_tree_params, synthetic_tree_scene
 from clsim.sensor import Sensor
 from clsim.transport.bricks import BRICK, build_bricks
 from clsim.transport.setup import prepare_run
+from voxlidar.errors import InputError
+from voxlidar.scene import Scene
 
 H = 0.5                      # voxel size of the test plots, m
 

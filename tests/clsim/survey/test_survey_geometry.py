@@ -7,16 +7,15 @@ from __future__ import annotations
 import math
 import re
 import time
-from pathlib import Path
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pytest
-from voxlidar.errors import VoxlidarError
 
 from clsim import InputError, Sensor, list_presets
-from clsim.survey import (Leg, ScanPattern, Trajectory, plot_footprints, survey_pulses,
-                          typical_flight)
+from clsim.survey import Leg, ScanPattern, Trajectory, plot_footprints, survey_pulses, typical_flight
+from voxlidar.errors import VoxlidarError
 
 H = 500.0           # flying height, m
 V = 50.0            # speed, m/s

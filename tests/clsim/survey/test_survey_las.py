@@ -17,8 +17,16 @@ import pytest
 from clsim import Sensor
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS as C
-from clsim.survey import (ScanPattern, SurveyLas, Trajectory, plot_point_cloud, plot_radargram,
-                          read_survey_las, survey_pulses, write_survey_las)
+from clsim.survey import (
+    ScanPattern,
+    SurveyLas,
+    Trajectory,
+    plot_point_cloud,
+    plot_radargram,
+    read_survey_las,
+    survey_pulses,
+    write_survey_las,
+)
 from clsim.waveforms.io import read_las_waveforms
 from voxlidar.errors import VoxlidarError
 

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from clsim.validation import testscenes
 from clsim.sensor import C_M_PER_NS, Sensor
 from clsim.transport.reference import ReferenceSimulator
+from clsim.validation import testscenes
 
 U, H, BASE = 1.0, 2.0, 2.0
 RHO_L, RHO_G = 0.45, 0.30

@@ -49,9 +49,7 @@ def test_gpu_energies_agree_with_a_cpu_runtime(gpu_and_cpu):
 
 def test_gpu_tracer_fixed_point_sums_match_float64(gpu_and_cpu):
     from tlsvox.voxel.grid import VoxelGrid
-    from tlsvox.voxel.trace import Beams, Tracer
-
-    from tlsvox.voxel.trace import FIELDS
+    from tlsvox.voxel.trace import FIELDS, Beams, Tracer
 
     rng = np.random.default_rng(3)
     n = 200_000

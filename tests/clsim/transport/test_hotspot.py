@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from clsim.validation import testscenes
-from clsim.validation.meshref import MeshReferenceSimulator
 from clsim.sensor import Sensor
 from clsim.transport.reference import ReferenceSimulator
+from clsim.validation import testscenes
+from clsim.validation.meshref import MeshReferenceSimulator
 from tlsvox.truth.synthetic import make_leaf_slab
 
 U, H, BASE = 1.0, 2.0, 2.0

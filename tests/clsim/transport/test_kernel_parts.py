@@ -9,14 +9,14 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from clsim.validation import testscenes
-from clsim.transport.bricks import build_bricks, extinction
 from clsim.cli.simulate import register
 from clsim.errors import DeviceError, InputError
-from clsim.transport.rng import philox4x32_10, uniforms
 from clsim.sensor import Sensor, list_presets
+from clsim.transport.bricks import build_bricks, extinction
+from clsim.transport.rng import philox4x32_10, uniforms
 from clsim.transport.setup import PARAMS_DTYPE
 from clsim.transport.simulator import Simulator, build_options
+from clsim.validation import testscenes
 from clsim.waveform import digitize, fine_edges, pulse_kernel
 
 
@@ -125,11 +125,11 @@ def test_bricks_hold_every_voxel():
     g = build_bricks(scene)
     lad, sw, _ = extinction(scene)
     B = g.brick
-    for (i, j, k), l, w in zip(scene.ijk, lad, sw):
+    for (i, j, k), lv, w in zip(scene.ijk, lad, sw):
         b = np.array([i, j, k]) // B
         slot = g.index[b[0] + g.brick_shape[0] * (b[1] + g.brick_shape[1] * b[2])]
         row = slot * B**3 + i % B + B * (j % B + B * (k % B))
-        assert g.pool[row, 0] == np.float32(l) and g.pool[row, 1] == np.float32(w)
+        assert g.pool[row, 0] == np.float32(lv) and g.pool[row, 1] == np.float32(w)
     assert sw[0] == pytest.approx(-np.log(0.7) / 0.5)
     assert (g.index >= 0).sum() == g.n_bricks
     assert g.pool[:, 0].sum() == pytest.approx(lad.sum(), rel=1e-6)

@@ -15,11 +15,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clsim.validation import testscenes
 from clsim.errors import DeviceError, InputError
 from clsim.sensor import Sensor
-from clsim.transport.simulator import Simulator
 from clsim.transport.reference import ReferenceSimulator
+from clsim.transport.simulator import Simulator
+from clsim.validation import testscenes
 
 SENSOR = Sensor.preset("ahab-chiroptera-i", fov_mrad=3.0)
 FATES = ("escaped_up", "escaped_down", "absorbed", "truncated", "rr_killed")

@@ -14,7 +14,7 @@ import pytest
 
 from clsim.errors import InputError
 from clsim.sensor import Sensor
-from clsim.transport.reference import leaf_avg_f, lattice_unit
+from clsim.transport.reference import lattice_unit, leaf_avg_f
 from clsim.transport.rng import philox4x32_10, split_seed
 from clsim.transport.setup import QMC_STEP, qmc_shift
 from clsim.transport.simulator import FEATURES, Simulator

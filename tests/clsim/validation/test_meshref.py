@@ -14,8 +14,8 @@ and the fraction of photons reaching the ground unscattered is exp(-G u H).
 import numpy as np
 import pytest
 
-from clsim.validation.meshref import MeshReferenceSimulator
 from clsim.sensor import Sensor
+from clsim.validation.meshref import MeshReferenceSimulator
 from tlsvox.truth.synthetic import make_leaf_slab
 
 U, H, G = 1.0, 1.0, 0.5

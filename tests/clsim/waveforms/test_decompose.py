@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clsim.waveforms.decompose import decompose, deconvolve, detect_peaks, echo_positions, gaussian_sum
 from clsim.errors import InputError
+from clsim.waveforms.decompose import decompose, deconvolve, detect_peaks, echo_positions, gaussian_sum
 
 ROOT = Path(__file__).resolve().parents[3]
 

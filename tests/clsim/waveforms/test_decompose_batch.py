@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter1d
 
+from clsim.errors import DeviceError, InputError
 from clsim.waveforms.decompose import EchoTable, decompose, decompose_batch, gaussian_sum
 from clsim.waveforms.decompose._batch_cl import device_fitter
 from clsim.waveforms.decompose._batch_fit import fit_group
 from clsim.waveforms.decompose._matched import Pulse, filter_output
-from clsim.errors import DeviceError, InputError
 
 TRUE = dict(a=np.array([120.0, 45.0, 80.0]), m=np.array([30.0, 41.5, 70.0]),
             s=np.array([2.2, 3.0, 2.5]), b=12.0)

@@ -10,9 +10,8 @@ import pytest
 
 from clsim.waveforms.decompose import decompose_batch, gaussian_sum
 from clsim.waveforms.decompose._batch import _pad
-from clsim.waveforms.decompose._batch_detect import (_batch_pulse, _rice, candidates_numpy,
-                                                     noise_stats_numpy)
 from clsim.waveforms.decompose._batch_cl import device_fitter
+from clsim.waveforms.decompose._batch_detect import _batch_pulse, _rice, candidates_numpy, noise_stats_numpy
 from clsim.waveforms.decompose._matched import Pulse
 
 

@@ -6,8 +6,15 @@ import numpy as np
 import pytest
 
 from clsim.errors import InputError
-from clsim.waveforms.metrics import (C_HALF_M_PER_NS, align_on_ground, canopy_ground_ratio,
-                           compare_waveforms, ground_peak_ns, pearson_r, relative_heights)
+from clsim.waveforms.metrics import (
+    C_HALF_M_PER_NS,
+    align_on_ground,
+    canopy_ground_ratio,
+    compare_waveforms,
+    ground_peak_ns,
+    pearson_r,
+    relative_heights,
+)
 
 
 def g(t, a, m, s):

@@ -7,8 +7,13 @@ import numpy as np
 import pytest
 
 from clsim.errors import InputError
-from clsim.waveforms.pointing import (angle_between_deg, fit_pulse_directions, off_nadir_deg,
-                            pointing_from_xyzt, pulse_ids_from_gps_time)
+from clsim.waveforms.pointing import (
+    angle_between_deg,
+    fit_pulse_directions,
+    off_nadir_deg,
+    pointing_from_xyzt,
+    pulse_ids_from_gps_time,
+)
 
 
 def test_line_fit_recovers_direction_within_0_1_deg(rng):

@@ -5,11 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlsvox.classify import (PointClass, classify_scan, fit_gaussians, fit_two_gaussians, incidence_cosine, isolated,
-                             leaf_wood_threshold, linearity, neighbourhood_mean, refine_geometric, score)
+from tlsvox.classify import (
+    PointClass,
+    classify_scan,
+    fit_gaussians,
+    fit_two_gaussians,
+    incidence_cosine,
+    isolated,
+    leaf_wood_threshold,
+    linearity,
+    neighbourhood_mean,
+    refine_geometric,
+    score,
+)
 from tlsvox.errors import InputError
-from voxlidar.materials import Material
 from tlsvox.scan import Scan
+from voxlidar.materials import Material
 
 
 def test_em_recovers_a_known_mixture(rng):
@@ -191,7 +202,8 @@ def test_classify_synthetic_scan_against_truth(synthetic_scan):
     assert sp.recall["leaf"] <= above + 1e-12
     # default (neighbourhood-mean dB, fit on full hits, geometric noise).  Measured on this
     # seeded scan (tree seed 3, scan seed 2, 0.12 deg, 10 m): leaf P 0.922 R 0.969, wood P 0.916
-    # R 0.797 (two Gaussians: the same but wood P 0.917); asserted 0.025 below (library versions: KD-tree ties, Open3D RANSAC ground).
+    # R 0.797 (two Gaussians: the same but wood P 0.917); asserted 0.025 below (library versions:
+    # KD-tree ties, Open3D RANSAC ground).
     assert sd.precision["leaf"] >= 0.90 and sd.recall["leaf"] >= 0.94
     assert sd.precision["wood"] >= 0.89 and sd.recall["wood"] >= 0.77
     # it beats the paper's rule on both classes (F1: paper leaf 0.33, wood 0.77)

@@ -13,10 +13,21 @@ import numpy as np
 import pytest
 
 from tlsvox.errors import InputError
-from tlsvox.register import (RegistrationError, coincidence, detect_targets, global_fpfh,
-                             match_targets, pose_error, read_transforms, register_pair,
-                             register_scans, rigid_fit, rotation_about_z,
-                             true_relative_transform, write_registered)
+from tlsvox.register import (
+    RegistrationError,
+    coincidence,
+    detect_targets,
+    global_fpfh,
+    match_targets,
+    pose_error,
+    read_transforms,
+    register_pair,
+    register_scans,
+    rigid_fit,
+    rotation_about_z,
+    true_relative_transform,
+    write_registered,
+)
 from tlsvox.scan import Scan
 
 LAYOUT = np.array([[6.0, 2.0, 0.5], [-5.0, 4.0, 0.9], [2.0, -6.5, 0.4], [-3.0, -5.0, 1.3]])

@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 import pytest
+from test_register import P_A, P_B, pose, toy_scan  # noqa: E402 - test helpers
 
 from tlsvox.cli.app import main
 from tlsvox.register import pose_error, true_relative_transform
 from tlsvox.scan import Scan
-from test_register import P_A, P_B, pose, toy_scan  # noqa: E402 - test helpers
 
 
 def run(argv):

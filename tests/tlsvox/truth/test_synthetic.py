@@ -168,8 +168,8 @@ def test_solid_wood_voxels_are_the_centres_inside_the_cylinders():
 def test_bark_direction_of_a_cylinder_and_of_isotropic_facets(rng):
     """An 8-sided cylinder's normals are all across its axis: beta = 1, the axis found;
     a fine sphere's normals are isotropic: beta ~ 0 (a polyhedron's, up to its facets)."""
-    from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
     from tlsvox.truth._mesh import cylinders_mesh
+    from tlsvox.truth.meshtruth import bark_direction, normal_moments_per_voxel
 
     a = np.array([0.3, 0.4, 0.2])
     d = np.array([0.2, -0.3, 0.93])

@@ -8,13 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.tlsvox.voxel.test_voxlad import box_scans  # noqa: F401  (fixture)
 from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.voxel.trace import FIELDS, Beams, EchoKind, Tracer, echo_rows, fixed_point_scale
 from tlsvox.voxel.voxlad import Layout, memory_plan, voxelize
-
-from tests.tlsvox.voxel.test_voxlad import box_scans  # noqa: F401  (fixture)
 
 
 def _beams(rng, n=6000):
@@ -182,7 +181,8 @@ def test_memory_plan_chooses_and_explains(box_scans, tracer):  # noqa: F811
     assert "hold echoes" in plan.describe()
     roomy = with_allocator(plan.beams + plan.echoes + plan.sparse) + 1024  # the sparse run fits, the dense not
     assert memory_plan(grid, beams, tracer, max_bytes=roomy).layout is Layout.SPARSE
-    with pytest.raises(InputError, match=r"tracing and estimating with the dense layout need .* but only .* is available; use layout='sparse'"):
+    with pytest.raises(InputError, match=r"tracing and estimating with the dense layout need .* but only .* is "
+                                         r"available; use layout='sparse'"):
         memory_plan(grid, beams, tracer, layout="dense", max_bytes=roomy)
     with pytest.raises(InputError, match="voxel_size of at least"):
         memory_plan(grid, beams, tracer, max_bytes=1024)

@@ -13,8 +13,8 @@ import pytest
 from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, Flag, estimate_lad
 from tlsvox.voxel.grid import VoxelGrid
-from voxlidar.leafangle import LeafAngle
 from tlsvox.voxel.trace import Beams, EchoKind, trace
+from voxlidar.leafangle import LeafAngle
 
 
 def _slab_beams(rng, grid, n, rate, *, axis=0, g=1.0, first=0.0):

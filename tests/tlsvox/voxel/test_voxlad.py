@@ -8,10 +8,10 @@ import pytest
 
 from tlsvox.cli.voxelize import main as cli_main
 from tlsvox.errors import InputError
-from voxlidar.materials import Material
 from tlsvox.scan import PulseTable, Scan
-from voxlidar.scene import Scene
 from tlsvox.voxel.voxlad import score_lad, voxelize
+from voxlidar.materials import Material
+from voxlidar.scene import Scene
 
 BOX_LO = np.array([-1.0, -1.0, 1.0])
 BOX_HI = np.array([1.0, 1.0, 3.0])

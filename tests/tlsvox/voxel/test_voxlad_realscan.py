@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlsvox.voxel.pulses import group_pulses, reconstruct_empty_pulses, rotation_from_rpy
 from tlsvox.scan import AngularGrid, Scan
+from tlsvox.voxel.pulses import group_pulses, reconstruct_empty_pulses, rotation_from_rpy
 from tlsvox.voxel.voxlad import voxelize
 
 GRID = AngularGrid(30.0, 0.048, 2082, 0.0, 0.622, 580)
