@@ -20,8 +20,10 @@ result buffer, each group's results read back while the next computes; two
 chunks are in flight at once (threads), so one chunk's host steps overlap the
 other's kernels. Without a device, everything is vectorised in NumPy (:mod:`._batch_detect`, :mod:`._batch_fit`).
 
-Differences from :func:`decompose`, for speed: one pulse for the whole batch
-(default: the 20th percentile of the widths of the strongest echoes), no
+Differences from :func:`decompose`, for speed: one pulse for the whole call
+(default: the 20th percentile of the widths of every waveform's strongest echo,
+taken before the waveforms are split into chunks, so that no result depends on
+``chunk`` or on the input's order), no
 terraces but shoulders (minima of the smoothed curvature), a residual feature
 tested for resolution from its start values (no lone fit), a rejected one ends
 the search unless it was unresolved (at most 3 unresolved ones are passed over
@@ -182,13 +184,26 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
     else:
         pl = None
     step = max(1, int(chunk))
+    starts = range(0, n_all, step)
+    n_pad = y_all.shape[1]
+    # every waveform's result depends on itself and on what the whole call shares (the
+    # pulse, the cap on echoes), never on its chunk: both are set here from all waveforms
+    k_cap = max(1, min(int(max_components), int((n_pad - 2) // 3)))
+    stats = {}
+    if pl is None:
+        widths = []
+        for lo in starts:
+            det, ns = _noise_stats(y_all, len_all, lo, min(n_all, lo + step), saturation, fitter, k_cap)
+            widths.append(ns.width)
+            stats[lo] = det, ns  # each chunk goes on from its statistics (and its samples on the device)
+        pl = Pulse.gaussian(float(np.clip(_batch_pulse(np.concatenate(widths) if widths else np.zeros(0)),
+                                          0.7, max(0.7, n_pad / 8.0))))
 
     def one(lo):
         hi = min(n_all, lo + step)
-        return _decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl, fa,
-                                saturation, int(max_components), add_components, fitter)
+        return _decompose_chunk(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], pl, fa, saturation, k_cap,
+                                add_components, fitter, stats.pop(lo, None))
 
-    starts = range(0, n_all, step)
     if fitter is None or len(starts) < 2:
         parts = [one(lo) for lo in starts]
     else:
@@ -201,20 +216,29 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
     return _table(parts, t0, dt)
 
 
-def _decompose_chunk(y, lengths, pl, fa, saturation, k_max, add_components, device):
+def _noise_stats(y_all, len_all, lo, hi, saturation, device, k_cap):
+    """The first detection step of rows ``lo:hi``: ``(bound detector, stats)`` on the device
+    when the chunk's detection runs there (its samples stay there), else ``(None, stats)``."""
+    y, lengths = y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi]
+    if device is not None and k_cap <= MAX_CANDIDATES:
+        det = device.detector.bind(y, lengths)
+        return det, det.noise_stats(saturation)
+    return None, noise_stats_numpy(y, lengths, saturation)
+
+
+def _decompose_chunk(y, lengths, pl, fa, saturation, k_cap, add_components, device, pre=None):
     n_rows, n = y.shape
     rows = np.arange(n_rows)
-    k_cap = max(1, min(k_max, int((n - 2) // 3)))
-    # detection on the device (its samples then stay there for the fits), else NumPy
-    det = None
-    if device is not None and k_cap <= MAX_CANDIDATES:
+    # detection on the device (its samples then stay there for the fits), else NumPy;
+    # ``pre``: the first step already run while the call's pulse was estimated
+    if pre is not None:
+        det, ns = pre
+    elif device is not None and k_cap <= MAX_CANDIDATES:
         det = device.detector.bind(y, lengths)
         ns = det.noise_stats(saturation)
     else:
-        ns = noise_stats_numpy(y, lengths, saturation)
+        det, ns = None, noise_stats_numpy(y, lengths, saturation)
     b, sigma, use, cens = ns.b, ns.sigma, ns.use, ns.cens
-    if pl is None:
-        pl = Pulse.gaussian(float(np.clip(_batch_pulse(ns.width), 0.7, max(0.7, n / 8.0))))
     u = _rice(ns.n_valid, pl, fa)
     level = u * sigma / pl.norm
     if det is not None:
