@@ -129,7 +129,7 @@ def main(argv=None):
     if args.threshold_only:
         return
     from tlsvox.truth.scanner import ScannerPreset
-    from tlsvox.voxel.voxlad import score_lad, voxelize
+    from tlsvox.voxel.stages import score_lad, voxelize
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
@@ -203,8 +203,8 @@ def _oak_scans(azimuth, sigma, threshold, unclump=None, seed=1):
 
 def threshold_table(args):
     """The default oak and the most random one at -20 dB, with and without the detection model."""
+    from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
     load0 = os.getloadavg()
     t_all = time.perf_counter()
     tracer = Tracer()
@@ -283,7 +283,7 @@ def _truth(tree, res):
 def _score(tree, res, lad=None, occluded=None, truth=None):
     """Total and seen-voxel leaf area against the mesh (score_lad dicts); ``lad``,
     ``occluded`` and ``truth`` (:func:`_truth`) default to the result's."""
-    from tlsvox.voxel.voxlad import score_lad
+    from tlsvox.voxel.stages import score_lad
 
     g = res.grid
     truth = _truth(tree, res) if truth is None else truth
@@ -303,7 +303,7 @@ def _subvoxel_ratio(scans, res, azimuth, tracer):
     sums), children at half the voxel size (the heterogeneity inside a voxel that the turbid
     estimate averages away); k = 1 where fewer than 2 children are seen."""
     from tlsvox.voxel.estimators import safe_divide
-    from tlsvox.voxel.voxlad import voxelize
+    from tlsvox.voxel.stages import voxelize
 
     g2 = res.grid
     h = g2.voxel_size / 2
@@ -327,8 +327,8 @@ def _subvoxel_ratio(scans, res, azimuth, tracer):
 def area_table(args):
     """What is left at the floor, term by term, and the filled totals at -20 dB with the detection model."""
     from tlsvox.voxel.estimators import estimate_lad
+    from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
 
     load0 = os.getloadavg()
     t_all = time.perf_counter()
@@ -480,7 +480,7 @@ def _classified_area(tree, scans, labels, azimuth, tracer, iterations):
     """The refinement and mixture tables' row: the echoes ``labels`` get wrong (bark labelled leaf, leaves
     labelled other) and the leaf area they give (total and seen-voxel scores) at 20 cm, -20 dB settings,
     ``undetected='model'``, ``fill='calibrated'``."""
-    from tlsvox.voxel.voxlad import voxelize
+    from tlsvox.voxel.stages import voxelize
 
     bark, leaves = (sum(int(e.sum()) for e in errors) for errors in _label_errors(scans, labels))
     res = voxelize(scans, voxel_size=0.2, classes=labels, class_codes="pointclass", leaf_angle="uniform",
@@ -492,8 +492,8 @@ def _classified_area(tree, scans, labels, azimuth, tracer, iterations):
 def classes_table(args):
     """The default oak (seed 1) with the classifier's labels, the true ones, and each error alone."""
     from tlsvox.classify import PointClass
+    from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
     from voxlidar.materials import Material
 
     load0 = os.getloadavg()
@@ -549,8 +549,8 @@ def _fill_oaks():
 
 def fill_table(args):
     """The neighbourhood and calibrated fills on four oaks (two held out), -20 dB, detection model."""
+    from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
 
     load0 = os.getloadavg()
     t_all = time.perf_counter()

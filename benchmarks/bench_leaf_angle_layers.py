@@ -80,8 +80,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     from tlsvox.leafangles import measure_leaf_angles
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
+    from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
     from voxlidar.leafangle import LeafAngle
 
     load0 = os.getloadavg()

@@ -61,7 +61,7 @@ def child(cache: str, h: float, layout: str, fill: str, lad_h: float | None = No
     import resource
 
     from tlsvox.errors import InputError
-    from tlsvox.voxel.voxlad import voxelize
+    from tlsvox.voxel.stages import voxelize
 
     def rss_gib():
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2

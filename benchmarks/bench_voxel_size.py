@@ -21,8 +21,8 @@ from _bench import write_section
 
 from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, estimate_lad
+from tlsvox.voxel.stages import score_lad, voxelize
 from tlsvox.voxel.trace import Tracer
-from tlsvox.voxel.voxlad import score_lad, voxelize
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -19,7 +19,7 @@ import numpy as np
 from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.estimators import Estimator, estimate_lad
 from tlsvox.voxel.pulses import rotation_from_rpy
-from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.stages import voxelize
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("VOXLIDAR_SHARED_DATA", ROOT.parent / "shared" / "data"))

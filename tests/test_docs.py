@@ -66,3 +66,18 @@ def test_tutorial_guide_runs(tmp_path):
     run_page(ROOT / "docs" / "guide.md", tmp_path)
     for name in ("oak.ply", "scan1.laz", "scan2.laz"):
         assert (tmp_path / "out" / name).stat().st_size > 0, name
+
+
+@pytest.mark.slow
+def test_tutorial_own_scans_runs(tmp_path):
+    run_page(ROOT / "docs" / "tutorials" / "own_scans.md", tmp_path)
+    for name in ("merged.transforms.json", "scene.npz", "scene.vox", "scene.png"):
+        assert (tmp_path / "out" / "mine" / name).stat().st_size > 0, name
+
+
+@pytest.mark.slow
+def test_tutorial_survey_plot_runs(tmp_path):
+    run_page(ROOT / "docs" / "tutorials" / "survey_plot.md", tmp_path)
+    for name in ("tutorial-plot.png", "tutorial-plot-survey/survey.las", "tutorial-radargram.png",
+                 "tutorial-points.png"):
+        assert (tmp_path / "out" / name).stat().st_size > 0, name

@@ -187,7 +187,7 @@ def test_voxelize_strict_fails_on_a_quality_warning(files, tmp_path, monkeypatch
     """Warnings go to stderr; with --strict the command fails and writes nothing."""
     import importlib
 
-    vx = importlib.import_module("tlsvox.voxel.voxlad")  # the module (tlsvox.voxel.voxlad is also a function)
+    vx = importlib.import_module("tlsvox.voxel.stages")  # the module (tlsvox.voxel.stages is also a function)
 
     out = tmp_path / "scene.npz"
     argv = ["voxelize", str(files / "s1.laz"), str(files / "s2.laz"), "-o", str(out), "--voxel-size", "0.5", "-q"]

@@ -11,7 +11,8 @@ from tlsvox.leafangles import measure_leaf_angles
 from tlsvox.register import RegistrationError, register_pair, register_scans
 from tlsvox.voxel.estimators import Estimator
 from tlsvox.voxel.grid import VoxelGrid
-from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.settings import VoxelizeSettings
+from tlsvox.voxel.stages import voxelize
 from tlsvox.voxel.weights import EchoWeights
 from voxlidar import __version__  # one version for the distribution (pyproject.toml)
 from voxlidar.leafangle import LeafAngle, LeafAngleKind
@@ -54,6 +55,7 @@ __all__ = [
     "EchoWeights",
     "VoxelGrid",
     "voxelize",
+    "VoxelizeSettings",
     "InputError",
     "LeafAngle",
     "LeafAngleKind",

@@ -3,7 +3,7 @@
 register (targets, else FPFH + ICP) -> classify (leaf / wood / ground / noise)
 -> cylinders fitted to the wood echoes (:mod:`tlsvox.qsm`; leaf-classed echoes
 on their bark relabelled wood) -> beam tracing and LAD estimation
-(:func:`tlsvox.voxel.voxlad`) -> the cylinders fill solid wood voxels -> Scene.
+(:func:`tlsvox.voxel.stages`) -> the cylinders fill solid wood voxels -> Scene.
 
 Georeferencing: registration puts every scan in the reference scan's frame.
 To place the scene in the world (the airborne frame) the reference scan needs
@@ -68,7 +68,7 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
         ``true``: the reference scan (the first) takes its ``pose_true``
         (simulated scans); ``none``: the scene stays in the first scan's frame.
     register_kwargs, voxelize_kwargs : dict, optional
-        Passed to :func:`tlsvox.register.register_scans` and :func:`tlsvox.voxel.voxlad`.
+        Passed to :func:`tlsvox.register.register_scans` and :func:`tlsvox.voxel.stages`.
     qsm : bool
         Fit cylinders to the wood-classified echoes (:func:`tlsvox.qsm.fit_cylinders`)
         and fill solid wood voxels from them (:func:`tlsvox.qsm.apply_cylinders`);
@@ -91,7 +91,7 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
     """
     from tlsvox.classify import classify_scan
     from tlsvox.register import register_scans
-    from tlsvox.voxel.voxlad import voxelize
+    from tlsvox.voxel.stages import voxelize
 
     scans = list(scans)
     if len(scans) < 1:

@@ -538,7 +538,7 @@ def bark_echoes(scans, model: CylinderModel, classes=None, *, class_codes: str =
     model : CylinderModel
         Cylinders fitted to the same scans' wood echoes (:func:`fit_cylinders`).
     classes, class_codes
-        As :func:`tlsvox.voxel.voxlad.voxelize`'s: one label array per scan,
+        As :func:`tlsvox.voxel.stages.voxelize`'s: one label array per scan,
         default each scan's own classification, else its truth material.
     tolerance : float, optional
         Half-width of the bark band, m (default per cylinder, above).
@@ -561,8 +561,8 @@ def bark_echoes(scans, model: CylinderModel, classes=None, *, class_codes: str =
     >>> bark_echoes([scan], m, [labels])[0].tolist()
     [False, False, True, False]
     """
+    from tlsvox.voxel.stages import _kinds_for
     from tlsvox.voxel.trace import EchoKind
-    from tlsvox.voxel.voxlad import _kinds_for
 
     scans = list(scans)
     classes = [None] * len(scans) if classes is None else list(classes)
@@ -589,13 +589,13 @@ def bark_echoes(scans, model: CylinderModel, classes=None, *, class_codes: str =
 
 
 def wood_points(scans, classes=None, *, class_codes: str = "pointclass") -> np.ndarray:
-    """(N, 3) world positions of the scans' wood echoes, classed as :func:`tlsvox.voxel.voxlad.voxelize` does.
+    """(N, 3) world positions of the scans' wood echoes, classed as :func:`tlsvox.voxel.stages.voxelize` does.
 
     ``classes`` as ``voxelize``'s (default each scan's ``classification``, else
     its ``truth_material``); a scan without a pose is taken in its own frame.
     """
+    from tlsvox.voxel.stages import _kinds_for
     from tlsvox.voxel.trace import EchoKind
-    from tlsvox.voxel.voxlad import _kinds_for
 
     scans = list(scans)
     classes = [None] * len(scans) if classes is None else list(classes)

@@ -23,6 +23,8 @@ import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from clsim.errors import InputError
 from clsim.sensor import list_presets
 from voxlidar.cli import number, numbers
@@ -40,7 +42,8 @@ def register(subparsers) -> None:
                     "resumes: finished batches are kept. Ends with OUT/survey.las (LAS 1.4 waveform "
                     "packets) when the LAS writer is available.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("scene", help="scene file (.npz, voxlidar.scene.Scene.save); every worker loads it")
+    p.add_argument("scene", help="scene file: a voxel scene (.npz, voxlidar.scene.Scene.save), a plot of trees "
+                                 "(clsim.scenes.PlotScene.save) or an AMAPVox .vox; every worker loads it")
     p.add_argument("-o", "--output", required=True, help="output folder (survey.json, batches/, survey.las)")
     p.add_argument("--sensor", default="riegl-lms-q680i",
                    help=f"preset with a [survey] table ({', '.join(list_presets())}) or a .toml file")
@@ -89,18 +92,19 @@ def register(subparsers) -> None:
 
 def line_through(scene, start=None, end=None):
     """(start, end) of the default line: across the scene along x at its middle y."""
-    lo, hi = scene.extent
+    lo = np.asarray(scene.origin, dtype=float)  # a Scene or a PlotScene: the grid's corners
+    hi = lo + scene.voxel_size * np.asarray(scene.shape)
     ym = 0.5 * (lo[1] + hi[1])
     return (start or (float(lo[0]), float(ym))), (end or (float(hi[0]), float(ym)))
 
 
 def cmd_survey(args) -> int:
+    from clsim.scenes import load_scene
     from clsim.sensor import Sensor
     from clsim.survey import ScanPattern, Trajectory, pulse_count, typical_flight
     from clsim.survey.distributed import SurveyJob, load_survey, run_survey
-    from voxlidar.scene import Scene
 
-    scene = Scene.load(args.scene)
+    scene = load_scene(args.scene)  # a voxel scene, a plot of trees (PlotScene.save) or an AMAPVox .vox
     sensor = Sensor.preset(args.sensor)
     overrides = {k: v for k, v in (("pulse_rate_hz", args.pulse_rate), ("scan_rate_hz", args.scan_rate),
                                    ("fov_deg", args.fov)) if v is not None}

@@ -31,6 +31,8 @@ PUBLIC = [
     ("tlsvox.ground", "the ground plane"),
     ("tlsvox.leafangles", "leaf inclination measured from the scans"),
     ("tlsvox.voxel", "the voxel stage"),
+    ("tlsvox.voxel.stages", "the voxel stage's stages, one function each"),
+    ("tlsvox.voxel.settings", "the voxel stage's settings, grouped by stage"),
     ("tlsvox.voxel.airborne", "scenes from airborne pulses"),
     ("tlsvox.voxel.amapvox", "AMAPVox .vox files"),
     ("tlsvox.qsm", "cylinders fitted to the wood"),

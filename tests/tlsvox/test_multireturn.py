@@ -11,7 +11,7 @@ from tlsvox.errors import InputError, ScanFileError
 from tlsvox.io import ScanFormat, read_any, scan_format
 from tlsvox.multireturn import looks_pulse_grouped, pulse_ids_from_time, read_pulse_text
 from tlsvox.scan import Scan
-from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.stages import voxelize
 
 ORIGIN = np.array([100.0, 200.0, 10.0])  # the scanner in the file's coordinates
 

@@ -29,7 +29,7 @@ def pipeline_result(tree_and_scans):
 
 
 def test_pipeline_registers_georeferences_and_voxelises(tree_and_scans, pipeline_result):
-    from tlsvox.voxel.voxlad import voxelize
+    from tlsvox.voxel.stages import voxelize
 
     tree, scans = tree_and_scans
     res = pipeline_result

@@ -31,7 +31,8 @@ TLS_ONLY = {"transforms": "--transforms", "scanner_frame": "--scanner-frame", "a
             "lad_voxel_size": "--lad-voxel-size", "leaf_angle_by_layer": "--leaf-angle-by-layer",
             "leaf_azimuth": "--leaf-azimuth", "wood": "--wood", "layout": "--layout",
             "leaf_reflectance": "--leaf-reflectance", "wood_reflectance": "--wood-reflectance",
-            "detection_threshold_db": "--detection-threshold-db", "plan": "--plan"}
+            "detection_threshold_db": "--detection-threshold-db", "plan": "--plan", "config": "--config",
+            "write_config": "--write-config", "ground_tolerance": "--ground-tolerance"}
 #: LAS point formats that carry a waveform packet.
 WAVEFORM_FORMATS = (4, 5, 9, 10)
 

@@ -70,7 +70,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of the voxelize subcommand."""
     from tlsvox.voxel.detection import Undetected
     from tlsvox.voxel.estimators import Estimator, FillMode
-    from tlsvox.voxel.voxlad import Layout
+    from tlsvox.voxel.stages import Layout
     from tlsvox.voxel.weights import EchoWeights
     from tlsvox.voxel.wood import WoodMethod
     from voxlidar.leafangle import LeafAngleKind, LeafAzimuth
@@ -88,7 +88,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fail (exit 2, nothing written) when a quality gate warns: LAD above 20 m2/m3, "
                         "more than half the voxels occluded, or a poor angular-grid fit")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
-    grid = p.add_argument_group("the grid")
+    p.add_argument("--config", metavar="FILE",
+                   help="settings from a TOML file (groups [grid], [model], [ground], [echoes], [undetected], "
+                        "[poses], as the option groups below) or from a scene .npz a run wrote (its meta records "
+                        "them): repeats that run; a flag given on the command line wins")
+    p.add_argument("--write-config", metavar="FILE", help="also write this run's settings as TOML (for --config)")
+    p.add_argument("--plan", action="store_true",
+                   help="print what the grid will cost in memory for each layout, and exit (writes nothing)")
+    grid = p.add_argument_group("the grid ([grid] in --config)")
     grid.add_argument("--voxel-size", type=float, default=0.2, help="voxel edge in metres (default 0.2)")
     grid.add_argument("--bounds", type=numbers(6),
                       help="xmin,ymin,zmin,xmax,ymax,zmax of the region (default: the vegetation's box); the "
@@ -106,21 +113,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     grid.add_argument("--lad-placement", default="even", choices=["even", "echoes"],
                       help="with --lad-voxel-size: every fine voxel takes its coarse voxel's LAD (even, default), "
                            "or its leaf area shared by the fine voxels' leaf echo weight (echoes)")
-    grid.add_argument("--plan", action="store_true",
-                      help="print what the grid will cost in memory for each layout, and exit (writes nothing)")
-    grid.add_argument("--ground", default=None,
+    ground = p.add_argument_group("the ground ([ground] in --config)")
+    ground.add_argument("--ground", default=None,
                       help="'ransac' (fit the lowest echoes; the default for scans), 'none' (the default for "
                            "airborne files, whose records often end above the ground: every echo is then "
                            "vegetation), or a ground height in metres")
-    model = p.add_argument_group("the leaf and wood model")
+    ground.add_argument("--ground-tolerance", type=float, default=0.15, metavar="METRES",
+                        help="echoes this far above the ground plane stop beams as ground, not leaves (default 0.15)")
+    model = p.add_argument_group("the leaf and wood model ([model] in --config)")
+    steps = p.add_argument_group("steps before the voxels: leaf angles measured, cylinders fitted to the wood")
     model.add_argument("--leaf-angle", default=None, choices=[k.value for k in LeafAngleKind] + ["measured"],
                        help="leaf inclination distribution for G(theta) (default uniform, the paper; the "
                             "summary and the scene say which was used); 'measured': from the leaf echoes' plane "
                             "fits (tlsvox.leafangles), a beta distribution fitted to the whole crown, the per-layer "
                             "histograms kept in the scene's meta")
-    model.add_argument("--leaf-angle-layers", type=int, default=4,
+    steps.add_argument("--leaf-angle-layers", type=int, default=4,
                        help="crown layers of --leaf-angle measured (default 4)")
-    model.add_argument("--leaf-angle-by-layer", action="store_true",
+    steps.add_argument("--leaf-angle-by-layer", action="store_true",
                        help="with --leaf-angle measured: each crown layer's own distribution gives G(theta) in "
                             "its voxels (the scene keeps the whole crown's for the simulator)")
     model.add_argument("--leaf-azimuth", default="uniform", choices=[a.value for a in LeafAzimuth],
@@ -131,12 +140,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                             "with energy echo weights)")
     model.add_argument("--wood", default="count_stretch", choices=[w.value for w in WoodMethod],
                        help="wood model (default count_stretch, the paper)")
-    model.add_argument("--qsm", action="store_true",
+    steps.add_argument("--qsm", action="store_true",
                        help="fit cylinders to the wood echoes (classified scans, or truth material) and fill solid "
                             "wood voxels from them; wood echoes no cylinder explains stay turbid wood "
                             "(docs/voxelize.md, solid wood from fitted cylinders; tlsvox.pipeline does it by default); "
                             "leaf-classed echoes on a cylinder's bark are counted as wood (see --qsm-keep-labels)")
-    model.add_argument("--qsm-keep-labels", action="store_true",
+    steps.add_argument("--qsm-keep-labels", action="store_true",
                        help="with --qsm: keep the scans' leaf labels on the fitted cylinders' bark (by default "
                             "the leaf echoes of classified scans there count as wood; truth materials are kept; "
                             "the files are never changed)")
@@ -152,7 +161,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     model.add_argument("--leaf-size", type=float, default=0.05, help="leaf size in metres for the large-leaf flag")
     model.add_argument("--small-voxel-factor", type=float, default=1.0,
                        help="multiply every LAD (the paper used 0.95; default 1)")
-    weights = p.add_argument_group("echo weights (how echoes share their pulse)")
+    weights = p.add_argument_group("echo weights: how echoes share their pulse ([echoes] in --config)")
     weights.add_argument("--echo-weights", default="auto", choices=[w.value for w in EchoWeights],
                          help="how echoes share their pulse: auto (default: fraction with a beam_fraction column, "
                               "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper)")
@@ -160,7 +169,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                          help="nominal leaf reflectance of a full hit (fraction from reflectance, threshold); "
                               "default the leaf optics at the scanner's wavelength")
     weights.add_argument("--wood-reflectance", type=float, help="nominal bark reflectance of a full hit (fraction)")
-    missed = p.add_argument_group("leaf hits under the detection threshold")
+    missed = p.add_argument_group("leaf hits under the detection threshold ([undetected] in --config)")
     missed.add_argument("--undetected", default="ignore", choices=[u.value for u in Undetected],
                         help="leaf hits under the scanner's detection threshold: ignore (default; LAD biased low) or "
                              "model (give the expected unrecorded interception back; docs/voxelize.md)")
@@ -170,10 +179,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     missed.add_argument("--detection-threshold-db", type=float,
                         help="the scanner's detection threshold, dB of a white target (default: the scan's preset; "
                              "the RIEGL VZ-400: -20)")
-    poses = p.add_argument_group("poses, and the empty pulses of scans without a pulse table")
-    poses.add_argument("--transforms", metavar="JSON",
-                       help="poses from 'tlsvox register' (its .transforms.json); they replace the "
-                            ".pose.json sidecars, matched by scan name")
+    inputs = p.add_argument_group("what the scans are given: poses, the scanner's position in text files")
+    inputs.add_argument("--transforms", metavar="JSON",
+                        help="poses from 'tlsvox register' (its .transforms.json); they replace the "
+                             ".pose.json sidecars, matched by scan name")
+    inputs.add_argument("--scan-origin", type=numbers(3),
+                        help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
+    poses = p.add_argument_group("scans without a pose, and the empty pulses of scans without a pulse table "
+                                 "([poses] in --config)")
     poses.add_argument("--scanner-frame", action="store_true",
                        help="a single scan without pose: use its own frame as the world")
     poses.add_argument("--angular-grid", type=numbers(6),
@@ -181,8 +194,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     poses.add_argument("--scanner-rpy", type=numbers(3),
                        help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
     poses.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
-    poses.add_argument("--scan-origin", type=numbers(3),
-                       help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
     air = p.add_argument_group("airborne full-waveform files (NEON record folders, LAS with waveform packets)")
     air.add_argument("--airborne-echoes", default="waveform", choices=["waveform", "returns"],
                      help="echoes from the waveforms' template decomposition (default) or the LAS file's own "
@@ -257,11 +268,12 @@ def run(args) -> int:
     from tlsvox.scan import AngularGrid, sidecar_paths
     from tlsvox.voxel.amapvox import write_vox
     from tlsvox.voxel.pulses import rotation_from_rpy
+    from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
 
     if any(airborne_kind(path) for path in args.scans):
         return run_airborne(args, _defaults())
+    config = _config_settings(args)  # settings of --config the command line does not set
     args.estimator = args.estimator or "bcmle"
     args.ground = args.ground or "ransac"
     args.n_min = 5 if args.n_min is None else args.n_min
@@ -269,8 +281,8 @@ def run(args) -> int:
         raise InputError(f"--bounds {args.bounds}: give xmin,ymin,zmin,xmax,ymax,zmax with each max above its min")
     check_distinct("scan", args.scans)
     check_outputs([("scan", p) for path in args.scans for p in (path, *sidecar_paths(path))]
-                  + [("--transforms", args.transforms)],
-                  [("-o", args.output), ("--vox", args.vox)])
+                  + [("--transforms", args.transforms), ("--config", args.config)],
+                  [("-o", args.output), ("--vox", args.vox), ("--write-config", args.write_config)])
     if Path(args.output).suffix.lower() != ".npz":
         raise InputError(f"-o {args.output} must end in .npz (the scene file); --vox PATH adds an AMAPVox .vox")
     if args.vox is not None and Path(args.vox).suffix.lower() != ".vox":
@@ -300,7 +312,8 @@ def run(args) -> int:
                    progress=not args.quiet, echo_weights=args.echo_weights, leaf_reflectance=args.leaf_reflectance,
                    wood_reflectance=args.wood_reflectance, undetected=args.undetected,
                    detection_threshold_db=args.detection_threshold_db, leaf_shape=args.leaf_shape,
-                   tracer=Tracer(args.device) if args.device else None)
+                   ground_tolerance=args.ground_tolerance, tracer=Tracer(args.device) if args.device else None)
+    options.update(config)  # the config's settings that no flag sets, and those no flag was given for
     if args.lad_voxel_size is not None:
         from tlsvox.voxel.coarse import ratio_of
 
@@ -330,7 +343,8 @@ def run(args) -> int:
                     s.classification.dtype)
                 relabelled += int(bark.sum())
     measured = None
-    leaf_angle = args.leaf_angle or "uniform"
+    leaf_angle = args.leaf_angle or options.pop("leaf_angle", "uniform")
+    options.pop("leaf_angle", None)
     if args.leaf_angle == "measured":
         from tlsvox.leafangles import measure_leaf_angles
 
@@ -357,10 +371,15 @@ def run(args) -> int:
                           "nothing was written (drop --strict to keep the result)")
     if measured is not None:
         res.scene.meta["leaf_angle_measured"] = measured.to_dict()
-    with staged([args.output, args.vox]) as tmp:  # the scene and its .vox: both or neither
+    with staged([args.output, args.vox, args.write_config]) as tmp:  # the scene, its .vox and settings: all or none
         res.scene.save(tmp[args.output])
         if args.vox:
             write_vox(res.scene, tmp[args.vox])
+        if args.write_config:
+            from tlsvox.voxel.settings import VoxelizeSettings
+
+            Path(tmp[args.write_config]).write_text(VoxelizeSettings.from_dict(res.scene.meta["settings"]).to_toml(),
+                                                    encoding="utf-8")
     if not args.quiet:
         s = res.scene
         summary = {"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,
@@ -382,6 +401,43 @@ def run(args) -> int:
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
     return 0
+
+
+#: settings whose command-line flag gives them in another form (dest: how --config's value becomes it)
+_CLI_FORM = {
+    "bounds": lambda v: None if v is None else [float(x) for row in v for x in row],
+    "angular_grid": lambda v: None if v is None else [v[k] for k in ("zenith_start_deg", "zenith_step_deg", "n_zenith",
+                                                                   "azimuth_start_deg", "azimuth_step_deg",
+                                                                   "n_azimuth")],
+    "ground": lambda v: "none" if v is None else v if isinstance(v, str) else str(v),
+    "leaf_shape": lambda v: [float(x) for x in v],
+}
+
+
+def _config_settings(args) -> dict:
+    """The settings of ``--config`` (a TOML file or a scene NPZ) that the command line does not give.
+
+    A setting with a flag is put on ``args`` where the flag was left at its default; the others (no
+    flag, or a form no flag takes: a leaf-angle table, a rotation matrix, a given ground plane) are
+    returned as voxelize keywords.
+    """
+    if not args.config:
+        return {}
+    from tlsvox.voxel.settings import VoxelizeSettings
+
+    kwargs = VoxelizeSettings.read(args.config).to_kwargs()
+    defaults = _defaults()
+    out = {}
+    for name, value in kwargs.items():
+        dest = "scanner_rpy" if name == "socs_rotation" else name
+        if dest in defaults and getattr(args, dest) != defaults[dest]:
+            continue  # the command line wins
+        if name == "socs_rotation" or (name == "leaf_angle" and not isinstance(value, str)) or (
+                name == "ground" and isinstance(value, dict)) or dest not in defaults:
+            out[name] = value
+        else:
+            setattr(args, dest, _CLI_FORM.get(name, lambda v: v)(value))
+    return out
 
 
 def _defaults() -> dict:

@@ -6,13 +6,15 @@
 - :mod:`tlsvox.voxel.trace`: beam tracing on OpenCL (per-voxel sums);
 - :mod:`tlsvox.voxel.estimators`: LAD estimators on those sums;
 - :mod:`tlsvox.voxel.wood`: wood per voxel;
-- :mod:`tlsvox.voxel.voxlad`: the whole stage, :func:`~tlsvox.voxel.voxlad.voxelize`;
+- :mod:`tlsvox.voxel.stages`: the whole stage as its stages, :func:`~tlsvox.voxel.stages.voxelize`;
+- :mod:`tlsvox.voxel.settings`: its settings, grouped by stage, and their TOML file;
 - :mod:`tlsvox.voxel.amapvox`: AMAPVox ``.vox`` import and export.
 """
 
 from tlsvox.voxel.estimators import Estimator
 from tlsvox.voxel.grid import VoxelGrid
-from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.settings import VoxelizeSettings
+from tlsvox.voxel.stages import voxelize
 from tlsvox.voxel.weights import EchoWeights
 
-__all__ = ["EchoWeights", "Estimator", "VoxelGrid", "voxelize"]
+__all__ = ["EchoWeights", "Estimator", "VoxelGrid", "VoxelizeSettings", "voxelize"]

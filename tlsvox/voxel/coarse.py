@@ -63,15 +63,15 @@ def ratio_of(voxel_size, lad_voxel_size) -> int:
 
 
 def voxelize_coarse_lad(call: dict):
-    """:func:`~tlsvox.voxel.voxlad.voxelize` with ``lad_voxel_size``: the coarse run, the fine run, combined.
+    """:func:`~tlsvox.voxel.stages.voxelize` with ``lad_voxel_size``: the coarse run, the fine run, combined.
 
     ``call`` holds voxelize's arguments.  Returns a VoxelizeResult whose
     ``coarse`` is the coarse run's (its LadEstimate, stats and scene), or the
     larger of the two runs' MemoryPlans with ``plan_only``.
     """
     from tlsvox.scan import Scan
+    from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from tlsvox.voxel.voxlad import voxelize
 
     k = ratio_of(call["voxel_size"], call["lad_voxel_size"])
     placement = _placement(call.pop("lad_placement"))  # before either run
@@ -166,7 +166,7 @@ def _leaf_weights(stats):
 
 def combine(fine, coarse, k: int, placement: str = "even"):
     """The fine run's scene with the coarse run's leaf area placed on it (module docstring)."""
-    from tlsvox.voxel.voxlad import VoxelizeResult, below_ground
+    from tlsvox.voxel.stages import VoxelizeResult, below_ground
     from voxlidar.scene import Scene
 
     placement = _placement(placement)

@@ -51,7 +51,7 @@ The model (``voxelize(undetected="model")``)
    where it happened and no longer as free path behind.
 4. The LAD this needs comes from the estimate itself: the first pass without
    the correction, then ``iterations`` passes, each from the previous
-   estimate (:func:`tlsvox.voxel.voxlad.voxelize`), in which a voxel entered
+   estimate (:func:`tlsvox.voxel.stages.voxelize`), in which a voxel entered
    by less than ``n_min`` pulses' worth of beam weight counts as occluded
    (what reaches it is the leftover of tails, which made it look seen).
 

@@ -20,7 +20,7 @@ A run peaks in one of two phases, and the plan's ``need`` is the larger:
 With several scans of a few hundred thousand voxels the first phase is the
 larger (the synthetic oak's two scans at 20 cm: about 0.9 GiB against
 0.45 GiB, docs/voxelize.md).  The scans themselves (loaded before
-:func:`~tlsvox.voxel.voxlad.voxelize` starts) are not counted.
+:func:`~tlsvox.voxel.stages.voxelize` starts) are not counted.
 """
 
 from __future__ import annotations
@@ -200,7 +200,7 @@ def beams_bytes(beams: Beams) -> int:
 
 
 def build_bytes(beams: Beams) -> int:
-    """Peak bytes while :func:`~tlsvox.voxel.voxlad.voxelize` makes ``beams`` (an estimate with a margin).
+    """Peak bytes while :func:`~tlsvox.voxel.stages.voxelize` makes ``beams`` (an estimate with a margin).
 
     The scans are the runs of ``beams.scan_index`` (one scan without it; two
     scans of the same index in a row count as one, which over-counts).  Each

@@ -12,8 +12,8 @@ from tests.tlsvox.voxel.test_voxlad import box_scans  # noqa: F401  (fixture)
 from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.grid import VoxelGrid
+from tlsvox.voxel.stages import Layout, memory_plan, voxelize
 from tlsvox.voxel.trace import FIELDS, Beams, EchoKind, Tracer, echo_rows, fixed_point_scale
-from tlsvox.voxel.voxlad import Layout, memory_plan, voxelize
 
 
 def _beams(rng, n=6000):
@@ -194,7 +194,7 @@ def test_memory_plan_counts_the_detection_model(box_scans, tracer):  # noqa: F81
     the plan adds them, and a budget that fits the plain run but not the model refuses the model."""
     from tlsvox.voxel.detection import ECHOES_PER_TAIL
     from tlsvox.voxel.pulses import beams_from_scan
-    from tlsvox.voxel.voxlad import undetected_bytes
+    from tlsvox.voxel.stages import undetected_bytes
 
     grid = VoxelGrid.from_bounds([-4, -4, 0], [4, 4, 4], voxel_size=0.1)
     beams = Beams.concat([beams_from_scan(s)[0] for s in box_scans])

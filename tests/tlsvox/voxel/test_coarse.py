@@ -11,7 +11,7 @@ from tests.tlsvox.voxel.test_voxlad import BOX_HI, BOX_LO, LAD, box_scans  # noq
 from tlsvox.errors import InputError
 from tlsvox.voxel.coarse import _cap, opaque_lad, ratio_of
 from tlsvox.voxel.plan import MemoryPlan
-from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.stages import voxelize
 
 KW = dict(leaf_angle="spherical", ground=None, progress=False, bounds=[BOX_LO, BOX_HI])
 

@@ -11,8 +11,8 @@ from tests.tlsvox.voxel.test_voxlad import BOX_HI, BOX_LO, _box_scan
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.voxel.plan import ALLOCATOR_SHARE, Layout, beams_bytes, build_bytes, memory_plan, with_allocator
 from tlsvox.voxel.pulses import beams_from_scan
+from tlsvox.voxel.stages import voxelize
 from tlsvox.voxel.trace import Beams
-from tlsvox.voxel.voxlad import voxelize
 
 #: the plan is an upper bound of the arrays' bytes, and not a loose one
 FACTOR = 1.5

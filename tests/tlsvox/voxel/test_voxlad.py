@@ -9,7 +9,7 @@ import pytest
 from tlsvox.cli.voxelize import main as cli_main
 from tlsvox.errors import InputError
 from tlsvox.scan import PulseTable, Scan
-from tlsvox.voxel.voxlad import score_lad, voxelize
+from tlsvox.voxel.stages import score_lad, voxelize
 from voxlidar.materials import Material
 from voxlidar.scene import Scene
 

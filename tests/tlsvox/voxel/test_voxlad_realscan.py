@@ -12,7 +12,7 @@ import pytest
 
 from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.pulses import group_pulses, reconstruct_empty_pulses, rotation_from_rpy
-from tlsvox.voxel.voxlad import voxelize
+from tlsvox.voxel.stages import voxelize
 
 GRID = AngularGrid(30.0, 0.048, 2082, 0.0, 0.622, 580)
 RPY = (1.026, 0.746, -110.019)
@@ -82,7 +82,7 @@ def test_real_scan_voxelised_at_20cm(real_scan):
 def test_a_wrong_angular_grid_is_flagged(real_scan):
     """An azimuth step 10x too small rebuilds the empty pulses on lines that do not exist:
     the line fit drops and the quality gate says so (it used to pass silently)."""
-    from tlsvox.voxel.voxlad import quality_warnings
+    from tlsvox.voxel.stages import quality_warnings
 
     groups = group_pulses(real_scan)
     wrong = AngularGrid(30.0, 0.048, 2082, 0.0, 0.0622, 5800)

@@ -1,6 +1,9 @@
-"""The VoxLAD pipeline: scans (+ echo classes) -> grid -> trace -> LAD -> wood -> ground -> Scene.
+"""The voxel stage as a pipeline of stages: scans (+ echo classes) -> ground -> grid -> beams -> trace ->
+LAD -> undetected echoes -> wood -> Scene.
 
-:func:`voxelize` takes registered scans (each with a world-from-scanner
+:func:`voxelize` runs the stages in order (each a function of this module, its
+settings a group of :class:`~tlsvox.voxel.settings.VoxelizeSettings`): it takes
+registered scans (each with a world-from-scanner
 pose), turns every pulse into a beam (:mod:`tlsvox.voxel.pulses`), traces them
 through a voxel grid (:mod:`tlsvox.voxel.trace`), estimates leaf area density
 (:mod:`tlsvox.voxel.estimators`) and wood (:mod:`tlsvox.voxel.wood`), finds the ground
@@ -67,13 +70,16 @@ from tlsvox.voxel.pulses import (
     outward_g_table,
 )
 from tlsvox.voxel.quality import LAD_PLAUSIBLE_MAX, LINE_FIT_MIN, OCCLUDED_SHARE_MAX, quality_warnings, score_lad  # noqa: F401
+from tlsvox.voxel.settings import VoxelizeSettings
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
 from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
 from voxlidar.scene import Scene
 
-__all__ = ["Layout", "MemoryPlan", "VoxelizeResult", "memory_plan", "score_lad", "undetected_bytes", "voxelize"]
+__all__ = ["Checked", "Echoes", "Layout", "MemoryPlan", "Projection", "TraceRun", "VoxelizeResult", "build_scene",
+           "check_settings", "estimate", "give_back_undetected", "leaf_projection", "make_beams", "make_grid", "memory_plan",
+           "scene_ground", "score_lad", "undetected_bytes", "voxelize", "world_echoes"]
 
 @dataclass
 class VoxelizeResult:
@@ -108,31 +114,35 @@ def _kinds_for(scan: Scan, classes, class_codes: str) -> np.ndarray:
     raise InputError(f"class_codes={class_codes!r} must be 'pointclass' (tlsvox.classify) or 'material'")
 
 
-def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str = "pointclass",
-             leaf_angle="uniform", leaf_azimuth: str = "uniform", estimator="bcmle",
-             wood="count_stretch", wood_percentile: float = 90.0, ground="ransac",
-             ground_tolerance: float = 0.15, bounds=None, snap: bool = False, margin: float = 0.0, n_min: int = 5,
-             min_explored: float = 0.05, leaf_size: float | None = 0.05, small_voxel_factor: float = 1.0,
-             fill="none", max_range: float | None = None, angular_grid: AngularGrid | None = None,
-             socs_rotation=None, scanner_frame: bool = False, crown_center=None,
-             echo_weights="auto", leaf_reflectance: float | None = None, wood_reflectance: float | None = None,
-             undetected="ignore", detection_threshold_db: float | None = None, leaf_shape=(0.05, 0.025),
-             undetected_iterations: int = 4, layout="auto", tracer: Tracer | None = None, max_bytes: int | None = None,
-             lad_voxel_size: float | None = None, lad_placement: str = "even", progress: bool = True,
-             plan_only: bool = False, leaf_angle_layers=None) -> VoxelizeResult:
-    """Build the voxel scene from registered scans.
+def voxelize(scans, settings: VoxelizeSettings | None = None, *, classes=None, leaf_angle_layers=None,
+             tracer: Tracer | None = None, progress: bool = True, plan_only: bool = False,
+             **kwargs):
+    """Build the voxel scene from registered scans, stage by stage.
+
+    The stages, each a function of this module: :func:`world_echoes` (every
+    echo in the world frame, with its kind), :func:`scene_ground`,
+    :func:`make_grid`, :func:`leaf_projection` (G per beam or per voxel),
+    :func:`make_beams`, then :class:`TraceRun` (the tracer's sums),
+    :func:`estimate` and :func:`give_back_undetected` (the echoes under the
+    detection threshold), and :func:`build_scene` (wood, the stored voxels,
+    the meta).  Their settings come from ``settings``
+    (:class:`~tlsvox.voxel.settings.VoxelizeSettings`, grouped by stage), any
+    of whose fields a keyword argument replaces (``voxelize(scans,
+    voxel_size=0.1)``); ``scene.meta["settings"]`` records them in full.
 
     Parameters
     ----------
     scans : sequence of Scan
         Each with ``pose`` (world-from-scanner) unless ``scanner_frame``.
-    voxel_size : float, metres
+    settings : VoxelizeSettings, optional
+        Every setting below, grouped (default: the defaults).
     classes : sequence of (N_s,) arrays, optional
         Echo classes per scan (``tlsvox.classify`` labels by default, see
         ``class_codes``).  Default: each scan's ``classification`` (a scan
         written by ``tlsvox classify``), else its ``truth_material``
         (simulated), else every echo counted as a leaf (the result is then
         plant area density).
+    voxel_size : float, metres
     class_codes : {"pointclass", "material"}
     leaf_angle : str, dict or LeafAngle
         Leaf inclination model used for G(theta) (default uniform, the paper).
@@ -215,7 +225,9 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     undetected_iterations : int
         Estimates made with the correction, each from the one before (>= 1).
     tracer : Tracer, optional
-        OpenCL tracer to reuse (default: a new one).
+        OpenCL tracer to reuse (default: a new one).  Not a setting (nor
+        ``classes``, ``leaf_angle_layers``, ``progress``, ``plan_only``): what
+        the run is given, not how it runs.
     max_bytes : int, optional
         Memory limit (default: 80 % of what the system has available); the
         plan (:func:`memory_plan`) is checked before tracing.
@@ -245,63 +257,133 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
     -------
     VoxelizeResult (or MemoryPlan with ``plan_only``)
     """
-    if lad_voxel_size is None and str(lad_placement).lower() != "even":
-        raise InputError(f"lad_placement={lad_placement!r} needs lad_voxel_size (it says how the coarse grid's LAD "
+    s = VoxelizeSettings.from_kwargs(settings, **kwargs)
+    g, m = s.grid, s.model
+    if g.lad_voxel_size is None and str(g.lad_placement).lower() != "even":
+        raise InputError(f"lad_placement={g.lad_placement!r} needs lad_voxel_size (it says how the coarse grid's LAD "
                          "goes onto the fine one)")
-    if lad_voxel_size is not None:
-        call = dict(locals())  # every argument, for the fine and the coarse run
+    if g.lad_voxel_size is not None:
         from tlsvox.voxel.coarse import voxelize_coarse_lad
 
-        return voxelize_coarse_lad(call)
+        res = voxelize_coarse_lad(dict(s.to_kwargs(), scans=scans, classes=classes, leaf_angle_layers=leaf_angle_layers,
+                                       tracer=tracer, progress=progress, plan_only=plan_only))
+        if isinstance(res, VoxelizeResult):
+            res.scene.meta["settings"] = s.to_dict()  # the run as asked, not its fine half
+        return res
     timings = {}
     t0 = time.perf_counter()
+    echoes = world_echoes(scans, classes, s)
+    checks = check_settings(echoes.scans, s)
+    plane = scene_ground(echoes, s)
+    timings["prepare"] = time.perf_counter() - t0
+
+    # grid (and the memory it needs, checked before anything large is made)
+    grid = make_grid(echoes, plane, s)
+    layout = Layout.parse(g.layout, "layout")
+    if layout is Layout.SPARSE and checks.fill in DENSE_FILLS:  # known before the beams are built
+        raise InputError(f"fill={checks.fill.value!r} needs the dense layout, but layout='sparse' was given; use "
+                         "fill='layer' (per brick layer in the sparse layout), or layout='dense' where memory allows")
+    projection = leaf_projection(echoes, grid, checks.leaf_angle, checks.azimuth, m.crown_center, leaf_angle_layers)
+    echoes.world = []  # the echoes' world positions: not held through the beams and the trace
+    tracer = tracer or Tracer()
+    if layout is Layout.DENSE and not plan_only:  # before the beams, when the answer is already known
+        grid.check_memory(row_bytes(tracer), max_bytes=g.max_bytes, what="tracing and estimation")
+
+    t1 = time.perf_counter()
+    parts: list | None
+    parts, infos = make_beams(echoes, checks.leaf_angle, s, progress=progress)
+    beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
+    per_scan = checks.fill is FillMode.CALIBRATED  # each scan traced on its own: the fill's calibration
+    if checks.detection is None and not per_scan:
+        parts = None  # the per-scan copies
+    timings["pulses"] = time.perf_counter() - t1
+    if plan_only:
+        return memory_plan(grid, beams, tracer, layout=layout, max_bytes=g.max_bytes, check=False,
+                           undetected=checks.undetected, fill=checks.fill, scans=len(echoes.scans))
+
+    run = TraceRun.start(grid, beams, tracer, layout, checks, projection, len(echoes.scans), s, progress=progress)
+    if per_scan and checks.detection is None:
+        beams = None  # each scan's beams are traced on their own: the joined copy is not needed again
+    t2 = time.perf_counter()
+    stats, scan_stats = run.sums(beams, parts if per_scan else None)
+    timings["trace"] = time.perf_counter() - t2
+
+    t3 = time.perf_counter()
+    lad = estimate(stats, checks.estimator, checks.fill, s, scan_stats=scan_stats)
+    if checks.detection is not None:
+        stats, lad, undetected_meta = give_back_undetected(run, parts, beams, stats, lad, checks, projection, s)
+    else:
+        thr = [(sc.meta.get("preset") or {}).get("min_reflectance_db") for sc in echoes.scans]
+        undetected_meta = {"rule": checks.undetected.value, "detection_threshold_db": thr}
+    parts = beams = scan_stats = None
+    scene, wood_est = build_scene(grid, stats, lad, plane, infos, checks, projection, run.plan, undetected_meta,
+                                  s, timings=timings, t_estimate=t3, t_start=t0)
+    return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
+
+
+@dataclass
+class Echoes:
+    """The scans' echoes in the world frame (:func:`world_echoes`): one entry per scan."""
+
+    scans: list  #: the Scan objects
+    poses: list  #: (4, 4) world-from-scanner
+    world: list  #: (N_s, 3) echo positions, metres (emptied once the grid and G are known)
+    kinds: list  #: (N_s,) EchoKind codes (the ground stage marks ground echoes OTHER)
+
+
+@dataclass
+class Checked:
+    """The run's settings parsed once, before any work (:func:`check_settings`)."""
+
+    estimator: Estimator
+    azimuth: LeafAzimuth
+    weights: EchoWeights
+    undetected: Undetected
+    detection: list | None  #: one DetectionModel per scan with ``undetected="model"``
+    fill: FillMode
+    wood: WoodMethod
+    leaf_angle: LeafAngle
+
+
+@dataclass
+class Projection:
+    """Where the tracer reads G from (:func:`leaf_projection`)."""
+
+    outward: tuple | None  #: (G table, crown centre) for outward-facing leaves, else None
+    g_tables: tuple | None  #: what the tracer reads (None: each beam's own G)
+    g_layer: np.ndarray | None  #: per z-layer of the grid, which leaf-angle layer's table
+    layers: list | None  #: [(z_low, LeafAngle)], lowest first
+    crown_center: object  #: the given or measured crown centre (None: the LAD centroid, later)
+
+
+def world_echoes(scans, classes, settings: VoxelizeSettings) -> Echoes:
+    """Stage 1: each scan checked, its pose found, its echoes put in the world frame with their kinds."""
     if isinstance(scans, Scan):
         scans = [scans]
     scans = list(scans)
     if not scans:
         raise InputError("scans is empty: pass at least one Scan")
-    for s in scans:
-        if not isinstance(s, Scan):
-            raise InputError(f"scans must hold tlsvox Scan objects, got {type(s).__name__}")
+    for sc in scans:
+        if not isinstance(sc, Scan):
+            raise InputError(f"scans must hold tlsvox Scan objects, got {type(sc).__name__}")
     if classes is not None and len(classes) != len(scans):
         raise InputError(f"classes has {len(classes)} entries for {len(scans)} scans: one array per scan")
+    max_range = settings.poses.max_range
     if max_range is not None and not (np.isfinite(max_range) and max_range > 0):
         raise InputError(f"max_range={max_range!r} must be a positive distance in metres (how far empty "
                          "pulses are followed), or None for the scanner's range")
-    est = Estimator.parse(estimator, "estimator")
-    azimuth = LeafAzimuth.parse(leaf_azimuth, "leaf_azimuth")
-    weights = EchoWeights.parse(echo_weights, "echo_weights")
-    for s in scans:
-        resolve_rule(weights, s)  # the inputs the rule needs, checked before any work
-    undetected = Undetected.parse(undetected, "undetected")
-    detection = None
-    if undetected is Undetected.MODEL:
-        shape = np.asarray(leaf_shape, dtype=np.float64).reshape(-1)
-        if shape.shape != (2,):
-            raise InputError(f"leaf_shape={leaf_shape!r} must be (length, width) in metres, e.g. (0.05, 0.025)")
-        if int(undetected_iterations) < 1:
-            raise InputError(f"undetected_iterations={undetected_iterations!r} must be an integer >= 1, e.g. 2")
-        detection = [DetectionModel.for_scan(s, threshold_db=detection_threshold_db,
-                                             leaf_reflectance=leaf_reflectance, leaf_length=shape[0],
-                                             leaf_width=shape[1]) for s in scans]
-    fill = FillMode.parse(fill, "fill")
-    if fill is FillMode.CALIBRATED:
-        check_calibration_scans(len(scans))
-    wood_m = WoodMethod.parse(wood, "wood")
-    la = LeafAngle.from_dict(leaf_angle)
-    layers = _leaf_angle_layers(leaf_angle_layers)
     poses = []
-    for s in scans:
-        if s.pose is not None:
-            poses.append(s.pose)
-        elif scanner_frame and len(scans) == 1:
+    for sc in scans:
+        if sc.pose is not None:
+            poses.append(sc.pose)
+        elif settings.poses.scanner_frame and len(scans) == 1:
             poses.append(np.eye(4))
         else:
             hint = ("; or for a single scan use its own frame (scanner_frame=True, CLI --scanner-frame)"
                     if len(scans) == 1 else "")
-            raise InputError(f"scan {s.name!r} has no pose (world-from-scanner 4x4): register the scans "
+            raise InputError(f"scan {sc.name!r} has no pose (world-from-scanner 4x4): register the scans "
                              f"first (tlsvox register){hint}")
-    world = [s.world_xyz(p) for s, p in zip(scans, poses)]
+    world = [sc.world_xyz(p) for sc, p in zip(scans, poses)]
     if len(world) > 1:
         boxes = [(w.min(axis=0), w.max(axis=0)) for w in world if len(w)]
         for i in range(1, len(boxes)):
@@ -313,27 +395,64 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                     f"(boxes {np.round(boxes[0], 2).tolist()} and {np.round(boxes[i], 2).tolist()}): "
                     "the scans are not co-registered; register them first"
                 )
-    kinds = [_kinds_for(s, None if classes is None else classes[i], class_codes) for i, s in enumerate(scans)]
+    codes = settings.echoes.class_codes
+    kinds = [_kinds_for(sc, None if classes is None else classes[i], codes) for i, sc in enumerate(scans)]
+    return Echoes(scans, poses, world, kinds)
 
-    # ground
+
+def check_settings(scans, settings: VoxelizeSettings) -> Checked:
+    """Every choice of the settings parsed, and the inputs the echo weights need checked, before any work."""
+    m, u = settings.model, settings.undetected
+    est = Estimator.parse(m.estimator, "estimator")
+    azimuth = LeafAzimuth.parse(m.leaf_azimuth, "leaf_azimuth")
+    weights = EchoWeights.parse(settings.echoes.echo_weights, "echo_weights")
+    for sc in scans:
+        resolve_rule(weights, sc)  # the inputs the rule needs, checked before any work
+    undetected = Undetected.parse(u.undetected, "undetected")
+    detection = None
+    if undetected is Undetected.MODEL:
+        shape = np.asarray(u.leaf_shape, dtype=np.float64).reshape(-1)
+        if shape.shape != (2,):
+            raise InputError(f"leaf_shape={u.leaf_shape!r} must be (length, width) in metres, e.g. (0.05, 0.025)")
+        if int(u.undetected_iterations) < 1:
+            raise InputError(f"undetected_iterations={u.undetected_iterations!r} must be an integer >= 1, e.g. 2")
+        detection = [DetectionModel.for_scan(sc, threshold_db=u.detection_threshold_db,
+                                             leaf_reflectance=settings.echoes.leaf_reflectance,
+                                             leaf_length=shape[0], leaf_width=shape[1]) for sc in scans]
+    fill = FillMode.parse(m.fill, "fill")
+    if fill is FillMode.CALIBRATED:
+        check_calibration_scans(len(scans))
+    return Checked(est, azimuth, weights, undetected, detection, fill, WoodMethod.parse(m.wood, "wood"),
+                   LeafAngle.from_dict(m.leaf_angle))
+
+
+def scene_ground(echoes: Echoes, settings: VoxelizeSettings) -> GroundPlane | None:
+    """Stage 2: the ground plane (fitted, given or none); echoes within ``ground_tolerance`` above it stop
+    beams as ground (their kind becomes OTHER), not as leaves."""
+    ground = settings.ground.ground
     plane = None
     if isinstance(ground, GroundPlane):
         plane = ground
+    elif isinstance(ground, dict):  # a GroundPlane given through the settings
+        plane = GroundPlane(**{k: tuple(v) if isinstance(v, list | tuple) else v for k, v in ground.items()})
     elif isinstance(ground, str):
         if ground.lower() == "ransac":
-            plane = fit_ground(np.vstack([w[k != EchoKind.IGNORE] for w, k in zip(world, kinds)]))
+            plane = fit_ground(np.vstack([w[k != EchoKind.IGNORE] for w, k in zip(echoes.world, echoes.kinds)]))
         elif ground.lower() != "none":
             raise InputError(f"ground={ground!r} must be 'ransac', 'none', a height in metres or a GroundPlane")
     elif ground is not None:
         plane = GroundPlane.horizontal(float(ground))
     if plane is not None:
-        for w, k in zip(world, kinds):
-            k[ground_mask(w, plane, tolerance=ground_tolerance) & (k == EchoKind.LEAF)] = EchoKind.OTHER
-        del w
-    timings["prepare"] = time.perf_counter() - t0
+        for w, k in zip(echoes.world, echoes.kinds):
+            k[ground_mask(w, plane, tolerance=settings.ground.ground_tolerance) & (k == EchoKind.LEAF)] = EchoKind.OTHER
+    return plane
 
-    # grid (and the memory it needs, checked before anything large is made)
-    if bounds is None:
+
+def make_grid(echoes: Echoes, plane: GroundPlane | None, settings: VoxelizeSettings) -> VoxelGrid:
+    """Stage 3: the voxel grid, over the given bounds or the vegetation echoes' box (down to the ground)."""
+    g = settings.grid
+    voxel_size, world, kinds = g.voxel_size, echoes.world, echoes.kinds
+    if g.bounds is None:
         # the vegetation's box: ground and targets may reach far beyond the trees
         veg = [w[(k == EchoKind.LEAF) | (k == EchoKind.WOOD)] for w, k in zip(world, kinds)]
         pts = np.vstack(veg)
@@ -347,34 +466,33 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
             raise InputError(f"voxel_size={voxel_size:g} m is larger than the vegetation the scans saw ({span:.3g} m "
                              "across): one voxel would hold it all and its LAD would mean nothing; use a voxel size "
                              "well below the crown size (the paper: 0.02-0.5 m)")
-        grid = VoxelGrid.from_bounds(lo, hi, voxel_size=voxel_size, margin=margin)
-        del veg, pts  # copies of the echoes: not held through the run (memory_plan counts on it)
-    else:
-        b = np.asarray(bounds, dtype=np.float64)
-        if b.shape != (2, 3):
-            raise InputError(f"bounds must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got shape {b.shape}")
-        veg = np.vstack([w[(k == EchoKind.LEAF) | (k == EchoKind.WOOD)] for w, k in zip(world, kinds)])
-        inside = np.all((veg >= b[0]) & (veg <= b[1]), axis=1) if len(veg) else np.zeros(0, bool)
-        if len(veg) and not inside.any():
-            raise InputError(f"bounds {b.tolist()} hold none of the {len(veg):,} leaf and wood echoes (they lie within "
-                             f"{veg.min(axis=0).round(2).tolist() if len(veg) else '-'} .. "
-                             f"{veg.max(axis=0).round(2).tolist() if len(veg) else '-'}); check the frame and the "
-                             "numbers")
-        grid = VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=margin, snap=bool(snap))
-        del veg, inside
-    layout = Layout.parse(layout, "layout")
-    if layout is Layout.SPARSE and fill in DENSE_FILLS:  # known before the beams are built
-        raise InputError(f"fill={fill.value!r} needs the dense layout, but layout='sparse' was given; use "
-                         "fill='layer' (per brick layer in the sparse layout), or layout='dense' where memory allows")
+        return VoxelGrid.from_bounds(lo, hi, voxel_size=voxel_size, margin=g.margin)
+    b = np.asarray(g.bounds, dtype=np.float64)
+    if b.shape != (2, 3):
+        raise InputError(f"bounds must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got shape {b.shape}")
+    vxyz = np.vstack([w[(k == EchoKind.LEAF) | (k == EchoKind.WOOD)] for w, k in zip(world, kinds)])
+    inside = np.all((vxyz >= b[0]) & (vxyz <= b[1]), axis=1) if len(vxyz) else np.zeros(0, bool)
+    if len(vxyz) and not inside.any():
+        raise InputError(f"bounds {b.tolist()} hold none of the {len(vxyz):,} leaf and wood echoes (they lie within "
+                         f"{vxyz.min(axis=0).round(2).tolist() if len(vxyz) else '-'} .. "
+                         f"{vxyz.max(axis=0).round(2).tolist() if len(vxyz) else '-'}); check the frame and the "
+                         "numbers")
+    return VoxelGrid.from_bounds(b[0], b[1], voxel_size=voxel_size, margin=g.margin, snap=bool(g.snap))
+
+
+def leaf_projection(echoes: Echoes, grid: VoxelGrid, la: LeafAngle, azimuth: LeafAzimuth, crown_center=None,
+                    leaf_angle_layers=None) -> Projection:
+    """Stage 4: where the tracer reads each beam's G from: the beam's own G(theta) (uniform leaf azimuths),
+    G of outward-facing leaves per voxel, or per crown layer (``leaf_angle_layers``)."""
+    layers = _leaf_angle_layers(leaf_angle_layers)
     outward = None
     if azimuth is LeafAzimuth.OUTWARD:  # G per voxel, from the beam's angle to the leaves' outward direction
         if crown_center is None:
-            leaves = np.vstack([w[k == EchoKind.LEAF, :2] for w, k in zip(world, kinds)])
+            leaves = np.vstack([w[k == EchoKind.LEAF, :2] for w, k in zip(echoes.world, echoes.kinds)])
             # the middle of the leaves' extent: the scans see the near side of the crown best, so the
             # echoes' mean lies off the axis towards the scanners
             crown_center = (0.5 * (np.percentile(leaves, 0.1, axis=0) + np.percentile(leaves, 99.9, axis=0))
                             if len(leaves) else 0.5 * (grid.lower + grid.upper)[:2])
-            del leaves
         outward = (outward_g_table(la), np.asarray(crown_center, dtype=np.float64).reshape(2))
     g_tables, g_layer = outward, None  # what the tracer reads G from (None: each beam's g)
     if layers is not None:
@@ -383,149 +501,178 @@ def voxelize(scans, *, voxel_size: float = 0.2, classes=None, class_codes: str =
                                   side="right").astype(np.int32)
         g_tables = (layer_g_tables([m for _, m in layers], outward=outward is not None),
                     outward[1] if outward is not None else np.zeros(2))
+    return Projection(outward, g_tables, g_layer, layers, crown_center)
 
-    del world  # the echoes' world positions: not held through the beams and the trace
-    tracer = tracer or Tracer()
-    if layout is Layout.DENSE and not plan_only:  # before the beams, when the answer is already known
-        grid.check_memory(row_bytes(tracer), max_bytes=max_bytes,
-                          what="tracing and estimation")
 
-    # beams
-    t1 = time.perf_counter()
+def make_beams(echoes: Echoes, la: LeafAngle, settings: VoxelizeSettings, *, progress: bool = False):
+    """Stage 5: every pulse of every scan as a beam with its echoes and their weights.
+
+    Returns the per-scan :class:`~tlsvox.voxel.beams.Beams` and their info dicts.
+    """
+    p, e = settings.poses, settings.echoes
+    weights = EchoWeights.parse(e.echo_weights, "echo_weights")
+    angular = None if p.angular_grid is None else AngularGrid(**p.angular_grid)
+    rotation = None if p.socs_rotation is None else np.asarray(p.socs_rotation, dtype=np.float64)
     parts, infos = [], []
-    it = list(zip(scans, poses, kinds))
+    it = list(zip(echoes.scans, echoes.poses, echoes.kinds))
     if progress:
         from tqdm.auto import tqdm
 
         it = tqdm(it, desc="pulses", unit="scan", leave=False)
-    for s, p, k in it:
-        part, info = beams_from_scan(s, kinds=k, pose=p, leaf_angle=la, max_range=max_range,
-                                     angular_grid=angular_grid, socs_rotation=socs_rotation,
-                                     echo_weights=weights, leaf_reflectance=leaf_reflectance,
-                                     wood_reflectance=wood_reflectance)
+    for sc, pose, k in it:
+        part, info = beams_from_scan(sc, kinds=k, pose=pose, leaf_angle=la, max_range=p.max_range,
+                                     angular_grid=angular, socs_rotation=rotation, echo_weights=weights,
+                                     leaf_reflectance=e.leaf_reflectance, wood_reflectance=e.wood_reflectance)
         parts.append(part)
         infos.append(info)
-    del part  # else the last scan's beams stay held beside the joined ones
-    beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
-    per_scan = fill is FillMode.CALIBRATED  # each scan traced on its own: the fill's calibration
-    if detection is None and not per_scan:
-        del parts  # the per-scan copies
-    timings["pulses"] = time.perf_counter() - t1
+    return parts, infos
 
-    if plan_only:
-        return memory_plan(grid, beams, tracer, layout=layout, max_bytes=max_bytes, check=False,
-                           undetected=undetected, fill=fill, scans=len(scans))
-    voxels = echo_voxels(grid, beams)
-    plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes, undetected=undetected,
-                       fill=fill, scans=len(scans))
-    if plan.layout is Layout.SPARSE and fill in DENSE_FILLS:
-        raise InputError(f"fill={fill.value!r} needs the dense layout, but this run is sparse ({plan.describe()}); "
-                         "use fill='layer' (per brick layer in the sparse layout), a larger voxel_size, or "
-                         "layout='dense' where memory allows")
-    rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
-    # the sparse rounds of the detection model list the recorded echoes' voxels again, and the given-back ones
-    recorded = grid.flat(voxels) if detection is not None and rows is not None else None
-    del voxels
-    if per_scan and detection is None:
-        beams = None  # each scan's beams are traced on their own: the joined copy is not needed again
 
-    def trace(joined, separate):
+@dataclass
+class TraceRun:
+    """Stage 6: the tracer's set-up for one grid (the memory plan, the sparse rows, G), and its sums."""
+
+    grid: VoxelGrid
+    tracer: Tracer
+    plan: MemoryPlan
+    rows: Bricks | None  #: the sparse layout's rows (None: dense)
+    recorded: np.ndarray | None  #: flat voxels of the recorded echoes (sparse runs with the detection model)
+    projection: Projection
+    max_bytes: int | None
+    progress: bool = False
+
+    @classmethod
+    def start(cls, grid, beams, tracer, layout, checks: Checked, projection: Projection, n_scans: int,
+              settings: VoxelizeSettings, *, progress: bool = False) -> TraceRun:
+        """The memory plan (checked), the layout it chose and, when sparse, the rows of voxels holding echoes."""
+        max_bytes = settings.grid.max_bytes
+        voxels = echo_voxels(grid, beams)
+        plan = memory_plan(grid, beams, tracer, layout=layout, voxels=voxels, max_bytes=max_bytes,
+                           undetected=checks.undetected, fill=checks.fill, scans=n_scans)
+        if plan.layout is Layout.SPARSE and checks.fill in DENSE_FILLS:
+            raise InputError(f"fill={checks.fill.value!r} needs the dense layout, but this run is sparse "
+                             f"({plan.describe()}); use fill='layer' (per brick layer in the sparse layout), a larger "
+                             "voxel_size, or layout='dense' where memory allows")
+        rows = Bricks.from_ijk(grid, voxels) if plan.layout is Layout.SPARSE else None
+        # the sparse rounds of the detection model list the recorded echoes' voxels again, and the given-back ones
+        recorded = grid.flat(voxels) if checks.detection is not None and rows is not None else None
+        return cls(grid, tracer, plan, rows, recorded, projection, max_bytes, progress)
+
+    def sums(self, joined, separate=None):
         """The sums of ``joined``, and each scan's (``separate``) when the fill calibrates on them."""
-        budget = None if max_bytes is None else max_bytes - plan.beams
-        if not per_scan:
-            return tracer.trace(grid, joined, rows=rows, outward=g_tables, g_layer=g_layer, progress=progress,
-                                max_bytes=budget), None
-        own = [tracer.trace(grid, b, rows=rows, outward=g_tables, g_layer=g_layer, progress=progress,
-                            max_bytes=budget)
-               for b in separate]
+        budget = None if self.max_bytes is None else self.max_bytes - self.plan.beams
+        kw = dict(rows=self.rows, outward=self.projection.g_tables, g_layer=self.projection.g_layer,
+                  progress=self.progress, max_bytes=budget)
+        if separate is None:
+            return self.tracer.trace(self.grid, joined, **kw), None
+        own = [self.tracer.trace(self.grid, b, **kw) for b in separate]
         return sum(own[1:], own[0]), own
 
-    t2 = time.perf_counter()
-    stats, scan_stats = trace(beams, parts if per_scan else None)
-    timings["trace"] = time.perf_counter() - t2
 
-    t3 = time.perf_counter()
-    lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
-                       small_voxel_factor=small_voxel_factor, fill=fill, scan_stats=scan_stats)
-    undetected_meta = {"rule": undetected.value}
-    if detection is not None:
-        rounds = []
-        leaf_weight = float(beams.echo_weight[beams.echo_kind == EchoKind.LEAF].sum())
-        for _ in range(int(undetected_iterations)):
-            lookup, box = _lad_lookup(grid, lad, stats)
-            stats = beams = scan_stats = None  # the last round's sums and beams: not needed again (memory_plan)
-            fixed, given, added = [], 0.0, []
-            for part, model in zip(parts, detection):
-                b, info = unrecorded_echoes(part, grid, lookup, model, la, outward=outward, box=box)
-                fixed.append(b)
-                given += info["given_back"]
-                if recorded is not None:
-                    pulse, ranges = info["added"]
-                    added.append(grid.flat(voxels_along(grid, part.origin[pulse], part.direction[pulse], ranges)))
-            del lookup
-            if per_scan:  # traced scan by scan: no joined copy
-                beams = None
-            else:
-                beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
-                del fixed
-            if recorded is not None:  # what echo_voxels(grid, beams) gives, from the given-back echoes alone
-                rows = Bricks.from_ijk(grid, grid.unflat(np.union1d(recorded, np.concatenate(added))))
-            stats, scan_stats = trace(beams, fixed if per_scan else None)
-            fixed = None
-            # a voxel reached only by what the model leaves of pulse tails is not seen: count beams by weight
-            lad = estimate_lad(stats, estimator=est, n_min=n_min, min_explored=min_explored, leaf_size=leaf_size,
-                               small_voxel_factor=small_voxel_factor, fill=fill, weighted_count=True,
-                               scan_stats=scan_stats)
-            rounds.append(round(given / leaf_weight, 5) if leaf_weight > 0 else 0.0)
-        undetected_meta.update(models=[m.to_dict() for m in detection], iterations=int(undetected_iterations),
-                               given_back_share=rounds,
-                               note="given_back_share: unrecorded leaf interception given back, per round, "
-                                    "over the recorded leaf echo weight")
-        del parts
-    else:
-        parts = scan_stats = None
-        thr = [(s.meta.get("preset") or {}).get("min_reflectance_db") for s in scans]
-        undetected_meta["detection_threshold_db"] = thr
-    wood_est = estimate_wood(stats, method=wood_m, percentile=wood_percentile, n_min=n_min)
+def estimate(stats: VoxelStats, estimator: Estimator, fill: FillMode, settings: VoxelizeSettings, *,
+             scan_stats=None, weighted_count: bool = False) -> LadEstimate:
+    """Stage 7: the leaf area density per voxel from the sums, its occlusion flags and fill."""
+    m = settings.model
+    return estimate_lad(stats, estimator=estimator, n_min=m.n_min, min_explored=m.min_explored,
+                        leaf_size=m.leaf_size, small_voxel_factor=m.small_voxel_factor, fill=fill,
+                        weighted_count=weighted_count, scan_stats=scan_stats)
+
+
+def give_back_undetected(run: TraceRun, parts, beams, stats, lad, checks: Checked, projection: Projection,
+                         settings: VoxelizeSettings):
+    """Stage 8 (``undetected="model"``): each pulse's expected unrecorded leaf interception given back as
+    echoes where the current estimate puts it, traced and estimated again, ``undetected_iterations`` times.
+
+    Returns the last round's sums, its estimate and the meta of the correction.
+    """
+    grid = run.grid
+    per_scan = checks.fill is FillMode.CALIBRATED
+    iterations = int(settings.undetected.undetected_iterations)
+    detection = checks.detection or []
+    rounds = []
+    leaf_weight = sum(float(b.echo_weight[b.echo_kind == EchoKind.LEAF].sum()) for b in parts)
+    for _ in range(iterations):
+        lookup, box = _lad_lookup(grid, lad, stats)
+        stats = beams = None  # the last round's sums and beams: not needed again (memory_plan)
+        fixed: list = []
+        given, added = 0.0, []
+        for part, model in zip(parts, detection):
+            b, info = unrecorded_echoes(part, grid, lookup, model, checks.leaf_angle, outward=projection.outward,
+                                        box=box)
+            fixed.append(b)
+            given += info["given_back"]
+            if run.recorded is not None:
+                pulse, ranges = info["added"]
+                added.append(grid.flat(voxels_along(grid, part.origin[pulse], part.direction[pulse], ranges)))
+        del lookup
+        if not per_scan:  # traced scan by scan: no joined copy
+            beams = fixed[0] if len(fixed) == 1 else Beams.concat(fixed)
+        if run.recorded is not None:  # what echo_voxels(grid, beams) gives, from the given-back echoes alone
+            run.rows = Bricks.from_ijk(grid, grid.unflat(np.union1d(run.recorded, np.concatenate(added))))
+        stats, scan_stats = run.sums(beams, fixed if per_scan else None)
+        fixed = []  # this round's beams: released before the estimate
+        # a voxel reached only by what the model leaves of pulse tails is not seen: count beams by weight
+        lad = estimate(stats, checks.estimator, checks.fill, settings, scan_stats=scan_stats, weighted_count=True)
+        rounds.append(round(given / leaf_weight, 5) if leaf_weight > 0 else 0.0)
+    meta = {"rule": checks.undetected.value, "models": [m.to_dict() for m in detection],
+            "iterations": iterations, "given_back_share": rounds,
+            "note": "given_back_share: unrecorded leaf interception given back, per round, over the recorded leaf "
+                    "echo weight"}
+    return stats, lad, meta
+
+
+def build_scene(grid, stats, lad, plane, infos, checks: Checked, projection: Projection, plan: MemoryPlan,
+                undetected_meta: dict, settings: VoxelizeSettings, *, timings=None, t_estimate=None, t_start=None):
+    """Stage 9: wood per voxel, the voxels a scene stores (none below the ground), the crown centre, the
+    quality warnings and the meta (the settings in full among them).  Returns the Scene and the wood."""
+    m = settings.model
+    timings = {} if timings is None else timings
+    wood_est = estimate_wood(stats, method=checks.wood, percentile=m.wood_percentile, n_min=m.n_min)
     ijk, lad_v, wood_v, occ_v, std_v = _stored_voxels(grid, lad, wood_est, plane)
-    if crown_center is None:
+    if projection.crown_center is None:
         cc = (grid.centers(ijk)[:, :2] * lad_v[:, None]).sum(axis=0) / lad_v.sum() if lad_v.sum() > 0 else np.zeros(2)
     else:
-        cc = np.asarray(crown_center, dtype=np.float64).reshape(2)
-    timings["estimate"] = time.perf_counter() - t3
-    timings["total"] = time.perf_counter() - t0
+        cc = np.asarray(projection.crown_center, dtype=np.float64).reshape(2)
+    now = time.perf_counter()
+    if t_estimate is not None:
+        timings["estimate"] = now - t_estimate
+    if t_start is not None:
+        timings["total"] = now - t_start
     warnings = quality_warnings(lad_v, occ_v, infos)
     calibration = lad.options.get("fill_calibration")
     if calibration is not None and not calibration["calibrated"]:
         warnings.append(f"fill='calibrated' found {calibration['voxels']} voxels that one scan sees and the others "
                         f"hide (it needs {CALIBRATION_MIN_VOXELS}): the occluded voxels took the neighbourhood "
                         "mean unscaled (ratio 1); scans from more different positions give it voxels to measure on")
+    leaf_size = m.leaf_size
     if leaf_size is not None and grid.voxel_size < 2.0 * leaf_size:
         suggest = grid.voxel_size * int(np.ceil(2.0 * leaf_size / grid.voxel_size - 1e-9))
         warnings.append(f"voxels of {grid.voxel_size:g} m are narrower than two leaves ({leaf_size:g} m each): the "
                         "turbid estimators lose most of the leaf area in them (docs/voxelize.md, leaf-scale "
                         f"voxels); estimate the LAD on a coarser grid with lad_voxel_size={suggest:g} "
                         f"(CLI --lad-voxel-size {suggest:g})")
+    la, layers = checks.leaf_angle, projection.layers
     meta = {
-        "estimator": est.value, "options": lad.options, "flags": lad.counts(), "wood_method": wood_m.value,
-        "wood_scale": wood_est.scale, "scans": infos, "timings": timings, "tracer": stats.device,
-        "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
+        "estimator": checks.estimator.value, "options": lad.options, "flags": lad.counts(),
+        "wood_method": checks.wood.value, "wood_scale": wood_est.scale, "scans": infos, "timings": timings,
+        "tracer": stats.device, "beams": stats.n_beams, "voxel_steps": stats.n_steps, "warnings": warnings,
         "leaf_angle": la.to_dict(), "layout": plan.layout.value,
         "leaf_angle_layers": None if layers is None else [
-            {"z_low": None if not np.isfinite(z) else float(z), "leaf_angle": m.to_dict()} for z, m in layers],
+            {"z_low": None if not np.isfinite(z) else float(z), "leaf_angle": lm.to_dict()} for z, lm in layers],
         "memory_plan": plan.describe(),
         "echo_weights": [i["echo_weights"] for i in infos], "undetected": undetected_meta,
         "ground": None if plane is None else {"coefficients": list(plane.coefficients),
                                               "tilt_deg": plane.tilt_deg, "inlier_rmse": plane.inlier_rmse},
+        "settings": settings.to_dict(),
     }
     if stats.sparse:
         meta["occluded_bricks"] = {"brick_voxels": BRICK, "occluded": int(lad.brick_occluded.sum()),
                                    "total": int(lad.brick_occluded.size)}
     scene = Scene(origin=grid.lower, voxel_size=grid.voxel_size, shape=grid.shape, ijk=ijk, lad=lad_v,
                   wood=wood_v, wood_kind=wood_est.kind, occluded=occ_v, lad_std=std_v, leaf_angle=la,
-                  leaf_azimuth=azimuth.value, crown_center=cc,
+                  leaf_azimuth=checks.azimuth.value, crown_center=cc,
                   ground_z=None if plane is None else plane.z_center, meta=meta)
-    return VoxelizeResult(scene, grid, stats, lad, wood_est, plane, infos, timings)
+    return scene, wood_est
 
 
 def _leaf_angle_layers(given):
