@@ -98,7 +98,8 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
         raise InputError("scans is empty: pass the scans of one tree")
     if georeference not in ("true", "none"):
         raise InputError(f"georeference={georeference!r} must be 'true' or 'none'")
-    from tlsvox.voxel.estimators import FillMode, check_calibration_scans
+    from tlsvox.voxel.estimators import FillMode
+    from tlsvox.voxel.fills import check_calibration_scans
 
     if FillMode.parse((voxelize_kwargs or {}).get("fill", "none"), "fill") is FillMode.CALIBRATED:
         check_calibration_scans(len(scans))  # said before registration, classification and the cylinders run

@@ -33,6 +33,8 @@ PUBLIC = [
     ("tlsvox.voxel", "the voxel stage"),
     ("tlsvox.voxel.stages", "the voxel stage's stages, one function each"),
     ("tlsvox.voxel.settings", "the voxel stage's settings, grouped by stage"),
+    ("tlsvox.voxel.estimators", "LAD estimators, one function each"),
+    ("tlsvox.voxel.fills", "occluded voxels filled"),
     ("tlsvox.voxel.airborne", "scenes from airborne pulses"),
     ("tlsvox.voxel.amapvox", "AMAPVox .vox files"),
     ("tlsvox.qsm", "cylinders fitted to the wood"),

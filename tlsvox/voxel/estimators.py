@@ -77,18 +77,29 @@ voxlidar.errors.InputError: estimator='BL' is not known; choose one of: bcmle, v
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from tlsvox.errors import InputError
+from tlsvox.voxel.fills import (  # estimate_lad applies the fills
+    FILL_MIN_SEEN,
+    FILL_RADII,
+    _fill_bricks,
+    _scan_stats_list,
+    cross_scan_ratio,
+    fill_layers,
+    fill_neighbourhood,
+    hull_mask,
+)
+from tlsvox.voxel.stats import TINY as _TINY
+from tlsvox.voxel.stats import safe_divide
 from tlsvox.voxel.trace import VoxelStats
 from voxlidar.choices import Choice
 
-__all__ = ["Estimator", "FillMode", "Flag", "LadEstimate", "brick_layer_means", "brick_occlusion", "estimate_lad",
-           "cross_scan_ratio", "fill_layers", "fill_neighbourhood", "hull_mask"]
+__all__ = ["ESTIMATORS", "Estimator", "FillMode", "Flag", "LadEstimate", "Sums", "brick_occlusion", "estimate_lad"]
 
-_TINY = 1e-12
 
 
 class Estimator(str, Choice):
@@ -114,14 +125,6 @@ class FillMode(str, Choice):
 
 #: fills that need every voxel's own sums (the dense layout)
 DENSE_FILLS = (FillMode.NEIGHBOURHOOD, FillMode.CALIBRATED)
-
-
-def check_calibration_scans(n: int) -> None:
-    """Raise the one-line error of ``fill="calibrated"`` when fewer than two scans are given."""
-    if int(n) < 2:
-        raise InputError("fill='calibrated' measures its ratio on the voxels one scan sees and the others hide: it "
-                         f"needs two or more scans, got {n}; with one scan use fill='neighbourhood' "
-                         "(CLI --fill neighbourhood)")
 
 
 class Flag(enum.IntFlag):
@@ -185,13 +188,69 @@ class LadEstimate:
         return {f.name.lower(): int(np.count_nonzero(self.flags & f)) for f in Flag}
 
 
-def safe_divide(a, b):
-    """a / b where b > tiny, else 0 (never NaN or inf)."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    out = np.zeros(np.broadcast(a, b).shape)
-    np.divide(a, b, out=out, where=b > _TINY)
-    return out
+@dataclass(frozen=True)
+class Sums:
+    """What every estimator reads of a voxel's traced sums (:mod:`tlsvox.voxel.stats`), per voxel."""
+
+    field: Callable[[str], np.ndarray]  #: ``stats.field``: any raw sum by name
+    count: np.ndarray  #: beams entering
+    n_w: np.ndarray  #: beam weight entering
+    hits: np.ndarray  #: leaf echo weight stopped inside
+    n_eff: np.ndarray  #: beam weight not censored by wood or ground
+    path: np.ndarray  #: weighted free path, metres
+    path_g: np.ndarray  #: weighted G x free path
+    mean_chord: np.ndarray  #: mean potential chord, metres
+    g_eff: np.ndarray  #: path-weighted G
+    interception: np.ndarray  #: hits / n_eff in [0, 1]
+    saturated: np.ndarray  #: every uncensored beam stopped (bool)
+
+    @classmethod
+    def of(cls, stats: VoxelStats) -> Sums:
+        f = stats.field
+        count, n_w, hits = f("count"), f("n_w"), f("leaf_w")
+        path, path_g = f("path_w"), f("path_wg")
+        n_eff = np.maximum(n_w - (f("wood_w") + f("other_w")), 0.0)  # beams not censored by wood or ground
+        return cls(field=f, count=count, n_w=n_w, hits=hits, n_eff=n_eff, path=path, path_g=path_g,
+                   mean_chord=safe_divide(f("chord_w"), n_w), g_eff=safe_divide(path_g, path),
+                   interception=np.clip(safe_divide(hits, n_eff), 0.0, 1.0),
+                   saturated=(hits > _TINY) & (hits >= n_eff * (1 - 1e-9)))
+
+
+def _bcmle(s: Sums):
+    """Pimont et al. (2018): the bias-corrected maximum likelihood."""
+    lad = np.maximum(safe_divide(s.hits, s.path_g) - safe_divide(s.field("leaf_zwg") * s.n_w, s.path_g**2 * s.count),
+                     0.0)
+    return lad, safe_divide(lad, np.sqrt(s.hits))
+
+
+def _voxlad(s: Sums):
+    """Béland et al. (2014): each hit's 1/G over the free path."""
+    lad = safe_divide(s.field("leaf_w_g"), s.path)
+    return lad, safe_divide(lad, np.sqrt(s.hits))
+
+
+def _beer_lambert(s: Sums):
+    """Gap fraction through the voxel's mean chord; saturated voxels as one more beam would leave."""
+    n_beams = safe_divide(s.n_eff * s.count, s.n_w)  # beams (not weight) not censored
+    one_minus = np.where(s.saturated, safe_divide(1.0, 2 * n_beams + 2), 1.0 - s.interception)
+    one_minus = np.where(one_minus > 0, one_minus, 1.0)
+    lad = safe_divide(safe_divide(-np.log(one_minus), s.mean_chord), s.g_eff)
+    var_i = safe_divide(s.interception * (1 - s.interception), n_beams)
+    return lad, safe_divide(np.sqrt(safe_divide(var_i, one_minus**2)), s.mean_chord * s.g_eff)
+
+
+def _contact_frequency(s: Sums):
+    """Interceptions per metre of chord, over G."""
+    n_beams = safe_divide(s.n_eff * s.count, s.n_w)
+    lad = safe_divide(safe_divide(s.interception, s.mean_chord), s.g_eff)
+    std = safe_divide(np.sqrt(safe_divide(s.interception * (1 - s.interception), n_beams)), s.mean_chord * s.g_eff)
+    return lad, std
+
+
+#: each estimator's function of the sums, returning (LAD, its standard error) per voxel: adding an
+#: estimator is one function, one member of :class:`Estimator` and one entry here
+ESTIMATORS = {Estimator.BCMLE: _bcmle, Estimator.VOXLAD: _voxlad, Estimator.BEER_LAMBERT: _beer_lambert,
+              Estimator.CONTACT_FREQUENCY: _contact_frequency}
 
 
 def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_explored: float = 0.05,
@@ -259,39 +318,10 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     if leaf_size is not None and not (np.isfinite(leaf_size) and leaf_size > 0):
         raise InputError(f"leaf_size={leaf_size!r} must be > 0 metres or None")
 
-    f = stats.field
-    count = f("count")
-    n_w = f("n_w")
-    hits = f("leaf_w")
-    stopped_other = f("wood_w") + f("other_w")
-    path = f("path_w")
-    path_g = f("path_wg")
-    chord_w = f("chord_w")
-    g_eff = safe_divide(path_g, path)
-    mean_chord = safe_divide(chord_w, n_w)
-    n_eff = np.maximum(n_w - stopped_other, 0.0)  # beams not censored by wood or ground
-    interception = np.clip(safe_divide(hits, n_eff), 0.0, 1.0)
-    saturated = (hits > _TINY) & (hits >= n_eff * (1 - 1e-9))
-
-    if est is Estimator.BCMLE:
-        lad = safe_divide(hits, path_g) - safe_divide(f("leaf_zwg") * n_w, path_g**2 * count)
-        lad = np.maximum(lad, 0.0)
-        std = safe_divide(lad, np.sqrt(hits))
-    elif est is Estimator.VOXLAD:
-        lad = safe_divide(f("leaf_w_g"), path)
-        std = safe_divide(lad, np.sqrt(hits))
-    elif est is Estimator.BEER_LAMBERT:
-        n_beams = safe_divide(n_eff * count, n_w)  # beams (not weight) not censored
-        one_minus = np.where(saturated, safe_divide(1.0, 2 * n_beams + 2), 1.0 - interception)
-        one_minus = np.where(one_minus > 0, one_minus, 1.0)
-        lam = safe_divide(-np.log(one_minus), mean_chord)
-        lad = safe_divide(lam, g_eff)
-        var_i = safe_divide(interception * (1 - interception), n_beams)
-        std = safe_divide(np.sqrt(safe_divide(var_i, one_minus**2)), mean_chord * g_eff)
-    else:  # contact frequency
-        n_beams = safe_divide(n_eff * count, n_w)
-        lad = safe_divide(safe_divide(interception, mean_chord), g_eff)
-        std = safe_divide(np.sqrt(safe_divide(interception * (1 - interception), n_beams)), mean_chord * g_eff)
+    sums = Sums.of(stats)
+    lad, std = ESTIMATORS[est](sums)
+    count, n_w, hits, path = sums.count, sums.n_w, sums.hits, sums.path
+    mean_chord, g_eff, saturated = sums.mean_chord, sums.g_eff, sums.saturated.copy()
 
     # bcmle/voxlad where every hit sat at the entry face (no free path): fall back on the
     # saturated Beer-Lambert value rather than dividing by zero
@@ -306,7 +336,7 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
     if weighted_count:
         few |= n_w < n_min
     flags[few] |= np.uint8(Flag.FEW_BEAMS)
-    explored = safe_divide(path, chord_w)
+    explored = safe_divide(path, stats.field("chord_w"))
     flags[~few & (explored < min_explored)] |= np.uint8(Flag.LOW_EXPLORED)
     flags[saturated] |= np.uint8(Flag.SATURATED)
     if leaf_size is not None:
@@ -377,304 +407,3 @@ def brick_occlusion(stats: VoxelStats, *, n_min: int = 5, min_explored: float = 
     if weighted_count:
         occluded |= stats.brick_field("visits_w") / voxels < n_min
     return occluded
-
-
-def brick_layer_means(stats: VoxelStats, brick_occluded, hits):
-    """Sparse traces: the crown bricks and the pooled LAD of each brick layer's seen crown bricks.
-
-    The crown is the hull of the bricks holding leaf echoes (``hits`` > 0 per
-    row); a brick layer's value is ``sum(leaf hits) / sum(G x free path)`` over
-    its seen crown bricks (the maximum-likelihood LAD of those bricks taken as
-    one medium).
-
-    Returns crown (n_bricks,) bool, each brick's layer (n_bricks,), the
-    layers' LAD (n_layers,) and whether a layer has a seen crown brick.
-    """
-    rows = stats.rows
-    row_brick = rows.brick_of_rows()
-    occ = np.asarray(brick_occluded, bool).reshape(-1)
-    seed_bricks = np.zeros(rows.n_bricks, bool)
-    seed_bricks[row_brick[np.asarray(hits) > _TINY]] = True
-    crown = hull_mask(seed_bricks.reshape(rows.shape), None).reshape(-1)
-    bz = np.unravel_index(np.arange(rows.n_bricks), rows.shape)[2]
-    seen = crown & ~occ
-    n_layers = rows.shape[2]
-    hits_per_brick = np.bincount(row_brick, weights=hits, minlength=rows.n_bricks)
-    mean = safe_divide(np.bincount(bz[seen], weights=hits_per_brick[seen], minlength=n_layers),
-                       np.bincount(bz[seen], weights=stats.brick_field("path_wg").reshape(-1)[seen], minlength=n_layers))
-    has_mean = np.bincount(bz[seen], minlength=n_layers) > 0
-    return crown, bz, mean, has_mean
-
-
-def _fill_bricks(lad, occluded, stats, brick_occluded, hits, small_voxel_factor):
-    """The layer fill on a sparse trace, by bricks.
-
-    The crown is the hull of the bricks holding leaf echoes.  Each brick layer
-    (8 voxel layers) gets the pooled estimate of its seen crown bricks,
-    ``sum(leaf hits) / sum(G x free path)`` (the maximum-likelihood LAD of
-    those bricks taken as one medium); it fills the layer's occluded rows in
-    the crown and the echo-free voxels of its occluded crown bricks.  (The
-    dense fill averages per-voxel estimates instead: with the voxels'
-    own visibility unknown, pooling is what the brick sums support.)
-
-    Returns the rows' LAD, which rows were filled, and the filled echo-free
-    voxels with their LAD (already times ``small_voxel_factor``).
-    """
-    from tlsvox.voxel.bricks import BRICK
-
-    rows = stats.rows
-    row_brick = rows.brick_of_rows()
-    occ = brick_occluded.reshape(-1)
-    crown, bz, mean, has_mean = brick_layer_means(stats, brick_occluded, hits)
-    row_layer = bz[row_brick]
-    filled = occluded & crown[row_brick] & has_mean[row_layer]
-    lad = np.where(filled, mean[row_layer], lad)
-    ijk = rows.brick_voxels(np.flatnonzero(crown & occ))
-    if len(ijk):
-        ijk = ijk[~np.isin(rows.grid.flat(ijk), rows.grid.flat(rows.ijk))]
-    value = mean[ijk[:, 2] // BRICK] * float(small_voxel_factor) if len(ijk) else np.zeros(0)
-    keep = value > 0
-    return lad, filled, ijk[keep], value[keep]
-
-
-#: ``fill="neighbourhood"``: half-widths (voxels) of the cubes tried, smallest first
-FILL_RADII = (1, 2, 4, 8)
-#: ``fill="neighbourhood"``: seen crown voxels a cube must hold to give its mean
-FILL_MIN_SEEN = 5
-
-
-def fill_neighbourhood(lad, occluded, mask, *, radii=FILL_RADII, min_seen: int = FILL_MIN_SEEN):
-    """Fill occluded crown voxels with the mean LAD of the nearest seen crown voxels.
-
-    For each occluded voxel of ``mask``, the cubes of half-width ``r`` in
-    ``radii`` voxels around it are tried, smallest first; the first holding at
-    least ``min_seen`` seen voxels of ``mask`` gives their mean LAD (seen empty
-    voxels count, as 0).  Voxels no cube serves take their height layer's mean
-    (:func:`fill_layers`).  Foliage is spatially correlated at the scale of
-    shoots and clusters, which a crown-wide layer mean averages away: the
-    voxels a dense cluster occludes are its own core and the space behind it,
-    and their nearest seen voxels are that cluster's outskirts.
-
-    Parameters
-    ----------
-    lad : (nx, ny, nz) float
-        LAD with occluded voxels at 0.
-    occluded, mask : (nx, ny, nz) bool
-        Occluded voxels; voxels of the crown (only these fill and are filled).
-    radii : sequence of int
-    min_seen : int
-
-    Returns
-    -------
-    filled_lad : (nx, ny, nz) float64
-    filled : (nx, ny, nz) bool
-        Voxels that received a value.
-
-    Examples
-    --------
-    >>> lad = np.zeros((5, 1, 1)); lad[:2] = 2.0; lad[3] = 1.0
-    >>> occ = np.zeros((5, 1, 1), bool); occ[2] = True
-    >>> out, filled = fill_neighbourhood(lad, occ, np.ones((5, 1, 1), bool), radii=(1, 2), min_seen=2)
-    >>> float(out[2, 0, 0]), bool(filled[2, 0, 0])
-    (1.5, True)
-    """
-    from scipy import ndimage
-
-    if int(min_seen) != min_seen or min_seen < 1:
-        raise InputError(f"min_seen={min_seen!r} must be an integer >= 1 (seen voxels a cube needs to give its mean)")
-    radii = tuple(radii)
-    if not radii or any(int(r) != r or r < 1 for r in radii):
-        raise InputError(f"radii={radii!r} must be positive integers (cube half-widths in voxels, e.g. (1, 2, 4, 8))")
-    lad = np.array(lad, dtype=np.float64)
-    occluded = np.asarray(occluded, bool)
-    mask = np.asarray(mask, bool)
-    seen = mask & ~occluded
-    target = occluded & mask
-    todo = target.copy()
-    values = np.where(seen, lad, 0.0)
-    weight = seen.astype(np.float64)
-    for r in radii:
-        if not todo.any():
-            break
-        k = 2 * int(r) + 1
-        # box sums (mean times volume; rounded, the counts are whole numbers)
-        total = ndimage.uniform_filter(values, size=k, mode="constant") * k**3
-        count = np.rint(ndimage.uniform_filter(weight, size=k, mode="constant") * k**3)
-        ok = todo & (count >= min_seen)
-        lad[ok] = np.maximum(total[ok] / count[ok], 0.0)  # the filter's running sums may round below 0
-        todo &= ~ok
-    filled = target & ~todo
-    if todo.any():  # the layer's mean over its seen voxels (not over those filled above)
-        rest, by_layer = fill_layers(np.where(seen, lad, 0.0), occluded, mask)
-        by_layer &= todo
-        lad = np.where(by_layer, rest, lad)
-        filled |= by_layer
-    return lad, filled
-
-
-#: ``fill="calibrated"``: fewer calibration voxels than this leave the ratio at 1 (and say so)
-CALIBRATION_MIN_VOXELS = 20
-
-
-def cross_scan_ratio(scan_stats, mask, *, estimator="bcmle", n_min: int = 5, min_explored: float = 0.05,
-                     weighted_count: bool = False) -> dict:
-    """How much leaf area hidden voxels hold against the neighbourhood fill, measured on the scans themselves.
-
-    A voxel that the other scans cannot see but one scan can is a hidden
-    voxel whose LAD is known.  For each scan ``b`` (leave one out): the
-    voxels of ``mask`` that all the scans but ``b`` leave occluded, that
-    their neighbourhood fill reaches (:func:`fill_neighbourhood` of their
-    pooled sums) and that ``b`` sees; their LAD from ``b``'s sums, against
-    what that fill gives them.  The ratio of the two leaf areas, pooled over
-    the scans, is the factor the fill of the voxels that no scan sees is
-    multiplied by (``fill="calibrated"``).  With two scans, "all the scans
-    but b" is the other scan.  Only the two-scan case is measured on known
-    answers (docs/voxelize.md, *Occluded voxels*).
-
-    Why: the voxels that stay hidden are mostly the cores of dense leaf
-    clusters, denser than the seen voxels around them whose mean the
-    neighbourhood fill takes (on the synthetic oak it gives them 64-71 % of
-    their leaf area).  What some scans cannot see and another can is hidden
-    for the same reason, so the scans themselves say how to scale the fill;
-    no truth enters.  The one constant is the floor of
-    ``CALIBRATION_MIN_VOXELS`` voxels under which no ratio is taken.
-
-    Parameters
-    ----------
-    scan_stats : sequence of VoxelStats
-        Each scan's own sums on one dense grid (two or more).
-    mask : (nx, ny, nz) bool
-        The crown (the fill's mask).
-    estimator, n_min, min_explored, weighted_count
-        As :func:`estimate_lad` (the same occlusion rule as the run).
-
-    Returns
-    -------
-    dict
-        ``ratio`` (1.0 when fewer than ``CALIBRATION_MIN_VOXELS`` voxels
-        calibrate, with ``calibrated`` False), ``calibrated``, ``measured`` (the
-        ratio of the voxels found, NaN when the fill gave them nothing), ``voxels``
-        (calibration voxels over all scans), ``seen_m2`` (their leaf area
-        from the scan that sees them) and ``filled_m2`` (what the fill of the
-        others gave them), and ``per_scan`` (the same per seeing scan).
-
-    Examples
-    --------
-    >>> from tlsvox.voxel.grid import VoxelGrid
-    >>> from tlsvox.voxel.stats import NF
-    >>> g = VoxelGrid((0, 0, 0), 1.0, (2, 1, 1))
-    >>> empty = VoxelStats(g, np.zeros((2, NF)))
-    >>> r = cross_scan_ratio([empty, empty], np.ones((2, 1, 1), bool))
-    >>> r["ratio"], r["calibrated"]
-    (1.0, False)
-    """
-    stats = _scan_stats_list(scan_stats, None)
-    grid = stats[0].grid
-    mask = np.asarray(mask, bool)
-    if mask.shape != grid.shape:
-        raise InputError(f"cross_scan_ratio: mask has shape {mask.shape}, the grid {grid.shape}")
-    kw = dict(estimator=estimator, n_min=n_min, min_explored=min_explored, leaf_size=None,
-              weighted_count=weighted_count)
-    vol = grid.voxel_volume
-    per_scan, seen_total, filled_total, voxels = [], 0.0, 0.0, 0
-    own = [estimate_lad(s, **kw) for s in stats]
-    for b, lad_b in enumerate(own):
-        # all the scans but b: with two, the other scan's own estimate
-        lad_o = own[1 - b] if len(stats) == 2 else estimate_lad(
-            VoxelStats(grid, sum(s.acc for k, s in enumerate(stats) if k != b)), **kw)
-        filled_o, reached = fill_neighbourhood(lad_o.lad, lad_o.occluded, mask)
-        sel = lad_o.occluded & reached & ~lad_b.occluded & mask
-        seen_m2 = float(lad_b.lad[sel].sum() * vol)
-        filled_m2 = float(filled_o[sel].sum() * vol)
-        per_scan.append({"voxels": int(sel.sum()), "seen_m2": round(seen_m2, 3), "filled_m2": round(filled_m2, 3)})
-        seen_total += seen_m2
-        filled_total += filled_m2
-        voxels += int(sel.sum())
-    measured = float(seen_total / filled_total) if filled_total > 0 else float("nan")
-    ok = voxels >= CALIBRATION_MIN_VOXELS and filled_total > 0
-    return {"ratio": measured if ok else 1.0, "calibrated": bool(ok), "measured": measured, "voxels": voxels,
-            "seen_m2": round(seen_total, 3), "filled_m2": round(filled_total, 3), "per_scan": per_scan}
-
-
-def _scan_stats_list(scan_stats, stats) -> list:
-    """``scan_stats`` as a list of two or more dense VoxelStats on one grid (``stats``'s, when given)."""
-    try:
-        out = list(scan_stats)
-    except TypeError:
-        raise InputError(f"scan_stats must be a list of VoxelStats (one per scan), got {type(scan_stats).__name__}") from None
-    check_calibration_scans(len(out))
-    bad = [type(s).__name__ for s in out if not isinstance(s, VoxelStats)]
-    if bad:
-        raise InputError(f"scan_stats must hold VoxelStats (one per scan), got {', '.join(sorted(set(bad)))}")
-    if any(s.sparse for s in out):
-        raise InputError("fill='calibrated' needs dense sums (every voxel's own): use layout='dense'")
-    grid = out[0].grid if stats is None else stats.grid
-    if any(s.grid != grid for s in out):
-        raise InputError("scan_stats lie on a different grid from the run's; trace every scan on the run's grid")
-    return out
-
-
-def fill_layers(lad, occluded, mask):
-    """Fill occluded voxels with the mean LAD of their height layer (Béland 2014).
-
-    Parameters
-    ----------
-    lad : (nx, ny, nz) float
-        LAD with occluded voxels at 0.
-    occluded : (nx, ny, nz) bool
-    mask : (nx, ny, nz) bool
-        Voxels that belong to the crown; only these are filled and averaged.
-
-    Returns
-    -------
-    filled_lad : (nx, ny, nz) float64
-    filled : (nx, ny, nz) bool
-        Voxels that received a value (occluded, in the mask, and in a layer
-        with at least one visible crown voxel).
-    """
-    lad = np.array(lad, dtype=np.float64)
-    occluded = np.asarray(occluded, bool)
-    mask = np.asarray(mask, bool)
-    visible = mask & ~occluded
-    n_vis = visible.sum(axis=(0, 1))
-    mean = safe_divide(np.where(visible, lad, 0.0).sum(axis=(0, 1)), n_vis)
-    filled = occluded & mask & (n_vis > 0)[None, None, :]
-    lad = np.where(filled, np.broadcast_to(mean[None, None, :], lad.shape), lad)
-    return lad, filled
-
-
-def hull_mask(seed, grid) -> np.ndarray:
-    """Voxels inside the convex hull of the voxels where ``seed`` is True.
-
-    Parameters
-    ----------
-    seed : (nx, ny, nz) bool
-        E.g. voxels with leaf hits.
-    grid : VoxelGrid
-
-    Returns
-    -------
-    (nx, ny, nz) bool
-        False everywhere when fewer than 4 non-coplanar seed voxels exist.
-    """
-    from scipy.spatial import ConvexHull, Delaunay, QhullError
-
-    seed = np.asarray(seed, bool)
-    ijk = np.argwhere(seed)
-    out = np.zeros(seed.shape, bool)
-    if len(ijk) < 4:
-        return out
-    # voxel corners, so a single layer of voxels still has a volume
-    corners = (ijk[:, None, :] + np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])[None])
-    pts = corners.reshape(-1, 3).astype(np.float64)
-    try:
-        hull = ConvexHull(pts)
-        tri = Delaunay(pts[hull.vertices])
-    except QhullError:
-        return out
-    lo = ijk.min(axis=0)
-    hi = ijk.max(axis=0) + 1
-    sub = np.argwhere(np.ones(hi - lo, bool)) + lo
-    inside = tri.find_simplex(sub + 0.5) >= 0
-    out[tuple(sub[inside].T)] = True
-    return out

@@ -32,7 +32,8 @@ import numpy as np
 from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import Bricks
 from tlsvox.voxel.detection import Undetected
-from tlsvox.voxel.estimators import FillMode, check_calibration_scans
+from tlsvox.voxel.estimators import FillMode
+from tlsvox.voxel.fills import check_calibration_scans
 from tlsvox.voxel.grid import VoxelGrid, format_bytes, memory_limit
 from tlsvox.voxel.stats import NF
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, echo_voxels

@@ -43,7 +43,19 @@ from tlsvox.errors import InputError
 from tlsvox.voxel.bricks import BRICK_FIELDS, Bricks
 from tlsvox.voxel.grid import VoxelGrid
 
-__all__ = ["FIELDS", "NF", "VoxelStats"]
+__all__ = ["TINY", "safe_divide", "FIELDS", "NF", "VoxelStats"]
+
+#: sums at or below this count as zero (safe_divide)
+TINY = 1e-12
+
+
+def safe_divide(a, b):
+    """a / b where b > tiny, else 0 (never NaN or inf)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    out = np.zeros(np.broadcast(a, b).shape)
+    np.divide(a, b, out=out, where=b > TINY)
+    return out
 
 FIELDS = ("count", "n_w", "leaf_w", "wood_w", "other_w", "path_w", "path_wg", "leaf_zw",
           "leaf_zwg", "wood_zw", "chord_w", "chord2_w", "dir_x", "dir_y", "dir_z", "leaf_w_g")

@@ -215,7 +215,7 @@ def test_memory_plan_counts_the_neighbourhood_fill(box_scans, tracer, rng):  # n
     holds for the fill's measured peak (tracemalloc, after a first call has loaded scipy)."""
     import tracemalloc
 
-    from tlsvox.voxel.estimators import fill_neighbourhood
+    from tlsvox.voxel.fills import fill_neighbourhood
     from tlsvox.voxel.plan import NEIGHBOURHOOD_BYTES, format_bytes
     from tlsvox.voxel.pulses import beams_from_scan
 
@@ -328,7 +328,7 @@ def test_cli_calibrated_fill(box_scans, tmp_path, capsys):  # noqa: F811
               "--layout", "dense", "--fill", "calibrated"]
     assert tlsvox_main(["voxelize", *paths, "-o", str(tmp_path / "two.npz"), *common]) == 0
     scene = Scene.load(tmp_path / "two.npz")
-    from tlsvox.voxel.estimators import CALIBRATION_MIN_VOXELS
+    from tlsvox.voxel.fills import CALIBRATION_MIN_VOXELS
 
     cal = scene.meta["options"]["fill_calibration"]
     assert scene.meta["options"]["fill"] == "calibrated" and cal["calibrated"]

@@ -198,7 +198,7 @@ def test_neighbourhood_fill_takes_the_nearest_seen_voxels(rng):
     is never reached (occluded).  Its nearest cube holding at least FILL_MIN_SEEN seen voxels is
     the half-width 2 one (x = 3, 4), so the fill is the mean of their estimates, whose true value
     is 1.8 (a layer's mean would be 1.2): within 3 standard errors of that mean."""
-    from tlsvox.voxel.estimators import FILL_MIN_SEEN, fill_neighbourhood
+    from tlsvox.voxel.fills import FILL_MIN_SEEN, fill_neighbourhood
 
     h, g = 0.5, 0.5
     grid = VoxelGrid((0, 0, 0), h, (6, 5, 1))
@@ -273,7 +273,7 @@ def test_calibrated_fill_measures_the_true_ratio(rng):
     ratio the true LAD gives through the same fill and the same occlusion (within 4 %: about 3
     standard errors of estimates pooled over 30 voxels of ~1,000 hits each), and the core's fill
     is the pooled neighbourhood fill times that ratio."""
-    from tlsvox.voxel.estimators import cross_scan_ratio, fill_neighbourhood
+    from tlsvox.voxel.fills import cross_scan_ratio, fill_neighbourhood
 
     h, g, n = 0.5, 0.5, 20000
     grid = VoxelGrid((0, 0, 0), h, (7, 5, 1))
@@ -343,7 +343,7 @@ def test_calibrated_ratio_counts_only_voxels_the_fill_reaches():
     (b sees) and z = 4, 5 (a sees).  By hand: ratio = (u8 + u9 + u4 + u5) / (mean u0..5 + mean
     u1..5 + mean u8..12 + mean u8..13); the voxels b sees above z = 9, which a's fill never
     reaches, must not count."""
-    from tlsvox.voxel.estimators import cross_scan_ratio
+    from tlsvox.voxel.fills import cross_scan_ratio
 
     grid = VoxelGrid((0, 0, 0), 1.0, (1, 1, 20))
     z = np.arange(20)
