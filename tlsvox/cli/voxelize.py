@@ -343,8 +343,8 @@ def run(args) -> int:
                     s.classification.dtype)
                 relabelled += int(bark.sum())
     measured = None
-    leaf_angle = args.leaf_angle or options.pop("leaf_angle", "uniform")
-    options.pop("leaf_angle", None)
+    from_config = options.pop("leaf_angle", "uniform")  # a --config's leaf-angle table, if it gave one
+    leaf_angle = args.leaf_angle or from_config
     if args.leaf_angle == "measured":
         from tlsvox.leafangles import measure_leaf_angles
 

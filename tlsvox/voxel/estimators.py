@@ -98,7 +98,7 @@ from tlsvox.voxel.stats import safe_divide
 from tlsvox.voxel.trace import VoxelStats
 from voxlidar.choices import Choice
 
-__all__ = ["ESTIMATORS", "Estimator", "FillMode", "Flag", "LadEstimate", "Sums", "brick_occlusion", "estimate_lad"]
+__all__ = ["ESTIMATORS", "Estimator", "FillMode", "Flag", "LadEstimate", "Sums", "brick_occlusion", "estimate", "estimate_lad"]
 
 
 
@@ -386,6 +386,16 @@ def estimate_lad(stats: VoxelStats, *, estimator="bcmle", n_min: int = 5, min_ex
         options.update(fill_ratio=calibration["ratio"], fill_calibration=calibration)
     return LadEstimate(lad=out, lad_std=std, lad_raw=lad_raw, flags=flags, g_eff=g_eff,
                        estimator=est, options=options, **sparse)
+
+
+def estimate(stats: VoxelStats, estimator: Estimator, fill: FillMode, settings, *, scan_stats=None,
+             weighted_count: bool = False) -> LadEstimate:
+    """Stage 7 of :func:`~tlsvox.voxel.stages.voxelize`: :func:`estimate_lad` with the run's
+    :class:`~tlsvox.voxel.settings.VoxelizeSettings` (its ``model`` group's thresholds)."""
+    m = settings.model
+    return estimate_lad(stats, estimator=estimator, n_min=m.n_min, min_explored=m.min_explored,
+                        leaf_size=m.leaf_size, small_voxel_factor=m.small_voxel_factor, fill=fill,
+                        weighted_count=weighted_count, scan_stats=scan_stats)
 
 
 def brick_occlusion(stats: VoxelStats, *, n_min: int = 5, min_explored: float = 0.05,

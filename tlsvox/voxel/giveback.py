@@ -12,7 +12,7 @@ import numpy as np
 from tlsvox.voxel.beams import voxels_along
 from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.detection import unrecorded_echoes
-from tlsvox.voxel.estimators import DENSE_FILLS, FillMode, LadEstimate, estimate_lad
+from tlsvox.voxel.estimators import DENSE_FILLS, FillMode, LadEstimate, estimate
 from tlsvox.voxel.fills import brick_layer_means, fill_layers, fill_neighbourhood, hull_mask
 from tlsvox.voxel.quality import LAD_PLAUSIBLE_MAX
 from tlsvox.voxel.stats import VoxelStats
@@ -59,10 +59,7 @@ def give_back_undetected(run: TraceRun, parts, beams, stats, lad, checks: Checke
         stats, scan_stats = run.sums(beams, fixed if per_scan else None)
         fixed = []  # this round's beams: released before the estimate
         # a voxel reached only by what the model leaves of pulse tails is not seen: count beams by weight
-        m = settings.model
-        lad = estimate_lad(stats, estimator=checks.estimator, n_min=m.n_min, min_explored=m.min_explored,
-                           leaf_size=m.leaf_size, small_voxel_factor=m.small_voxel_factor, fill=checks.fill,
-                           weighted_count=True, scan_stats=scan_stats)
+        lad = estimate(stats, checks.estimator, checks.fill, settings, scan_stats=scan_stats, weighted_count=True)
         rounds.append(round(given / leaf_weight, 5) if leaf_weight > 0 else 0.0)
     meta = {"rule": checks.undetected.value, "models": [m.to_dict() for m in detection],
             "iterations": iterations, "given_back_share": rounds,

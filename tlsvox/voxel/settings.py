@@ -144,9 +144,10 @@ def _plain(value):
         return {f.name: _plain(getattr(value, f.name)) for f in fields(value)}
     if isinstance(value, dict):
         return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return tuple(_plain(v) for v in np.asarray(value, dtype=object).tolist()) if isinstance(
-            value, np.ndarray) else tuple(_plain(v) for v in value)
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, list | tuple):
+        return tuple(_plain(v) for v in value)
     raise InputError(f"a voxelize setting must be a number, text, a list or a table; got {type(value).__name__}")
 
 

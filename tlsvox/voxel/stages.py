@@ -38,7 +38,7 @@ from tlsvox.ground import GroundPlane, fit_ground, ground_mask
 from tlsvox.scan import AngularGrid, Scan
 from tlsvox.voxel.bricks import BRICK, Bricks
 from tlsvox.voxel.detection import DetectionModel, Undetected
-from tlsvox.voxel.estimators import DENSE_FILLS, Estimator, FillMode, LadEstimate, estimate_lad
+from tlsvox.voxel.estimators import DENSE_FILLS, Estimator, FillMode, LadEstimate, estimate
 from tlsvox.voxel.fills import (
     CALIBRATION_MIN_VOXELS,
     check_calibration_scans,
@@ -559,15 +559,6 @@ class TraceRun:
             return self.tracer.trace(self.grid, joined, **kw), None
         own = [self.tracer.trace(self.grid, b, **kw) for b in separate]
         return sum(own[1:], own[0]), own
-
-
-def estimate(stats: VoxelStats, estimator: Estimator, fill: FillMode, settings: VoxelizeSettings, *,
-             scan_stats=None, weighted_count: bool = False) -> LadEstimate:
-    """Stage 7: the leaf area density per voxel from the sums, its occlusion flags and fill."""
-    m = settings.model
-    return estimate_lad(stats, estimator=estimator, n_min=m.n_min, min_explored=m.min_explored,
-                        leaf_size=m.leaf_size, small_voxel_factor=m.small_voxel_factor, fill=fill,
-                        weighted_count=weighted_count, scan_stats=scan_stats)
 
 
 def build_scene(grid, stats, lad, plane, infos, checks: Checked, projection: Projection, plan: MemoryPlan,

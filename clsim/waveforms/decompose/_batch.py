@@ -193,7 +193,8 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
     if pl is None:
         widths = []
         for lo in starts:
-            det, ns = _noise_stats(y_all, len_all, lo, min(n_all, lo + step), saturation, fitter, k_cap)
+            hi = min(n_all, lo + step)
+            det, ns = _noise_stats(y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi], saturation, fitter, k_cap)
             widths.append(ns.width)
             stats[lo] = det, ns  # each chunk goes on from its statistics (and its samples on the device)
         pl = Pulse.gaussian(float(np.clip(_batch_pulse(np.concatenate(widths) if widths else np.zeros(0)),
@@ -216,10 +217,9 @@ def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
     return _table(parts, t0, dt)
 
 
-def _noise_stats(y_all, len_all, lo, hi, saturation, device, k_cap):
-    """The first detection step of rows ``lo:hi``: ``(bound detector, stats)`` on the device
-    when the chunk's detection runs there (its samples stay there), else ``(None, stats)``."""
-    y, lengths = y_all[lo:hi, :len_all[lo:hi].max()], len_all[lo:hi]
+def _noise_stats(y, lengths, saturation, device, k_cap):
+    """The first detection step of a chunk: ``(bound detector, stats)`` on the device when the
+    chunk's detection runs there (its samples stay there), else ``(None, stats)``."""
     if device is not None and k_cap <= MAX_CANDIDATES:
         det = device.detector.bind(y, lengths)
         return det, det.noise_stats(saturation)
@@ -231,13 +231,7 @@ def _decompose_chunk(y, lengths, pl, fa, saturation, k_cap, add_components, devi
     rows = np.arange(n_rows)
     # detection on the device (its samples then stay there for the fits), else NumPy;
     # ``pre``: the first step already run while the call's pulse was estimated
-    if pre is not None:
-        det, ns = pre
-    elif device is not None and k_cap <= MAX_CANDIDATES:
-        det = device.detector.bind(y, lengths)
-        ns = det.noise_stats(saturation)
-    else:
-        det, ns = None, noise_stats_numpy(y, lengths, saturation)
+    det, ns = pre if pre is not None else _noise_stats(y, lengths, saturation, device, k_cap)
     b, sigma, use, cens = ns.b, ns.sigma, ns.use, ns.cens
     u = _rice(ns.n_valid, pl, fa)
     level = u * sigma / pl.norm
