@@ -39,7 +39,8 @@ from bench_leaf_angles import score  # noqa: E402
 
 
 def module_at(rev: str):
-    """``tlsvox/leafangles.py`` as it was at ``rev``, imported under another name."""
+    """``tlsvox/leafangles.py`` as it was at ``rev`` (a revision before it became a package), imported under
+    another name."""
     text = subprocess.run(["git", "show", f"{rev}:tlsvox/leafangles.py"], cwd=ROOT, check=True,
                           capture_output=True, text=True).stdout
     with tempfile.TemporaryDirectory() as tmp:
@@ -113,7 +114,7 @@ def main(argv=None) -> int:
 
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                           text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "tlsvox/leafangles.py"], cwd=ROOT, capture_output=True,
+    dirty = subprocess.run(["git", "status", "--porcelain", "tlsvox/leafangles"], cwd=ROOT, capture_output=True,
                            text=True).stdout.strip()
     this = f"{head}{' + working-tree changes' if dirty else ''}"
     base = module_at(args.base)

@@ -4,11 +4,11 @@ The public API is re-exported here; Open3D is imported only by the modules
 that use it, so ``import tlsvox`` stays light.
 """
 
-from tlsvox.classify import PointClass, classify_scan
+from tlsvox.classify import ClassifySettings, PointClass, classify_scan
 from tlsvox.errors import InputError, TlsvoxError
 from tlsvox.io import read_any
-from tlsvox.leafangles import measure_leaf_angles
-from tlsvox.register import RegistrationError, register_pair, register_scans
+from tlsvox.leafangles import LeafAngleSettings, measure_leaf_angles
+from tlsvox.register import RegisterSettings, RegistrationError, register_pair, register_scans
 from tlsvox.voxel.estimators import Estimator
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.voxel.settings import VoxelizeSettings
@@ -47,10 +47,13 @@ __all__ = [
     "PointClass",
     "RegistrationError",
     "classify_scan",
+    "ClassifySettings",
     "read_any",
     "measure_leaf_angles",
+    "LeafAngleSettings",
     "register_pair",
     "register_scans",
+    "RegisterSettings",
     "Estimator",
     "EchoWeights",
     "VoxelGrid",

@@ -104,7 +104,7 @@ def test_em_recovers_the_distribution_and_the_mixes_from_rows_of_different_kerne
     """The crown inverts the rows of every scan, layer and zenith group together: one distribution, an
     occlusion mix per row set and an azimuth mix explain them all (exact rows, so only the EM's convergence
     limits the match)."""
-    from tlsvox.leafangles import _em
+    from tlsvox.leafangles._histogram import _em
 
     rng = np.random.default_rng(0)
     n_mod, n_lev, n_bins, n_col = 2, 3, 8, 40
@@ -151,7 +151,7 @@ def _grid_plane(spacing=0.005, n=11):
 
 def test_edge_on_fits_are_dropped():
     """A fit whose normal is nearer edge-on to its beam than |cos a| = cap is dropped; facing ones kept."""
-    from tlsvox.leafangles import _fit_scan
+    from tlsvox.leafangles._planes import _fit_scan
 
     xyz = _grid_plane()
     kw = dict(radius=0.012, min_points=5, min_spread=0.0, n_bins=18, cap=0.2)
@@ -166,7 +166,7 @@ def test_occlusion_levels_hide_more_of_the_leaf_in_order():
     """Simulated neighbour counts: the whole leaf > one cut > the same cut on two sides.  300 echoes: the
     whole leaf and the shallowest cut differ by 0.8-1.3 echoes on seeds 3-5 (with the pruned pulse grids),
     the means' Monte Carlo error is about 0.1."""
-    from tlsvox.leafangles import _CUTS, _MAX_COUNT, _simulate_kernel
+    from tlsvox.leafangles._simulate import _CUTS, _MAX_COUNT, _simulate_kernel
 
     rng = np.random.default_rng(3)
     n = 300
@@ -190,7 +190,8 @@ def test_second_leaf_levels_add_echoes_and_spread_the_normals():
     alone, and fewer fits in their true inclination bin (pooled over the three levels).  On seeds 0-5 the
     pooled shares differed by 0.07-0.11 (with the pruned pulse grids), so the 0.03 margin is well below the
     smallest."""
-    from tlsvox.leafangles import _BANDS, _CUTS, _MAX_COUNT, _SECOND_CUTS, _measured_bins, _simulate_kernel
+    from tlsvox.leafangles._planes import _measured_bins
+    from tlsvox.leafangles._simulate import _BANDS, _CUTS, _MAX_COUNT, _SECOND_CUTS, _simulate_kernel
 
     rng = np.random.default_rng(5)
     n = 600
@@ -263,7 +264,7 @@ def test_pulse_grid_keeps_every_pulse_that_can_give_a_neighbour():
     taken ``margin`` nearer than its range: checked against a wide grid by brute force (the exact distance from
     the echo to each ray) over ranges 3-30 m and beam zenith angles 30-150 deg, for one echo and for two echoes
     sharing a grid (each echo's pulses must be in it)."""
-    from tlsvox.leafangles import _pulse_grid
+    from tlsvox.leafangles._simulate import _pulse_grid
 
     rng = np.random.default_rng(0)
     step = np.radians([0.06, 0.04])
@@ -293,3 +294,27 @@ def test_pulse_grid_keeps_every_pulse_that_can_give_a_neighbour():
         for j in range(2):
             assert needed(r[j], zen[j], azi[j]) <= both, (r, np.degrees(zen), j)
     assert dropped > 75  # the grid is cut to the ellipse, not the bounding rectangle
+
+
+def test_settings_group_the_options_and_repeat_a_measurement(tmp_path):
+    """The keyword arguments are the fields of LeafAngleSettings (four groups); a measurement records them in
+    full and is repeated bit for bit from that record, from a TOML file, or from the settings object."""
+    from tlsvox.leafangles import LeafAngleSettings
+
+    slab, scan = _scan_of("planophile", noise=0.005)
+    kw = dict(layers=2, samples=1, max_simulated=300, iterations=30, beam=[0.007, 0.35, 7])
+    first = measure_leaf_angles([scan], **kw)
+    s = LeafAngleSettings.from_dict(first.params["settings"])
+    assert s == LeafAngleSettings.from_kwargs(**kw) and s.instrument.beam == (0.007, 0.35, 7)
+    assert s.histogram.layers == 2 and s.deconvolution.iterations == 30 and s.planes.radius == 0.025
+    s.write(tmp_path / "angles.toml")
+    assert LeafAngleSettings.read(tmp_path / "angles.toml") == s
+    for again in (measure_leaf_angles([scan], s), measure_leaf_angles([scan], LeafAngleSettings.read(
+            tmp_path / "angles.toml"))):
+        assert again.to_dict() == first.to_dict()
+    # a keyword replaces one field of the given settings
+    assert measure_leaf_angles([scan], s, method="weighted").params["settings"]["histogram"]["method"] == "weighted"
+    with pytest.raises(InputError, match=r"unknown leaf-angle setting\(s\) \['radious'\]"):
+        measure_leaf_angles([scan], radious=0.03)
+    with pytest.raises(InputError, match=r"unknown field\(s\) \['layer'\] in leaf-angle settings \[histogram\]"):
+        LeafAngleSettings.from_dict({"histogram": {"layer": 3}})

@@ -82,10 +82,12 @@ from tlsvox.classify._mixture import (
                                       leaf_wood_threshold,
 )
 from tlsvox.classify._score import Score, score
+from tlsvox.classify.settings import ClassifySettings
 
 __all__ = [
     "Classification",
     "ClassifyMethod",
+    "ClassifySettings",
     "GaussianMixture",
     "GaussianMixture2",
     "PointClass",

@@ -17,6 +17,7 @@ from tlsvox.classify._mixture import (
     leaf_wood_threshold,
     parse_components,
 )
+from tlsvox.classify.settings import ClassifySettings
 from tlsvox.errors import InputError
 from tlsvox.io import check_scan
 from tlsvox.reflectance import apparent_reflectance
@@ -68,6 +69,9 @@ class Classification:
         Leaf-classed echoes relabelled wood because they lie on the bark of a
         cylinder fitted to the wood echoes (:func:`tlsvox.qsm.bark_echoes`;
         :func:`tlsvox.pipeline.scene_from_scans` does it; 0 otherwise).
+    settings : dict
+        The run's :class:`~tlsvox.classify.settings.ClassifySettings`, as
+        ``to_dict`` gives them (``ClassifySettings.from_dict`` repeats it).
     """
 
     scan_name: str
@@ -87,6 +91,7 @@ class Classification:
     incidence_correction: bool = False
     fit_single_returns: bool = False
     on_cylinders: int = 0
+    settings: dict = field(default_factory=dict)
 
     def with_bark(self, bark) -> Classification:
         """A copy with the echoes of ``bark`` ((N,) bool: leaf echoes on a fitted cylinder's bark,
@@ -108,7 +113,7 @@ class Classification:
                 "components": m.n_components, "means": m.means.tolist(), "sigmas": m.sigmas.tolist(),
                 "weights": m.weights.tolist(),
                 "refined": self.refined, "moved_to_wood": self.moved_to_wood, "on_cylinders": self.on_cylinders,
-                "counts": self.counts}
+                "counts": self.counts, "settings": self.settings}
 
 
 def class_counts(labels) -> dict:
@@ -123,17 +128,14 @@ def _scan_step_deg(scan: Scan) -> float | None:
     return float(min(grid.zenith_step_deg, grid.azimuth_step_deg))
 
 
-def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.NEIGHBOURHOOD,
-                  rule: str | ThresholdRule = ThresholdRule.MIDWAY, components: int | str = "bic",
-                  incidence_correction: bool = False, fit_single_returns: bool = True,
-                  smooth_k: int = 10, normal_k: int = 20,
-                  min_cos: float = 0.2, noise_radius_cells: float = 10.0, noise_min_neighbours: int = 1,
-                  nominal_leaf_reflectance: float | None = None, noise_fraction: float = 0.5,
-                  target_threshold: float = 1.0, ground: bool = True, ground_band_m: float = 0.5,
-                  ground_tolerance_m: float = 0.05, refine: bool = False, refine_k: int = 20,
-                  min_linearity: float = 0.6, min_wood_fraction: float = 0.5,
-                  wavelength_nm: float = 1550.0, **reflectance_kwargs) -> Classification:
+def classify_scan(scan: Scan, settings: ClassifySettings | None = None, *, calibration=None,
+                  **kwargs) -> Classification:
     """Classify every echo of one scan as leaf, wood, noise, ground or target.
+
+    Its settings come from ``settings``
+    (:class:`~tlsvox.classify.settings.ClassifySettings`, in five groups),
+    any of whose fields a keyword argument replaces (``classify_scan(scan,
+    refine=True)``); ``Classification.settings`` records them in full.
 
     Parameters
     ----------
@@ -141,6 +143,10 @@ def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.N
         Needs reflectance (dB) or intensity (then pass ``calibration=``, see
         :func:`tlsvox.reflectance.apparent_reflectance`).  Points in the
         scanner frame (scanner at the origin, z up).
+    settings : ClassifySettings, optional
+        Every setting below, grouped (default: the defaults).
+    calibration : CalibrationTable, optional
+        Raw intensity to reflectance (:func:`tlsvox.reflectance.apparent_reflectance`).
     method : {'neighbourhood', 'echo', 'paper'}
         See :class:`ClassifyMethod` and the module docstring.
     rule : {'midway', 'equal_posterior'}
@@ -184,6 +190,8 @@ def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.N
         Apply :func:`refine_geometric`.
     refine_k, min_linearity, min_wood_fraction
         See :func:`refine_geometric`.
+    source, reference_range_m, allow_relative
+        See :func:`tlsvox.reflectance.apparent_reflectance`.
 
     Returns
     -------
@@ -194,9 +202,14 @@ def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.N
     Béland et al. (2014), doi:10.1016/j.agrformet.2013.09.005
     Kaasalainen et al. (2011), doi:10.3390/rs3102207
     """
-    method = ClassifyMethod.parse(method, "method")
-    rule = ThresholdRule.parse(rule, "rule")
-    components = parse_components(components)
+    st = ClassifySettings.from_kwargs(settings, **kwargs)
+    mx, rf, nz, gr, rn = st.mixture, st.reflectance, st.noise, st.ground, st.refine
+    method = ClassifyMethod.parse(mx.method, "method")
+    rule = ThresholdRule.parse(mx.rule, "rule")
+    components = parse_components(mx.components)
+    nominal_leaf_reflectance, noise_fraction, wavelength_nm = (nz.nominal_leaf_reflectance, nz.noise_fraction,
+                                                               rf.wavelength_nm)
+    smooth_k, normal_k, target_threshold = mx.smooth_k, rf.normal_k, rf.target_threshold
     check_scan(scan, min_points=30, require_reflectance=True)
     if method is ClassifyMethod.PAPER:
         if nominal_leaf_reflectance is None:
@@ -210,11 +223,12 @@ def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.N
     for name, v in (("smooth_k", smooth_k), ("normal_k", normal_k)):
         if int(v) < 1:
             raise InputError(f"{name}={v!r} must be an integer >= 1")
-    rho = apparent_reflectance(scan, **reflectance_kwargs)
+    rho = apparent_reflectance(scan, source=rf.source, calibration=calibration,
+                               reference_range_m=rf.reference_range_m, allow_relative=rf.allow_relative)
     rho = np.where(np.isfinite(rho), rho, 0.0)
     labels = np.full(len(scan), PointClass.NOISE, np.uint8)
-    is_ground = (ground_band_mask(scan.xyz, band_m=ground_band_m, tolerance_m=ground_tolerance_m,
-                              max_tilt_deg=15.0) if ground else np.zeros(len(scan), bool))
+    is_ground = (ground_band_mask(scan.xyz, band_m=gr.ground_band_m, tolerance_m=gr.ground_tolerance_m,
+                              max_tilt_deg=15.0) if gr.ground else np.zeros(len(scan), bool))
     is_target = rho > target_threshold
     candidate = (~is_ground) & (~is_target)
     if method is ClassifyMethod.PAPER:
@@ -227,7 +241,7 @@ def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.N
         if np.count_nonzero(veg):
             idx = np.flatnonzero(veg)
             lone = isolated(scan.xyz[idx], angular_step_deg=_scan_step_deg(scan),
-                            radius_cells=noise_radius_cells, min_neighbours=noise_min_neighbours)
+                            radius_cells=nz.noise_radius_cells, min_neighbours=nz.noise_min_neighbours)
             veg[idx[lone]] = False
         why = f"above 0 and below {target_threshold} with neighbours (not isolated)"
     if np.count_nonzero(veg) < 10:
@@ -236,17 +250,17 @@ def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.N
             "reflectance units (linear 0-1 expected; pass calibration= for raw intensity)")
     idx = np.flatnonzero(veg)
     value = rho[idx]
-    if incidence_correction:
-        value = value / incidence_cosine(scan.xyz[idx], k=normal_k, min_cos=min_cos)
+    if rf.incidence_correction:
+        value = value / incidence_cosine(scan.xyz[idx], k=normal_k, min_cos=rf.min_cos)
     if method is ClassifyMethod.NEIGHBOURHOOD:
         value = neighbourhood_mean(scan.xyz[idx], 10.0 * np.log10(value), k=smooth_k)
         label = f"mean reflectance of {smooth_k + 1} neighbours, dB"
     else:
         label = "apparent reflectance"
-    if incidence_correction:
+    if rf.incidence_correction:
         label += " / cos(incidence)"
     fit = np.ones(len(idx), bool)
-    if (fit_single_returns and method is not ClassifyMethod.PAPER
+    if (mx.fit_single_returns and method is not ClassifyMethod.PAPER
             and getattr(scan, "number_of_returns", None) is not None):
         single = np.asarray(scan.number_of_returns)[idx] == 1
         if np.count_nonzero(single) >= 10:
@@ -259,11 +273,11 @@ def classify_scan(scan: Scan, *, method: str | ClassifyMethod = ClassifyMethod.N
     labels[is_target & ~is_ground] = PointClass.TARGET
     labels[is_ground] = PointClass.GROUND
     moved = 0
-    if refine:
-        labels, moved = refine_geometric(scan.xyz, labels, k=refine_k, min_linearity=min_linearity,
-                                         min_wood_fraction=min_wood_fraction)
+    if rn.refine:
+        labels, moved = refine_geometric(scan.xyz, labels, k=rn.refine_k, min_linearity=rn.min_linearity,
+                                         min_wood_fraction=rn.min_wood_fraction)
     return Classification(scan.name, labels, rho, mix, t, noise_t, target_threshold, rule.value,
-                          refine, moved, class_counts(labels), method=method.value, feature=feature,
+                          rn.refine, moved, class_counts(labels), method=method.value, feature=feature,
                           feature_label=label,
-                          incidence_correction=bool(incidence_correction),
-                          fit_single_returns=bool(fit.sum() < len(fit)))
+                          incidence_correction=bool(rf.incidence_correction),
+                          fit_single_returns=bool(fit.sum() < len(fit)), settings=st.to_dict())

@@ -32,7 +32,7 @@ cloud in the airborne frame (the airborne cloud registered onto it).
 
 Modules, one concept each: ``_transforms`` (rigid transforms and fits),
 ``_targets``, ``_features`` (FPFH + RANSAC), ``_icp`` (ICP and the scores),
-``_pair`` (the pipeline), ``_files`` (merged cloud and transforms on disk),
+``_pair`` (the pipeline's stages), ``settings`` (its settings), ``_files`` (merged cloud and transforms on disk),
 ``georegister``.
 """
 
@@ -44,11 +44,13 @@ from tlsvox.register._pair import RegistrationMethod, RegistrationResult, regist
 from tlsvox.register._targets import TargetShape, detect_targets, match_targets
 from tlsvox.register._transforms import pose_error, rigid_fit, rotation_about_z, true_relative_transform
 from tlsvox.register.georegister import georegister
+from tlsvox.register.settings import RegisterSettings
 
 __all__ = [
     "RegistrationError",
     "RegistrationMethod",
     "RegistrationResult",
+    "RegisterSettings",
     "TargetShape",
     "coincidence",
     "detect_targets",

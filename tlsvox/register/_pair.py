@@ -12,8 +12,9 @@ from tlsvox.errors import InputError, RegistrationError
 from tlsvox.io import check_scan
 from tlsvox.register._features import consensus_groups, feature_matches, fpfh_features, ransac_transform
 from tlsvox.register._icp import coincidence, fitness_scores, off_ground, refine_icp
-from tlsvox.register._targets import TargetShape, detect_targets, match_targets
+from tlsvox.register._targets import detect_targets, match_targets
 from tlsvox.register._transforms import MAX_TILT_DEG, apply_transform, pose_error, true_relative_transform
+from tlsvox.register.settings import RegisterSettings
 from tlsvox.scan import Scan
 from voxlidar.choices import Choice
 
@@ -56,6 +57,9 @@ class RegistrationResult:
     seconds : float
     error_vs_truth : dict or None
         ``rotation_deg``, ``translation_m`` when both scans know ``pose_true``.
+    settings : dict
+        The run's :class:`~tlsvox.register.settings.RegisterSettings`, as
+        ``to_dict`` gives them.
     """
 
     source: str
@@ -74,33 +78,36 @@ class RegistrationResult:
     seconds: float = 0.0
     error_vs_truth: dict | None = None
     coincidence: dict | None = None
+    settings: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("source", "reference", "method", "fitness",
                                            "fitness_off_plane", "inlier_rmse_m",
                                            "fitness_distance_m", "target_rmse_m", "stages", "hypothesis_groups",
-                                           "seconds", "error_vs_truth", "coincidence")}
+                                           "seconds", "error_vs_truth", "coincidence", "settings")}
         d["transform"] = np.asarray(self.transform).tolist()
         d["target_pairs"] = None if self.target_pairs is None else np.asarray(self.target_pairs).tolist()
         d["n_targets"] = None if self.n_targets is None else list(self.n_targets)
         return d
 
 
-def register_pair(source: Scan, reference: Scan, *, method: str | RegistrationMethod = "auto",
-                  init=None, voxel_sizes=(0.2, 0.08, 0.03), global_voxel_m: float = 0.3,
-                  min_fitness: float = 0.25, target_tolerance_m: float = 0.03,
-                  target_shape: str | TargetShape = TargetShape.CYLINDER,
-                  target_radius_m: float = 0.05, min_target_reflectance_db: float = 0.0,
-                  icp_after_targets: bool = False, n_hypotheses: int = 5, min_consensus: int = 1,
-                  consensus_rot_deg: float = 1.0, consensus_trans_m: float = 0.1,
-                  ransac_samples: int = 200_000, min_coincidence_ratio: float = 2.0,
-                  coincidence_m: float = 0.015, levelled: bool = True,
-                  seed: int = 0) -> RegistrationResult:
+def register_pair(source: Scan, reference: Scan, settings: RegisterSettings | None = None, *, init=None,
+                  **kwargs) -> RegistrationResult:
     """Register ``source`` onto ``reference`` (both in their scanner frames).
+
+    The stages: the coarse alignment by targets (:func:`coarse_by_targets`)
+    or by features (:func:`coarse_by_features`, which finishes and tests
+    each hypothesis), or the given ``init``; then ICP and the acceptance test
+    (:func:`finish`).  Their settings come from ``settings``
+    (:class:`~tlsvox.register.settings.RegisterSettings`, in four groups),
+    any of whose fields a keyword argument replaces (``register_pair(a, b,
+    method="fpfh")``); ``RegistrationResult.settings`` records them in full.
 
     Parameters
     ----------
     source, reference : Scan
+    settings : RegisterSettings, optional
+        Every setting below, grouped (default: the defaults).
     method : {'auto', 'targets', 'fpfh', 'icp'}
         Coarse stage; ``auto`` uses targets when >= 3 match, else FPFH.
     init : (4, 4) float, optional
@@ -169,93 +176,110 @@ def register_pair(source: Scan, reference: Scan, *, method: str | RegistrationMe
         Bad scans or options.
     """
     t0 = time.perf_counter()
-    m = RegistrationMethod.parse(method, "method")
+    st = RegisterSettings.from_kwargs(settings, **kwargs)
+    m = RegistrationMethod.parse(st.coarse.method, "method")
     for s in (source, reference):
         check_scan(s, min_points=MIN_POINTS)
-    if not (0.0 < min_fitness <= 1.0):
+    min_fitness = st.acceptance.min_fitness
+    if not (isinstance(min_fitness, int | float) and 0.0 < min_fitness <= 1.0):
         raise InputError(f"min_fitness={min_fitness!r} must lie in (0, 1]")
-    voxel_sizes = tuple(float(v) for v in voxel_sizes)
-    if not voxel_sizes or any(v <= 0 for v in voxel_sizes):
-        raise InputError(f"voxel_sizes={voxel_sizes!r} must be positive lengths in metres, coarse to fine")
+    try:
+        voxel_sizes = tuple(float(v) for v in st.icp.voxel_sizes)
+    except (TypeError, ValueError):
+        voxel_sizes = (-1.0,)
+    if not voxel_sizes or any(not v > 0 for v in voxel_sizes):
+        raise InputError(f"voxel_sizes={st.icp.voxel_sizes!r} must be positive lengths in metres, coarse to fine")
     if m is RegistrationMethod.ICP and init is None:
         raise InputError("method='icp' needs init= (a 4x4 start transform); or use method='auto'")
-    pairs = None
-    n_targets = None
-    used = m.value
-    T0 = None
+    pairs, n_targets, centres, used, T0 = None, None, None, m.value, None
     if m in (RegistrationMethod.AUTO, RegistrationMethod.TARGETS):
-        have = source.reflectance_db is not None and reference.reflectance_db is not None
-        if have:
-            kw = dict(min_reflectance_db=min_target_reflectance_db, target_shape=target_shape,
-                      target_radius_m=target_radius_m)
-            ts, tr = detect_targets(source, **kw), detect_targets(reference, **kw)
-            n_targets = (len(ts), len(tr))
-            found = match_targets(ts, tr, tolerance_m=target_tolerance_m,
-                                  max_tilt_deg=MAX_TILT_DEG if levelled else None)
-            if found is not None:
-                pairs, T0 = found
-                used = "targets"
-        if T0 is None and m is RegistrationMethod.TARGETS:
+        pairs, T0, n_targets, centres = coarse_by_targets(source, reference, st)
+        if T0 is not None:
+            used = "targets"
+        elif m is RegistrationMethod.TARGETS:
             raise RegistrationError(
                 f"{source.name!r} -> {reference.name!r}: no 3 targets in common "
                 f"(targets found: {n_targets if n_targets else 'no reflectance to find them'}); "
                 "use method='fpfh' or 'auto'", {"n_targets": n_targets})
     if T0 is None and m in (RegistrationMethod.AUTO, RegistrationMethod.FPFH):
-        # FPFH on the off-ground points (the ground is featureless and would
-        # dominate); the n_hypotheses best distinct RANSAC peaks, each refined by
-        # coarse ICP (peaks that converge together form a group). In foliage the
-        # inlier count cannot tell the true peak from a structural one (half a
-        # turn of a roughly round crown scores as high), so each group is
-        # finished and judged by the acceptance test below, largest group first.
-        ps, fs = fpfh_features(off_ground(source.xyz, seed=seed), global_voxel_m)
-        pr, fr = fpfh_features(off_ground(reference.xyz, seed=seed), global_voxel_m)
-        P, Q = feature_matches(ps, fs, pr, fr)
-        cands, figs = [], []
-        for Tg, n_in in ransac_transform(P, Q, dist_m=1.5 * global_voxel_m, rng=np.random.default_rng(seed),
-                                n_samples=ransac_samples, levelled=levelled, top=n_hypotheses):
-            Th, st = refine_icp(source.xyz, reference.xyz, Tg, voxel_sizes=voxel_sizes[:1])
-            cands.append(Th)
-            figs.append(dict(st[-1], ransac_inliers=n_in))
-        groups = [g for g in consensus_groups(cands, rot_deg=consensus_rot_deg, trans_m=consensus_trans_m)
-                  if len(g) >= min_consensus]
-        hypotheses = [len(g) for g in groups]
-        tried = []
-        for g in groups:
-            try:
-                return _finish(source, reference, cands[g[0]], "fpfh", voxel_sizes=voxel_sizes,
-                               min_fitness=min_fitness, min_coincidence_ratio=min_coincidence_ratio,
-                               coincidence_m=coincidence_m, seed=seed, t0=t0,
-                               extra=dict(hypothesis_groups=hypotheses))
-            except RegistrationError as err:
-                tried.append(err.figures)
-        summary = [(round(f["fitness"], 3), round(f["fitness_off_plane"], 3),
-                    round(f["coincidence"]["coincidence_ratio"], 2)) for f in tried]
-        raise RegistrationError(
-            f"{source.name!r} -> {reference.name!r}: FPFH + RANSAC found no trustworthy transform: "
-            f"{len(cands)} RANSAC peaks (of {len(P)} feature matches; inliers "
-            f"{[f['ransac_inliers'] for f in figs]}) in {len(groups)} groups of >= {min_consensus}; "
-            f"each finished by ICP scored (fitness, off the dominant plane, coincidence ratio) "
-            f"{summary}, need fitness >= {min_fitness} and coincidence ratio >= {min_coincidence_ratio}. "
-            "The scans probably do not overlap; if they do, add targets or give init= with method='icp'",
-            {"hypothesis_groups": hypotheses, "ransac_inliers": [f["ransac_inliers"] for f in figs],
-             "coarse_fitness": [f["fitness"] for f in figs], "candidates": tried,
-             "coincidence": min((f["coincidence"] for f in tried), key=lambda c: c["coincidence_ratio"],
-                                default=None)})
+        return coarse_by_features(source, reference, st, voxel_sizes, t0)
     if T0 is None:
         T0 = np.asarray(init, dtype=np.float64)
         if T0.shape != (4, 4) or not np.all(np.isfinite(T0)):
             raise InputError(f"init must be a finite 4x4 matrix, got shape {T0.shape}")
         used = "icp"
-    return _finish(source, reference, T0, used, voxel_sizes=voxel_sizes, min_fitness=min_fitness,
-                   min_coincidence_ratio=min_coincidence_ratio, coincidence_m=coincidence_m, seed=seed,
-                   t0=t0, refine=not (used == "targets" and not icp_after_targets),
-                   extra=dict(target_pairs=pairs, n_targets=n_targets,
-                              target_centres=(ts, tr) if pairs is not None else None))
+    return finish(source, reference, T0, used, st, voxel_sizes, t0,
+                  refine=not (used == "targets" and not st.targets.icp_after_targets),
+                  extra=dict(target_pairs=pairs, n_targets=n_targets, target_centres=centres))
 
 
-def _finish(source, reference, T0, used, *, voxel_sizes, min_fitness, min_coincidence_ratio,
-            coincidence_m, seed, t0, refine=True, extra=None) -> RegistrationResult:
+def coarse_by_targets(source: Scan, reference: Scan, st: RegisterSettings):
+    """Targets found in both scans and matched: ``(pairs, transform, counts, centres)``, the pairs and the
+    transform None when fewer than three match (or a scan has no reflectance)."""
+    tg = st.targets
+    if source.reflectance_db is None or reference.reflectance_db is None:
+        return None, None, None, None
+    ts, tr = (detect_targets(s, min_reflectance_db=tg.min_target_reflectance_db, target_shape=tg.target_shape,
+                             target_radius_m=tg.target_radius_m) for s in (source, reference))
+    found = match_targets(ts, tr, tolerance_m=tg.target_tolerance_m,
+                          max_tilt_deg=MAX_TILT_DEG if st.coarse.levelled else None)
+    if found is None:
+        return None, None, (len(ts), len(tr)), None
+    pairs, T0 = found
+    return pairs, T0, (len(ts), len(tr)), (ts, tr)
+
+
+def coarse_by_features(source: Scan, reference: Scan, st: RegisterSettings, voxel_sizes, t0) -> RegistrationResult:
+    """FPFH + RANSAC hypotheses, grouped, each group finished by ICP and tested, largest first (raises when
+    none passes).
+
+    FPFH on the off-ground points (the ground is featureless and would
+    dominate); the ``n_hypotheses`` best distinct RANSAC peaks, each refined
+    by coarse ICP (peaks that converge together form a group). In foliage the
+    inlier count cannot tell the true peak from a structural one (half a turn
+    of a roughly round crown scores as high), so each group is finished and
+    judged by the acceptance test, largest group first.
+    """
+    co, ac = st.coarse, st.acceptance
+    ps, fs = fpfh_features(off_ground(source.xyz, seed=co.seed), co.global_voxel_m)
+    pr, fr = fpfh_features(off_ground(reference.xyz, seed=co.seed), co.global_voxel_m)
+    P, Q = feature_matches(ps, fs, pr, fr)
+    cands, figs = [], []
+    for Tg, n_in in ransac_transform(P, Q, dist_m=1.5 * co.global_voxel_m, rng=np.random.default_rng(co.seed),
+                                     n_samples=co.ransac_samples, levelled=co.levelled, top=co.n_hypotheses):
+        Th, stages = refine_icp(source.xyz, reference.xyz, Tg, voxel_sizes=voxel_sizes[:1])
+        cands.append(Th)
+        figs.append(dict(stages[-1], ransac_inliers=n_in))
+    groups = [g for g in consensus_groups(cands, rot_deg=co.consensus_rot_deg, trans_m=co.consensus_trans_m)
+              if len(g) >= co.min_consensus]
+    hypotheses = [len(g) for g in groups]
+    tried = []
+    for g in groups:
+        try:
+            return finish(source, reference, cands[g[0]], "fpfh", st, voxel_sizes, t0,
+                          extra=dict(hypothesis_groups=hypotheses))
+        except RegistrationError as err:
+            tried.append(err.figures)
+    summary = [(round(f["fitness"], 3), round(f["fitness_off_plane"], 3),
+                round(f["coincidence"]["coincidence_ratio"], 2)) for f in tried]
+    raise RegistrationError(
+        f"{source.name!r} -> {reference.name!r}: FPFH + RANSAC found no trustworthy transform: "
+        f"{len(cands)} RANSAC peaks (of {len(P)} feature matches; inliers "
+        f"{[f['ransac_inliers'] for f in figs]}) in {len(groups)} groups of >= {co.min_consensus}; "
+        f"each finished by ICP scored (fitness, off the dominant plane, coincidence ratio) "
+        f"{summary}, need fitness >= {ac.min_fitness} and coincidence ratio >= {ac.min_coincidence_ratio}. "
+        "The scans probably do not overlap; if they do, add targets or give init= with method='icp'",
+        {"hypothesis_groups": hypotheses, "ransac_inliers": [f["ransac_inliers"] for f in figs],
+         "coarse_fitness": [f["fitness"] for f in figs], "candidates": tried,
+         "coincidence": min((f["coincidence"] for f in tried), key=lambda c: c["coincidence_ratio"],
+                            default=None)})
+
+
+def finish(source: Scan, reference: Scan, T0, used: str, st: RegisterSettings, voxel_sizes, t0, *,
+           refine: bool = True, extra=None) -> RegistrationResult:
     """ICP from ``T0``, then the acceptance test: fitness and coincidence (raises)."""
+    min_fitness, min_coincidence_ratio = st.acceptance.min_fitness, st.acceptance.min_coincidence_ratio
+    coincidence_m, seed = st.acceptance.coincidence_m, st.coarse.seed
     extra = dict(extra or {})
     centres = extra.pop("target_centres", None)
     pairs = extra.get("target_pairs")
@@ -279,7 +303,7 @@ def _finish(source, reference, T0, used, *, voxel_sizes, min_fitness, min_coinci
         source=source.name, reference=reference.name, transform=T, method=used,
         fitness=fit["fitness"], fitness_off_plane=fit["fitness_off_plane"],
         inlier_rmse_m=fit["inlier_rmse_m"], fitness_distance_m=fit["fitness_distance_m"],
-        target_rmse_m=target_rmse, stages=stages, **extra)
+        target_rmse_m=target_rmse, stages=stages, settings=st.to_dict(), **extra)
     T_true = true_relative_transform(source, reference)
     if T_true is not None:
         rot, tr_err = pose_error(T, T_true)

@@ -38,15 +38,12 @@ True
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
+from typing import ClassVar
 
 from tlsvox.errors import InputError
+from tlsvox.grouped import GroupedSettings, _read_toml
 
 __all__ = ["EchoSettings", "GridSettings", "GroundSettings", "ModelSettings", "PoseSettings", "UndetectedSettings",
            "VoxelizeSettings"]
@@ -128,32 +125,13 @@ GROUPS = {"grid": GridSettings, "model": ModelSettings, "ground": GroundSettings
           "undetected": UndetectedSettings, "poses": PoseSettings}
 
 
-def _plain(value):
-    """``value`` as plain Python (tuples for arrays, dicts for dataclasses), for equality and files."""
-    if value is None or isinstance(value, bool | str):
-        return value
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, int | np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        return float(value)
-    if hasattr(value, "to_dict") and not isinstance(value, dict):  # LeafAngle: its own file form
-        return _plain(value.to_dict())
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):  # GroundPlane, AngularGrid
-        return {f.name: _plain(getattr(value, f.name)) for f in fields(value)}
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
-    if isinstance(value, list | tuple):
-        return tuple(_plain(v) for v in value)
-    raise InputError(f"a voxelize setting must be a number, text, a list or a table; got {type(value).__name__}")
-
-
 @dataclass(frozen=True)
-class VoxelizeSettings:
+class VoxelizeSettings(GroupedSettings):
     """Every setting of a :func:`~tlsvox.voxel.stages.voxelize` run, in six groups (module docstring)."""
+
+    GROUPS: ClassVar[dict[str, type]] = GROUPS
+    NULLABLE: ClassVar[tuple[str, ...]] = NULLABLE
+    LABEL: ClassVar[str] = "voxelize"
 
     grid: GridSettings = field(default_factory=GridSettings)
     model: ModelSettings = field(default_factory=ModelSettings)
@@ -161,71 +139,6 @@ class VoxelizeSettings:
     echoes: EchoSettings = field(default_factory=EchoSettings)
     undetected: UndetectedSettings = field(default_factory=UndetectedSettings)
     poses: PoseSettings = field(default_factory=PoseSettings)
-
-    @staticmethod
-    def names() -> dict[str, str]:
-        """Every field's name -> its group's name."""
-        return {f.name: g for g, cls in GROUPS.items() for f in fields(cls)}
-
-    @classmethod
-    def from_kwargs(cls, base: VoxelizeSettings | None = None, **kwargs) -> VoxelizeSettings:
-        """``base`` (default: the defaults) with the named fields replaced; unknown names are refused."""
-        base = base or cls()
-        where = cls.names()
-        unknown = sorted(set(kwargs) - set(where))
-        if unknown:
-            raise InputError(f"unknown voxelize setting(s) {unknown}; the settings are: {sorted(where)}")
-        groups: dict[str, dict] = {g: {} for g in GROUPS}
-        for k, v in kwargs.items():
-            if k in NULLABLE and isinstance(v, str) and v.lower() == "none":
-                v = None
-            groups[where[k]][k] = _plain(v)
-        return cls(**{g: dataclasses.replace(getattr(base, g), **kw) for g, kw in groups.items()})
-
-    def to_kwargs(self) -> dict:
-        """All fields as one flat dict of keyword arguments."""
-        return {f.name: getattr(getattr(self, g), f.name) for g, c in GROUPS.items() for f in fields(c)}
-
-    def to_dict(self) -> dict:
-        """``{group: {field: value}}`` in plain JSON types (what ``scene.meta["settings"]`` holds)."""
-        return {g: {k: _json(v) for k, v in dataclasses.asdict(getattr(self, g)).items()} for g in GROUPS}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> VoxelizeSettings:
-        """The inverse of :meth:`to_dict` (groups may be missing: their defaults; a field missing: its default)."""
-        if not isinstance(d, dict):
-            raise InputError(f"voxelize settings must be a table of groups {sorted(GROUPS)}; got {type(d).__name__}")
-        unknown = sorted(set(d) - set(GROUPS))
-        if unknown:
-            raise InputError(f"unknown voxelize settings group(s) {unknown}; the groups are {sorted(GROUPS)}")
-        flat = {}
-        for g, values in d.items():
-            if not isinstance(values, dict):
-                raise InputError(f"voxelize settings [{g}] must be a table of fields, got {values!r}")
-            known = {f.name for f in fields(GROUPS[g])}
-            bad = sorted(set(values) - known)
-            if bad:
-                raise InputError(f"unknown field(s) {bad} in voxelize settings [{g}]; it holds {sorted(known)}")
-            flat.update(values)
-        return cls.from_kwargs(**flat)
-
-    def to_toml(self) -> str:
-        """The settings as a TOML document (a setting at None is left out where None is its default, else
-        written ``"none"``)."""
-        lines = []
-        for g, values in self.to_dict().items():
-            lines.append(f"[{g}]")
-            lines += [f"{k} = {_toml_value('none' if v is None else v)}" for k, v in values.items()
-                      if v is not None or k in NULLABLE]
-            lines.append("")
-        return "\n".join(lines)
-
-    def write(self, path) -> Path:
-        """Write :meth:`to_toml` to ``path`` (atomically)."""
-        from voxlidar.safeio import atomic_write
-
-        text = self.to_toml()
-        return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
     @classmethod
     def read(cls, path) -> VoxelizeSettings:
@@ -241,33 +154,4 @@ class VoxelizeSettings:
                 raise InputError(f"{path} is a scene without recorded settings (written before voxlidar 0.2, or "
                                  "not by voxelize); pass a TOML file instead")
             return cls.from_dict(meta["settings"])
-        try:
-            d = tomllib.loads(path.read_text(encoding="utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-            raise InputError(f"{path} is not a TOML file ({err}); see VoxelizeSettings.write for one") from None
-        return cls.from_dict(d)
-
-
-def _json(v):
-    """Tuples as lists (JSON and TOML arrays)."""
-    if isinstance(v, tuple):
-        return [_json(x) for x in v]
-    if isinstance(v, dict):
-        return {k: _json(x) for k, x in v.items()}
-    return v
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        if not np.isfinite(v):
-            return ("-inf" if v < 0 else "inf") if np.isinf(v) else "nan"
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string is a JSON string
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items() if x is not None) + " }"
-    raise InputError(f"cannot write {v!r} to TOML")
+        return cls.from_dict(_read_toml(path, cls.__name__))

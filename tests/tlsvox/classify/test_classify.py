@@ -287,3 +287,18 @@ def test_pictures_fig3_and_fig5e(synthetic_scan, tmp_path):
     backend = render_classified(synthetic_scan.xyz, c.labels, tmp_path / "fig5e.png", backend="matplotlib",
                                 width=400, height=400)
     assert backend == "matplotlib" and (tmp_path / "fig5e.png").stat().st_size > 5_000
+
+
+def test_settings_group_the_options_and_repeat_a_classification(synthetic_scan, tmp_path):
+    """classify_scan's keyword arguments are the fields of ClassifySettings (five groups): the same labels from
+    either, the run's settings recorded in full and read back from a TOML file; unknown names are refused."""
+    from tlsvox.classify import ClassifySettings
+
+    by_kwargs = classify_scan(synthetic_scan, refine=True, smooth_k=8)
+    s = ClassifySettings.from_dict(by_kwargs.settings)
+    assert s == ClassifySettings.from_kwargs(refine=True, smooth_k=8) and s.refine.refine and s.mixture.smooth_k == 8
+    s.write(tmp_path / "classify.toml")
+    again = classify_scan(synthetic_scan, ClassifySettings.read(tmp_path / "classify.toml"))
+    assert np.array_equal(again.labels, by_kwargs.labels) and again.summary()["settings"] == by_kwargs.settings
+    with pytest.raises(InputError, match=r"unknown classify setting\(s\) \['smooth'\]"):
+        classify_scan(synthetic_scan, smooth=8)

@@ -314,3 +314,21 @@ def test_synthetic_scans_without_overlap_fail(synthetic_pair):
         assert info.value.figures["coincidence"]["coincidence_ratio"] < 2.0
         messages.add(str(info.value).split("scored")[0])
     assert len(messages) == 1
+
+
+def test_settings_group_the_options_and_repeat_a_registration(toy_pair, tmp_path):
+    """register_pair's keyword arguments are the fields of RegisterSettings (four groups): the same transform
+    from either, the run's settings recorded in its result and read back from a TOML file."""
+    from tlsvox.register import RegisterSettings
+
+    A, B = toy_pair
+    first = register_pair(B, A, method="targets", target_tolerance_m=0.04)
+    s = RegisterSettings.from_dict(first.to_dict()["settings"])
+    assert s.coarse.method == "targets" and s.targets.target_tolerance_m == 0.04 and s.icp.voxel_sizes[-1] == 0.03
+    s.write(tmp_path / "register.toml")
+    again = register_pair(B, A, RegisterSettings.read(tmp_path / "register.toml"))
+    assert np.array_equal(again.transform, first.transform) and again.settings == first.settings
+    with pytest.raises(InputError, match=r"unknown register setting\(s\) \['voxel_size'\]"):
+        register_pair(B, A, voxel_size=0.1)
+    with pytest.raises(InputError, match="voxel_sizes"):
+        register_pair(B, A, voxel_sizes=("a",))
