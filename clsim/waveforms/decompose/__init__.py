@@ -5,7 +5,23 @@ echoes (Hofton et al. 2000; Wagner et al. 2006)
 
 .. math::  y(t) = b + \\sum_k A_k \\exp\\left(-\\frac{(t-\\mu_k)^2}{2\\sigma_k^2}\\right)
 
-The steps, each an option of :func:`decompose`:
+One algorithm, two entry points. :func:`decompose_batch` decomposes many
+waveforms at once (module :mod:`._batch`: robust baseline and noise, no-data
+gaps, clipped samples censored, a matched filter with the system pulse and its
+false-alarm threshold, Levenberg-Marquardt fits of all waveforms with the same
+number of echoes together, pruning, and rounds of adding a resolved echo at the
+highest residual feature while the Bayesian information criterion falls); on an
+OpenCL device the detection (:mod:`._detect_cl`) and the fits
+(:mod:`._batch_cl`) run there, one waveform per work-item, else each step is
+one NumPy call over all of them (:mod:`._batch_detect`, :mod:`._batch_select`,
+:mod:`._batch_fit`). :func:`decompose` of one waveform, with its default
+detection (``"matched"``), is ``decompose_batch([samples])[0]``: the same
+steps, the same defaults, the same answer. A waveform's echoes depend only on
+itself and on what the call shares (the pulse, the cap on echoes): never on
+``chunk`` or on the order of the input.
+
+The earlier amplitude rule (``decompose(detection="amplitude")``, chosen too
+by ``min_amplitude`` or ``impulse``) is :func:`decompose`'s own. Its steps:
 
 1. Baseline ``b`` and noise standard deviation are estimated robustly (lowest
    fifth of the samples; median absolute first difference). Exact zeros more
@@ -13,23 +29,15 @@ The steps, each an option of :func:`decompose`:
    two digitised segments of a NEON record) and are left out of the fit.
 2. Optional deconvolution with a measured system impulse response
    (Richardson-Lucy; Zhou et al. 2017 used it on the same NEON waveforms).
-3. Detection (``detection=``). ``"matched"`` (default): the waveform is
-   correlated with the system pulse (measured, ``pulse=``; or a Gaussian,
-   ``pulse_sigma_ns=``, by default as wide as the strongest echo) and the
-   threshold is set from the noise sigma so that a noise-only waveform gives
-   ``false_alarm`` (0.01) false echoes on average (Rice's up-crossing rate;
-   :mod:`._matched`). Candidates: the amplitude rule's local maxima and
-   terraces inside the filter's excursions above the threshold, plus every
-   further maximum of the filter output. ``"amplitude"`` (the earlier rule,
-   and the default with ``min_amplitude`` or ``impulse``): local maxima of the
-   (optionally Gaussian-smoothed) waveform plus "terraces" (runs of equal
-   samples on a rising or falling flank, the trace of a weak echo riding on a
-   strong one in 8-bit data) plus echoes cut by the ends of the record, kept
-   when they rise ``min_amplitude`` above the baseline. Initial width: the
-   full width at half maximum between the linearly interpolated half-maximum
-   crossings of the two flanks (Hofton et al. 2000); a flank that a
-   neighbouring echo stops before half height gives the Gaussian through its
-   valley sample instead.
+3. Detection: local maxima of the (optionally Gaussian-smoothed, ``smooth_ns``)
+   waveform plus "terraces" (runs of equal samples on a rising or falling
+   flank, the trace of a weak echo riding on a strong one in 8-bit data) plus
+   echoes cut by the ends of the record, kept when they rise
+   ``min_amplitude`` (default 4 noise sigma) above the baseline. Initial
+   width: the full width at half maximum between the linearly interpolated
+   half-maximum crossings of the two flanks (Hofton et al. 2000); a flank that
+   a neighbouring echo stops before half height gives the Gaussian through
+   its valley sample instead.
 4. Levenberg-Marquardt least squares (MINPACK ``lmder`` through
    :func:`scipy.optimize.leastsq`) with the analytic Jacobian; location,
    width, amplitude of every echo and the baseline are free. Start values:
@@ -37,12 +45,9 @@ The steps, each an option of :func:`decompose`:
    linear least-squares fit at those locations and widths. Clipped
    (saturated) samples are censored: they count only where the model falls
    below them (Tobin 1958), so the unclipped flanks set height and width.
-5. Component count: echoes that are not significant (under the detection
-   threshold: with matched detection, an echo's own matched-filter SNR
-   ``A sqrt(sigma sqrt(pi)) / noise`` under the threshold; else its amplitude
-   under ``min_amplitude``; or under two standard errors) or not resolvable
-   (sigma under 0.3 sample) are dropped and the fit repeated; then an echo is
-   added at the largest (matched-filtered or smoothed) residual above the
+5. Component count: echoes under ``min_amplitude`` or two standard errors,
+   or not resolvable (sigma under 0.3 sample), are dropped and the fit
+   repeated; then an echo is added at the largest smoothed residual above the
    threshold when, fitted alone to the residual, it is resolved from every
    echo already there by Sparrow's criterion (the pair's sum shows two
    features: four inflection points), and kept after the refit of all echoes
@@ -51,19 +56,12 @@ The steps, each an option of :func:`decompose`:
 6. Standard errors from the covariance ``s^2 (J^T J)^{-1}`` with
    ``s^2 = RSS / (n - p)``.
 
-:func:`decompose_batch` runs the same steps (matched detection) on many
-waveforms at once and returns an :class:`EchoTable`: on an OpenCL device the
-detection (:mod:`._detect_cl`) and the Levenberg-Marquardt fits
-(:mod:`._batch_cl`) run there, one waveform per work-item; without one, each
-step is one NumPy call over all of them (:mod:`._batch_detect`,
-:mod:`._batch_select`, :mod:`._batch_fit`).
-
 Modules: ``_model`` (the Gaussian sum, :class:`Components`), ``_results``
 (:class:`EchoTable`, records, CSV), ``_checks``, ``_noise`` (baseline, noise,
 gaps, clipping), ``_detection`` (local maxima and terraces), ``_matched``
 (matched filter, false-alarm threshold), ``_deconvolve``, ``_fitting`` (one
 waveform's Levenberg-Marquardt), ``_selection`` (pruning, BIC additions),
-``_single`` (:func:`decompose`), ``_batch_detect`` (NumPy detection of the
+``_single`` (:func:`decompose`: a batch of one, or the amplitude rule), ``_batch_detect`` (NumPy detection of the
 batch), ``_batch_select`` (its grouped fits, pruning and additions),
 ``_batch_fit`` (NumPy fits), ``_batch_cl`` (OpenCL fits), ``_detect_cl`` (OpenCL
 detection) and ``_batch`` (:func:`decompose_batch`: input, chunks, the table).

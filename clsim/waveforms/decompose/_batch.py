@@ -1,7 +1,7 @@
 """Decomposition of many waveforms at once, vectorised across waveforms.
 
-The steps of :func:`decompose` with ``detection="matched"``, each one NumPy
-call over a padded (N, n) array: robust baseline and noise, no-data gaps,
+The one algorithm of matched detection (:func:`decompose` runs it on a batch of
+one), each step one NumPy call over a padded (N, n) array: robust baseline and noise, no-data gaps,
 clipped samples, the matched filter and its threshold, candidates, start
 widths (a log-parabola through the three samples around each maximum, exact
 for a Gaussian: Caruana et al. 1986), then the Levenberg-Marquardt fit of all
@@ -20,14 +20,12 @@ result buffer, each group's results read back while the next computes; two
 chunks are in flight at once (threads), so one chunk's host steps overlap the
 other's kernels. Without a device, everything is vectorised in NumPy (:mod:`._batch_detect`, :mod:`._batch_fit`).
 
-Differences from :func:`decompose`, for speed: one pulse for the whole call
-(default: the 20th percentile of the widths of every waveform's strongest echo,
-taken before the waveforms are split into chunks, so that no result depends on
-``chunk`` or on the input's order), no
-terraces but shoulders (minima of the smoothed curvature), a residual feature
-tested for resolution from its start values (no lone fit), a rejected one ends
-the search unless it was unresolved (at most 3 unresolved ones are passed over
-in a row), and no retry with the baseline held.
+One pulse for the whole call (default: the 20th percentile of the widths of
+every waveform's strongest echo, taken before the waveforms are split into
+chunks, so that no result depends on ``chunk`` or on the input's order);
+shoulders (minima of the smoothed curvature) as candidates; a residual feature
+tested for resolution from its start values; a rejected one ends the search
+unless it was unresolved (at most 3 unresolved ones are passed over in a row).
 
 Modules: :mod:`._batch_detect` (the NumPy detection), :mod:`._batch_select`
 (fits of grouped rows, pruning, additions), :mod:`._batch_fit` (NumPy fits),
@@ -53,6 +51,7 @@ from clsim.waveforms.decompose._batch_select import _add, _prune, _refit, _rescu
 from clsim.waveforms.decompose._checks import _positive
 from clsim.waveforms.decompose._detect_cl import MAX_CANDIDATES
 from clsim.waveforms.decompose._matched import FALSE_ALARM, Pulse
+from clsim.waveforms.decompose._model import MAX_COMPONENTS
 from clsim.waveforms.decompose._results import EchoTable
 
 __all__ = ["decompose_batch"]
@@ -105,7 +104,7 @@ def _pad(waveforms):
 
 def decompose_batch(waveforms, *, dt_ns: float = 1.0, t0_ns=0.0, pulse=None,
                     pulse_sigma_ns=None, false_alarm: float = FALSE_ALARM,
-                    saturation="auto", max_components: int = 8,
+                    saturation="auto", max_components: int = MAX_COMPONENTS,
                     add_components: bool = True, chunk: int = 2000,
                     device=None) -> EchoTable:
     """Gaussian decomposition of many waveforms at once (see the module docstring).

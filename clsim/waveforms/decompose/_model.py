@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
+#: the default upper bound on echoes per waveform, of decompose and decompose_batch alike
+MAX_COMPONENTS = 8
 
 
 @dataclass

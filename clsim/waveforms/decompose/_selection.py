@@ -7,7 +7,6 @@ from scipy.ndimage import gaussian_filter1d
 
 from clsim.waveforms.decompose._detection import _half_width
 from clsim.waveforms.decompose._fitting import _MIN_SIGMA_SAMPLES, _fit, _split, _standard_errors
-from clsim.waveforms.decompose._matched import Pulse, filter_output
 from clsim.waveforms.decompose._model import gaussian_sum
 
 
@@ -28,36 +27,6 @@ class _AmplitudeRule:
         rs = gaussian_filter1d(r, max(self.smooth, 1.0))
         rs[skipped] = -np.inf
         return rs, self.thr
-
-
-class _MatchedRule:
-    """Significance by matched-filter SNR: an echo of height ``a`` and width ``s``
-    (samples) stands ``a sqrt(s sqrt(pi)) / sigma`` noise sigmas high in the output of
-    its own matched filter and must reach ``u``; residual peaks are sought in the
-    output of the system pulse's matched filter, at the same false-alarm level, and
-    in the residual smoothed by ``smooth`` samples at 4 sigma (``strong``: narrow
-    structure that a broad pulse estimate would smooth away); the search follows
-    whichever of the two stands higher above its threshold."""
-
-    def __init__(self, u: float, sigma: float, pulse: Pulse, smooth: float):
-        self.u, self.sigma, self.pulse = float(u), float(sigma), pulse
-        self.strong = _AmplitudeRule(4.0 * sigma, smooth)
-
-    def weak(self, a, s):
-        with np.errstate(invalid="ignore"):
-            return a * np.sqrt(np.abs(s) * np.sqrt(np.pi)) < self.u * self.sigma
-
-    def residual(self, r, skipped):
-        rs = filter_output(r, self.pulse)
-        rs[skipped] = -np.inf
-        level = self.u * self.sigma / self.pulse.norm
-        ra, la = self.strong.residual(r, skipped)
-        self.last_mf = rs
-        return (ra, la) if ra.max() / la > rs.max() / level else (rs, level)
-
-    def width(self, matched: bool) -> float:
-        """Variance (samples^2) the last residual filter adds to a feature's width."""
-        return self.pulse.sigma ** 2 if matched else max(self.strong.smooth, 1.0) ** 2
 
 
 def _bic(rss: float, n: int, n_params: int) -> float:
@@ -93,7 +62,7 @@ def _order_and_fit(amp, loc, sig, base, *, y, valid, rule, k_max, censored,
     """Fit, prune insignificant echoes, add resolved echoes at residual peaks (BIC).
 
     ``valid`` (mask or None) selects the samples fitted; ``y`` has its gaps filled.
-    ``rule`` (``_AmplitudeRule`` or ``_MatchedRule``) says which echoes are too weak
+    ``rule`` (an ``_AmplitudeRule``) says which echoes are too weak
     and filters the residual for the search of further echoes.
     Returns (params, free, cov, rss) or None when no echo survives.
     """

@@ -13,25 +13,29 @@ from clsim.waveforms.decompose._fitting import _linear_start, _split, _standard_
 from clsim.waveforms.decompose._matched import (
     FALSE_ALARM,
     Detection,
-    _local_maxima,
-    _subsample,
-    clipped_baseline,
-    filter_output,
-    resolve_pulse,
-    threshold,
 )
-from clsim.waveforms.decompose._model import Components
+from clsim.waveforms.decompose._model import MAX_COMPONENTS, Components
 from clsim.waveforms.decompose._noise import _gaps, _saturated, noise_level
-from clsim.waveforms.decompose._selection import _AmplitudeRule, _MatchedRule, _order_and_fit
+from clsim.waveforms.decompose._selection import _AmplitudeRule, _order_and_fit
 
 
 def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=None,
-              smooth_ns: float = 1.0, terraces: bool = True, max_components: int = 12,
-              add_components: bool = True, fit_baseline: bool = True, baseline=None,
+              smooth_ns: float | None = None, terraces: bool | None = None,
+              max_components: int = MAX_COMPONENTS,
+              add_components: bool = True, fit_baseline: bool | None = None, baseline=None,
               impulse=None, deconvolution_iterations: int = 30, saturation="auto",
-              max_nfev: int = 400, detection=None, pulse=None, pulse_sigma_ns=None,
-              false_alarm: float = FALSE_ALARM) -> Components:
+              max_nfev: int | None = None, detection=None, pulse=None, pulse_sigma_ns=None,
+              false_alarm: float = FALSE_ALARM, device=None) -> Components:
     """Gaussian decomposition of one waveform (see the module docstring).
+
+    With the default detection (``"matched"``) this is
+    ``decompose_batch([samples], ...)[0]``: the one algorithm of
+    :func:`decompose_batch`, with its defaults, run on a batch of one (on the
+    OpenCL device it chooses, ``device=``). The earlier amplitude rule
+    (``detection="amplitude"``, selected by ``min_amplitude`` or ``impulse``)
+    is this function's own, with the options that belong to it alone
+    (``smooth_ns``, ``terraces``, ``fit_baseline``, ``baseline``,
+    ``max_nfev``, ``impulse``).
 
     Parameters
     ----------
@@ -45,20 +49,25 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         Amplitude detection threshold above the baseline, sample units, for
         ``detection="amplitude"`` (default 4 noise standard deviations). Giving
         it selects that detection.
-    smooth_ns : float
-        Gaussian smoothing (standard deviation, ns) used for detection and for
-        the residual search only; the fit always uses the raw samples.
-    terraces : bool
-        Detect runs of equal samples on flanks as weak echoes.
+    smooth_ns : float, optional
+        Amplitude rule: Gaussian smoothing (standard deviation, ns, default 1)
+        used for detection and for the residual search only; the fit always
+        uses the raw samples.
+    terraces : bool, optional
+        Amplitude rule: detect runs of equal samples on flanks as weak echoes
+        (default True).
     max_components : int
-        Upper bound on the number of echoes.
+        Upper bound on the number of echoes (the same default as
+        :func:`decompose_batch`).
     add_components : bool
         Add echoes at residual maxima while the BIC decreases; a new echo must
         be resolved from the others where it appears (Sparrow's criterion).
-    fit_baseline : bool
-        Fit the baseline (else hold it at ``baseline`` or the estimate).
+    fit_baseline : bool, optional
+        Amplitude rule: fit the baseline (default), else hold it at
+        ``baseline`` or the estimate.
     baseline : float, optional
-        Baseline value (start value when fitted). Default: estimated.
+        Amplitude rule: baseline value (start value when fitted). Default:
+        estimated.
     impulse : (m,) array_like, optional
         Measured system impulse response; when given the waveform is first
         deconvolved (:func:`deconvolve`) and the echoes are those of the
@@ -74,26 +83,30 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         unless it is clipped or wider than the quantisation allows);
         a number: the digitiser's full-scale value (samples at or above it are
         clipped); None: no censoring.
-    max_nfev : int
-        Function evaluations per Levenberg-Marquardt run.
+    max_nfev : int, optional
+        Amplitude rule: function evaluations per Levenberg-Marquardt run
+        (default 400).
     detection : {"matched", "amplitude"}, optional
-        ``"matched"`` (default): candidates where the matched filter with the
-        system pulse exceeds the threshold for ``false_alarm`` (Rice 1944),
-        plus the local maxima and terraces of the amplitude rule inside those
-        excursions; an echo is kept when its own matched-filter SNR,
-        ``a sqrt(s sqrt(pi)) / noise_sigma`` (``s`` in samples), reaches the
-        same threshold. ``"amplitude"``: the earlier rule, candidates and
-        echoes ``min_amplitude`` above the baseline. Default ``"amplitude"``
-        when ``min_amplitude`` or ``impulse`` is given, else ``"matched"``.
+        ``"matched"`` (default): :func:`decompose_batch`'s algorithm on a
+        batch of one (candidates where the matched filter with the system
+        pulse exceeds the threshold for ``false_alarm``, Rice 1944; an echo
+        kept when its own matched-filter SNR reaches the same threshold).
+        ``"amplitude"``: the earlier rule, candidates and echoes
+        ``min_amplitude`` above the baseline. Default ``"amplitude"`` when
+        ``min_amplitude`` or ``impulse`` is given, else ``"matched"``.
     pulse : (m,) array_like, optional
         Measured system pulse for the matched filter (same sample spacing).
     pulse_sigma_ns : float, optional
         Else a Gaussian pulse of this standard deviation, ns. Default: the
-        width of the strongest echo (2 samples when none rises 4 sigma).
+        width of the waveform's strongest echo (as :func:`decompose_batch`
+        takes it for a batch of one).
     false_alarm : float
         Expected false echoes per noise-only waveform at detection (white
         Gaussian noise); the residual search for further echoes uses the same
         threshold.
+    device : str, DeviceInfo, pyopencl.Device or None
+        Matched detection: where the batch of one runs (as
+        :func:`decompose_batch`'s ``device``; ``"numpy"`` for NumPy).
 
     Returns
     -------
@@ -106,7 +119,7 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         Samples not 1-D, not finite, fewer than 4; non-positive ``dt_ns``;
         ``saturation`` neither "auto", None nor a positive number; unknown
         ``detection``; ``detection="matched"`` with ``min_amplitude`` or
-        ``impulse``.
+        ``impulse``; with matched detection, an option of the amplitude rule.
 
     Examples
     --------
@@ -129,6 +142,22 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
                          "detection='amplitude'")
     if int(max_components) < 1:
         raise InputError(f"max_components must be >= 1; got {max_components!r}")
+    if detection is Detection.MATCHED:
+        own = [k for k, v in (("smooth_ns", smooth_ns), ("terraces", terraces), ("fit_baseline", fit_baseline),
+                              ("baseline", baseline), ("max_nfev", max_nfev)) if v is not None]
+        if own:
+            raise InputError(f"{', '.join(own)} belong(s) to detection='amplitude'; the matched detection (the "
+                             "default) is decompose_batch's algorithm, which sets them itself: drop them, or pass "
+                             "detection='amplitude'")
+        from clsim.waveforms.decompose._batch import decompose_batch
+
+        return decompose_batch([y], dt_ns=dt, t0_ns=t0_ns, pulse=pulse, pulse_sigma_ns=pulse_sigma_ns,
+                               false_alarm=false_alarm, saturation=saturation, max_components=max_components,
+                               add_components=add_components, device=device)[0]
+    smooth_ns = 1.0 if smooth_ns is None else smooth_ns
+    terraces = True if terraces is None else bool(terraces)
+    fit_baseline = True if fit_baseline is None else bool(fit_baseline)
+    max_nfev = 400 if max_nfev is None else int(max_nfev)
     # no-data fill (exact zeros far below the baseline, e.g. the gap between two digitised
     # segments of a NEON record) is left out of the fit; detection sees it interpolated
     valid = _gaps(y) if impulse is None else None
@@ -153,13 +182,7 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
                           saturation)
     if impulse is not None:
         censored = None
-    if detection is Detection.MATCHED:
-        cand, rule = _matched_candidates(y, ys, base0, sigma, terraces, valid, pulse=pulse,
-                                         pulse_sigma_ns=pulse_sigma_ns, dt=dt,
-                                         false_alarm=_positive(false_alarm, "false_alarm"),
-                                         smooth=smooth)
-    else:
-        cand, rule = _detect(ys, base0, thr, terraces, True), _AmplitudeRule(thr, smooth)
+    cand, rule = _detect(ys, base0, thr, terraces, True), _AmplitudeRule(thr, smooth)
     if not cand:
         return Components.empty(baseline=base0, noise_sigma=sigma,
                                 rss=float(np.sum((y - base0) ** 2)))
@@ -197,31 +220,3 @@ def decompose(samples, *, dt_ns: float = 1.0, t0_ns: float = 0.0, min_amplitude=
         amplitude_se=se[0:-1:3][order], location_se_ns=se[1:-1:3][order] * dt,
         sigma_se_ns=se[2:-1:3][order] * dt, baseline=b, baseline_se=float(se[-1]),
         noise_sigma=sigma, rss=rss)
-
-
-
-def _matched_candidates(y, ys, base0, sigma, terraces, valid, *, pulse, pulse_sigma_ns, dt,
-                        false_alarm, smooth):
-    """Candidates of the matched detection and the matching significance rule.
-
-    The amplitude rule's local maxima and terraces (4 sigma above the clipped
-    baseline) that lie where the matched filter exceeds its threshold, then
-    every further maximum of the filter output more than one pulse sigma from
-    them (start width: the pulse's).
-    """
-    pl = resolve_pulse(y, base0, sigma, pulse=pulse, pulse_sigma_ns=pulse_sigma_ns, dt=dt)
-    b = clipped_baseline(y, sigma, base0)
-    f = filter_output(y - b, pl)
-    n_valid = y.size if valid is None else int(valid.sum())
-    u = threshold(n_valid, pl, false_alarm=false_alarm)
-    level = u * sigma / pl.norm
-    strong = [c for c in _detect(ys, b, 4.0 * sigma, terraces, True)
-              if f[min(max(int(round(c[0])), 0), y.size - 1)] >= level]
-    idx = _local_maxima(f, level)
-    if valid is not None:
-        idx = idx[valid[idx]]
-    near = np.array([c[0] for c in strong])
-    for i, x in zip(idx, _subsample(f, idx)):
-        if near.size == 0 or np.min(np.abs(near - x)) > max(1.0, pl.sigma):
-            strong.append((float(x), float(f[i]), pl.sigma))
-    return strong, _MatchedRule(u, sigma, pl, smooth)

@@ -65,10 +65,11 @@ def test_standard_errors_match_monte_carlo_scatter():
 
 def test_dt_and_t0_scale_the_clock(rng):
     y = _synthetic(rng)
-    a = decompose(y)
-    b = decompose(y, dt_ns=0.5, t0_ns=100.0, smooth_ns=0.5)
-    np.testing.assert_allclose(b.location_ns, 100.0 + 0.5 * a.location_ns)
-    np.testing.assert_allclose(b.sigma_ns, 0.5 * a.sigma_ns)
+    for kw, half in (({}, {}), ({"detection": "amplitude"}, {"detection": "amplitude", "smooth_ns": 0.5})):
+        a = decompose(y, **kw)
+        b = decompose(y, dt_ns=0.5, t0_ns=100.0, **half)
+        np.testing.assert_allclose(b.location_ns, 100.0 + 0.5 * a.location_ns)
+        np.testing.assert_allclose(b.sigma_ns, 0.5 * a.sigma_ns)
 
 
 def test_noise_only_gives_no_echo():

@@ -42,15 +42,40 @@ def test_known_components_and_calibrated_errors(decompose_device):
 
 
 def test_batch_agrees_with_single(decompose_device):
-    """Same waveforms, same echo count: the batched and the single-waveform fits reach
+    """Same waveforms, same echo count: a batch of many and each waveform alone (its own pulse width) reach
     the same minimum (locations within 0.2 standard error)."""
     ys = _three(np.random.default_rng(3), 30)
     table = decompose_batch(ys, device=decompose_device)
     for i, y in enumerate(ys):
-        one, many = decompose(y), table[i]
+        one, many = decompose(y, device=decompose_device), table[i]
         assert len(one) == len(many) == 3
         dz = np.abs(one.location_ns - many.location_ns) / one.location_se_ns
         assert np.all(dz < 0.2), dz
+
+
+def test_single_call_is_a_batch_of_one(decompose_device):
+    """The contract: decompose(w) is decompose_batch([w])[0], field for field, on every device, with the same
+    defaults; the amplitude rule's own options are refused with matched detection."""
+    import inspect
+
+    rng = np.random.default_rng(11)
+    ys = list(_three(rng, 6)) + list(_weak(rng, 5.0, 4)) + [rng.normal(10.0, 2.0, 90)]
+    for y in ys:
+        one, batch = decompose(y, dt_ns=0.5, t0_ns=7.0, device=decompose_device), decompose_batch(
+            [y], dt_ns=0.5, t0_ns=7.0, device=decompose_device)[0]
+        for col in EchoTable.COLUMNS:
+            assert np.array_equal(getattr(one, col), getattr(batch, col), equal_nan=True), col
+        assert np.array_equal([one.baseline, one.baseline_se, one.noise_sigma, one.rss],
+                              [batch.baseline, batch.baseline_se, batch.noise_sigma, batch.rss], equal_nan=True)
+    single, many = (inspect.signature(f).parameters for f in (decompose, decompose_batch))
+    for name in ("dt_ns", "t0_ns", "pulse", "pulse_sigma_ns", "false_alarm", "saturation", "max_components",
+                 "add_components", "device"):
+        assert single[name].default == many[name].default, name
+    for bad in ({"smooth_ns": 0.5}, {"terraces": False}, {"fit_baseline": False}, {"baseline": 3.0},
+                {"max_nfev": 100}):
+        with pytest.raises(InputError, match="belong.*to detection='amplitude'"):
+            decompose(ys[0], **bad)
+    assert len(decompose(ys[0], detection="amplitude", smooth_ns=0.5, max_nfev=100)) == 3
 
 
 def _weak(rng, k_sigma, count):
