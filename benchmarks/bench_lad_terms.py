@@ -440,7 +440,7 @@ def _pipeline_labels(scans, *, details=False, **refine):
     leaf-classed echoes on the bark of trusted fitted cylinders relabelled wood), one array per scan
     (and the :class:`Classification` of each scan with ``details=True``)."""
     from tlsvox.classify import PointClass, classify_scan
-    from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+    from tlsvox.voxel.wood.qsm import bark_echoes, fit_cylinders, wood_points
 
     classes = [classify_scan(s, refine=True, **refine) for s in scans]
     model = fit_cylinders(wood_points(scans, [c.labels for c in classes], class_codes="pointclass"))
@@ -527,7 +527,7 @@ def classes_table(args):
                      "inclination (the truth), outward G per voxel, the VZ-400's -20 dB, `undetected='model'`, "
                      "`fill='calibrated'`, dense layout. The classifier's labels: `classify_scan(refine=True)`, "
                      "then the leaf-classed echoes on the bark of trusted fitted cylinders relabelled wood "
-                     "(`tlsvox.qsm.bark_echoes`), as `scene_from_scans` does.") + ["",
+                     "(`tlsvox.voxel.wood.qsm.bark_echoes`), as `scene_from_scans` does.") + ["",
              "Echoes: " + "; ".join(f"{k} {v:,}" for k, v in counts.items()) + ".", "",
              "| echo classes | total leaf area (error) | seen voxels (error) | fill ratio | voxelize time |",
              "|---|---|---|---|---|"]

@@ -356,7 +356,7 @@ def report(d: dict, out: Path, png: Path) -> None:
               f"{d['n_vox']:,} photons per run. `scene s`: building the voxel scene, once per size. Exact LAD = "
               "`tree.truth_scene` (the mesh's leaf and bark area per voxel); TLS pipeline = "
               "`scene_from_scans` = register + classify + voxelise/VoxLAD [+ cylinders fitted to the wood echoes "
-              "filling solid wood, `tlsvox.qsm`, where the run had it] (the parts in brackets; the two "
+              "filling solid wood, `tlsvox.voxel.wood.qsm`, where the run had it] (the parts in brackets; the two "
               f"simulated scans, {d['scan_s']:.0f} s, are not counted); *LAD at N cm*: `voxelize`'s "
               "`lad_voxel_size`, the LAD estimated on the N cm grid and put on each of its fine voxels "
               "(*placed by echoes*: its leaf area shared by their leaf echo weight; tlsvox.voxel.coarse). "

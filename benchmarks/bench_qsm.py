@@ -1,4 +1,4 @@
-"""Solid wood from fitted cylinders (tlsvox.qsm): the fit against the tree's cylinders, and the waveforms.
+"""Solid wood from fitted cylinders (tlsvox.voxel.wood.qsm): the fit against the tree's cylinders, and the waveforms.
 
 The default synthetic oak (``make_tree(seed=1)``), its two simulated VZ-400
 scans, registered and classified by ``tlsvox.pipeline.scene_from_scans``.
@@ -77,9 +77,9 @@ def main(argv=None):
     from clsim.validation.budget import default_pulses, waveform_metrics
     from clsim.validation.meshref import MeshReferenceSimulator
     from tlsvox.pipeline import scene_from_scans
-    from tlsvox.qsm import CylinderModel, apply_cylinders, wood_points
     from tlsvox.truth.scanner import paper_scan_poses, simulate_scan
     from tlsvox.truth.synthetic import make_tree
+    from tlsvox.voxel.wood.qsm import CylinderModel, apply_cylinders, wood_points
 
     load0 = os.getloadavg()
     t_start = time.perf_counter()
@@ -130,7 +130,7 @@ def main(argv=None):
             print(f"{h:g} m {name}: " + " / ".join(f"r {m['r']:.3f} E {m['total']:.2f}" for m in ms), flush=True)
     minutes = (time.perf_counter() - t_start) / 60
     pn = " / ".join(p.name for p in pulses)
-    lines = ["# Solid wood from fitted cylinders (`tlsvox.qsm`)", "",
+    lines = ["# Solid wood from fitted cylinders (`tlsvox.voxel.wood.qsm`)", "",
              f"Command: `.venv/bin/python benchmarks/bench_qsm.py --sizes {args.sizes} --photons {n}` "
              f"({minutes:.1f} min). " + machine_line(load0) + f" Device: {sim.device_name}.", "",
              f"Default oak (`make_tree(seed=1)`), two simulated VZ-400 scans, registered and classified by "

@@ -91,7 +91,7 @@ def main(argv=None):
         f"`scene_from_scans` at {100 * args.voxel_size:.0f} cm with `undetected=\"model\"`, "
         f"`fill=\"neighbourhood\"` (the demo's settings), `qsm_relabel` off and on; {len(cyl)} cylinders fitted. "
         "A leaf-classed echo within max(3 sigma, 1 cm) of a trusted cylinder's side is relabelled wood "
-        "(`tlsvox.qsm.bark_echoes`).",
+        "(`tlsvox.voxel.wood.qsm.bark_echoes`).",
         "",
         "## The echoes moved, against the truth",
         "",

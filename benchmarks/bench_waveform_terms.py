@@ -143,7 +143,7 @@ def main(argv=None):
               "axis and anisotropy. (4) Hollow wood ('open tubes / hollow'): the twin as it was until 2026-11, "
               "a shell of turbid bark around empty voxels, against a mesh of open tubes.", "",
               "'TLS pipeline (fitted cylinders)': the scene estimated from the scans, its trunk and main "
-              "branches solid wood filled from cylinders fitted to the wood echoes (`tlsvox.qsm`, the "
+              "branches solid wood filled from cylinders fitted to the wood echoes (`tlsvox.voxel.wood.qsm`, the "
               "pipeline's default since 2026-11-23), the other wood echoes the stretched count per voxel "
               "(`count_stretch`); 'turbid wood (qsm=False)': all of its wood that count, turbid, randomly "
               "oriented facets, no solid core (the scans see a trunk's surface, not its inside). Its rows "

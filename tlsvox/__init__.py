@@ -6,8 +6,8 @@ that use it, so ``import tlsvox`` stays light.
 
 from tlsvox.classify import ClassifySettings, PointClass, classify_scan
 from tlsvox.errors import InputError, TlsvoxError
-from tlsvox.io import read_any
 from tlsvox.leafangles import LeafAngleSettings, measure_leaf_angles
+from tlsvox.readers import read_any
 from tlsvox.register import RegisterSettings, RegistrationError, register_pair, register_scans
 from tlsvox.voxel.estimators import Estimator
 from tlsvox.voxel.grid import VoxelGrid

@@ -1,7 +1,7 @@
 """The whole first half of the paper in one call: scans -> voxel scene.
 
 register (targets, else FPFH + ICP) -> classify (leaf / wood / ground / noise)
--> cylinders fitted to the wood echoes (:mod:`tlsvox.qsm`; leaf-classed echoes
+-> cylinders fitted to the wood echoes (:mod:`tlsvox.voxel.wood.qsm`; leaf-classed echoes
 on their bark relabelled wood) -> beam tracing and LAD estimation
 (:func:`tlsvox.voxel.stages`) -> the cylinders fill solid wood voxels -> Scene.
 
@@ -34,7 +34,7 @@ class PipelineResult:
     classifications: list
     voxelized: object
     timings: dict = field(default_factory=dict)
-    cylinders: object = None  #: the tlsvox.qsm.CylinderModel fitted (None with qsm=False)
+    cylinders: object = None  #: the tlsvox.voxel.wood.qsm.CylinderModel fitted (None with qsm=False)
 
     def summary(self) -> dict:
         reg = [r.to_dict() if r is not None else None for r in self.registration]
@@ -70,15 +70,15 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
     register_kwargs, voxelize_kwargs : dict, optional
         Passed to :func:`tlsvox.register.register_scans` and :func:`tlsvox.voxel.stages`.
     qsm : bool
-        Fit cylinders to the wood-classified echoes (:func:`tlsvox.qsm.fit_cylinders`)
-        and fill solid wood voxels from them (:func:`tlsvox.qsm.apply_cylinders`);
+        Fit cylinders to the wood-classified echoes (:func:`tlsvox.voxel.wood.qsm.fit_cylinders`)
+        and fill solid wood voxels from them (:func:`tlsvox.voxel.wood.qsm.apply_cylinders`);
         wood echoes no cylinder explains stay turbid wood.  Default on
         (docs/voxelize.md, "Solid wood from fitted cylinders", measures it).
     qsm_kwargs : dict, optional
-        Passed to :func:`tlsvox.qsm.fit_cylinders`.
+        Passed to :func:`tlsvox.voxel.wood.qsm.fit_cylinders`.
     qsm_relabel : bool
         With ``qsm``: leaf-classed echoes on a fitted cylinder's bark
-        (:func:`tlsvox.qsm.bark_echoes`) are relabelled wood before the scans
+        (:func:`tlsvox.voxel.wood.qsm.bark_echoes`) are relabelled wood before the scans
         are voxelised (each classification's ``on_cylinders`` counts them), so
         bark the classifier missed is not counted as leaf area.  The cylinders
         are fitted to the classifier's wood echoes, before the relabelling;
@@ -118,7 +118,7 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
     timings["classify"] = time.perf_counter() - t0
     model = None
     if qsm:
-        from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+        from tlsvox.voxel.wood.qsm import bark_echoes, fit_cylinders, wood_points
 
         t0 = time.perf_counter()
         model = fit_cylinders(wood_points(scans, [c.labels for c in classes], class_codes="pointclass"),
@@ -134,7 +134,7 @@ def scene_from_scans(scans, *, voxel_size: float = 0.2, estimator: str = "bcmle"
     timings["voxelize"] = time.perf_counter() - t0
     scene = vox.scene
     if qsm:
-        from tlsvox.qsm import apply_cylinders
+        from tlsvox.voxel.wood.qsm import apply_cylinders
 
         t0 = time.perf_counter()
         scene, _ = apply_cylinders(scene, model, wood_points(scans, [c.labels for c in classes],

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tlsvox.errors import InputError, ScanFileError
-from tlsvox.io import ScanFormat, check_scan, read_any
+from tlsvox.readers import ScanFormat, check_scan, read_any
 from tlsvox.scan import Scan
 
 
@@ -126,7 +126,7 @@ def test_files_are_read_by_content_not_by_name(tmp_path):
     """A LAS scan saved under another suffix is still read; a text file named .las is refused in one line."""
     import shutil
 
-    from tlsvox.io import read_any
+    from tlsvox.readers import read_any
     from tlsvox.scan import Scan
     from voxlidar.errors import InputError
     from voxlidar.safeio import file_kind

@@ -1,4 +1,4 @@
-"""Pulse-grouped multi-return exports (tlsvox.multireturn): ASCII rows with miss rows,
+"""Pulse-grouped multi-return exports (tlsvox.readers.pulse_text): ASCII rows with miss rows,
 and LAS/LAZ grouped by GPS time, written here from a simulated scan of a leaf box and
 read back into the same pulses, echoes and LAD; malformed files give one clear line."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from tlsvox.errors import InputError, ScanFileError
-from tlsvox.io import ScanFormat, read_any, scan_format
-from tlsvox.multireturn import looks_pulse_grouped, pulse_ids_from_time, read_pulse_text
+from tlsvox.readers import ScanFormat, read_any, scan_format
+from tlsvox.readers.pulse_text import looks_pulse_grouped, pulse_ids_from_time, read_pulse_text
 from tlsvox.scan import Scan
 from tlsvox.voxel.stages import voxelize
 

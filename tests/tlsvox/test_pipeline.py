@@ -57,7 +57,7 @@ def test_pipeline_fits_the_trunk_and_fills_it_solid(tree_and_scans, pipeline_res
     # surface lies between the inscribed radius r cos(22.5 deg) and r; a fit to it must too (range noise and
     # registration error, a few mm, average out over thousands of echoes), its axis within that band's
     # width (r (1 - cos 22.5 deg) = 1.1 cm here) of the true axis, along it within 2 degrees
-    from tlsvox.voxel.solid import cylinder_cells
+    from tlsvox.voxel.wood.solid import cylinder_cells
 
     tree, scans = tree_and_scans
     res = pipeline_result

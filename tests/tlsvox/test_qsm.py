@@ -1,4 +1,4 @@
-"""tlsvox.qsm: cylinders fitted to wood echoes, and the solid wood voxels they fill."""
+"""tlsvox.voxel.wood.qsm: cylinders fitted to wood echoes, and the solid wood voxels they fill."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from tlsvox.errors import InputError
-from tlsvox.qsm import CylinderModel, apply_cylinders, fit_cylinders
-from tlsvox.voxel.solid import cylinder_cells
+from tlsvox.voxel.wood.qsm import CylinderModel, apply_cylinders, fit_cylinders
+from tlsvox.voxel.wood.solid import cylinder_cells
 
 
 def cylinder_points(a, b, r, n, rng, *, noise=0.003, arc=(0.0, 2 * np.pi)):
@@ -205,7 +205,7 @@ def test_cli_qsm_relabels_leaf_echoes_on_the_bark_in_memory_only(tmp_path, capsy
     a, b = Scene.load(tmp_path / "a.npz"), Scene.load(tmp_path / "b.npz")
     assert a.total_leaf_area() < 0.8 * b.total_leaf_area(), (a.total_leaf_area(), b.total_leaf_area())
     # echo by echo: exactly the trunk's leaf-labelled echoes within the band, none of the clump or the near leaves
-    from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+    from tlsvox.voxel.wood.qsm import bark_echoes, fit_cylinders, wood_points
 
     read = Scan.read(tmp_path / "trunk.laz")
     read.pose = pose
@@ -219,8 +219,8 @@ def test_cli_qsm_with_no_wood_echoes_warns_and_writes(tmp_path, capsys):
 
     from tlsvox.classify import PointClass
     from tlsvox.cli.app import main as tlsvox_main
-    from tlsvox.qsm import bark_echoes, fit_cylinders
     from tlsvox.scan import CLASSIFY_MARK, PulseTable, Scan
+    from tlsvox.voxel.wood.qsm import bark_echoes, fit_cylinders
 
     pts = np.array([2.5, 0.0, 0.0]) + np.random.default_rng(6).normal(0, 0.2, (2000, 3))
     scan = Scan(xyz=pts, pulse_id=np.arange(len(pts)), classification=np.full(len(pts), PointClass.LEAF, np.uint8),

@@ -19,7 +19,7 @@ from tlsvox.classify._mixture import (
 )
 from tlsvox.classify.settings import ClassifySettings
 from tlsvox.errors import InputError
-from tlsvox.io import check_scan
+from tlsvox.readers import check_scan
 from tlsvox.reflectance import apparent_reflectance
 from tlsvox.scan import Scan
 from voxlidar.choices import Choice
@@ -67,7 +67,7 @@ class Classification:
         Echoes the geometric refinement moved (0 without it).
     on_cylinders : int
         Leaf-classed echoes relabelled wood because they lie on the bark of a
-        cylinder fitted to the wood echoes (:func:`tlsvox.qsm.bark_echoes`;
+        cylinder fitted to the wood echoes (:func:`tlsvox.voxel.wood.qsm.bark_echoes`;
         :func:`tlsvox.pipeline.scene_from_scans` does it; 0 otherwise).
     settings : dict
         The run's :class:`~tlsvox.classify.settings.ClassifySettings`, as
@@ -95,7 +95,7 @@ class Classification:
 
     def with_bark(self, bark) -> Classification:
         """A copy with the echoes of ``bark`` ((N,) bool: leaf echoes on a fitted cylinder's bark,
-        :func:`tlsvox.qsm.bark_echoes`) labelled wood, its counts and ``on_cylinders`` updated."""
+        :func:`tlsvox.voxel.wood.qsm.bark_echoes`) labelled wood, its counts and ``on_cylinders`` updated."""
         bark = np.asarray(bark, bool)
         labels = np.where(bark, np.uint8(PointClass.WOOD), self.labels).astype(self.labels.dtype)
         return dataclasses.replace(self, labels=labels, counts=class_counts(labels),

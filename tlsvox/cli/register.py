@@ -93,7 +93,7 @@ def register(subparsers) -> None:
 
 def cmd_register(args) -> int:
     """Handler of ``tlsvox register``."""
-    from tlsvox.io import read_any
+    from tlsvox.readers import read_any
     from tlsvox.register import register_scans, write_registered
 
     out = Path(args.output)
@@ -135,7 +135,7 @@ def _components(text: str):
 def cmd_classify(args) -> int:
     """Handler of ``tlsvox classify``."""
     from tlsvox.classify import classify_scan, score
-    from tlsvox.io import read_any
+    from tlsvox.readers import read_any
     from voxlidar.safeio import atomic_write
 
     out = Path(args.output)

@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from tlsvox.voxel.estimators import Estimator, FillMode
     from tlsvox.voxel.stages import Layout
     from tlsvox.voxel.weights import EchoWeights
-    from tlsvox.voxel.wood import WoodMethod
+    from tlsvox.voxel.wood.voxels import WoodMethod
     from voxlidar.leafangle import LeafAngleKind, LeafAzimuth
 
     p.add_argument("scans", nargs="+", metavar="SCAN",
@@ -246,7 +246,7 @@ def apply_transforms(scans, path) -> None:
 
 def read_scan(path, scan_id: int, origin=None):
     """One scan file: LAS/LAZ with its sidecars, or a pulse-grouped text export (``origin`` = the scanner there)."""
-    from tlsvox.io import ScanFormat, read_any, scan_format
+    from tlsvox.readers import ScanFormat, read_any, scan_format
     from tlsvox.scan import Scan
 
     path = Path(path)
@@ -333,7 +333,7 @@ def run(args) -> int:
     relabelled = 0
     if args.qsm:  # before the leaf angles are measured: they read the leaf labels
         from tlsvox.classify import PointClass
-        from tlsvox.qsm import bark_echoes, fit_cylinders, wood_points
+        from tlsvox.voxel.wood.qsm import bark_echoes, fit_cylinders, wood_points
 
         model = fit_cylinders(wood_points(scans))
         if not args.qsm_keep_labels:  # classified scans only (in memory; the input files are not touched)
@@ -355,7 +355,7 @@ def run(args) -> int:
     res = voxelize(scans, leaf_angle=leaf_angle, leaf_angle_layers=measured if args.leaf_angle_by_layer else None,
                    **options)
     if args.qsm:
-        from tlsvox.qsm import apply_cylinders, wood_points
+        from tlsvox.voxel.wood.qsm import apply_cylinders, wood_points
 
         wood = wood_points(scans)
         if not len(wood):

@@ -134,7 +134,7 @@ def trunk_center(wood_xyz, *, low: float = 0.3, high: float = 1.3):
         return None, float("nan")
     z0 = np.percentile(wood_xyz[:, 2], 1)
     sel = wood_xyz[(wood_xyz[:, 2] > z0 + low) & (wood_xyz[:, 2] < z0 + high)][:, :2]
-    from tlsvox.qsm import _circle
+    from tlsvox.voxel.wood.qsm import _circle
 
     keep = np.ones(len(sel), bool)
     for _ in range(20):

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tlsvox.errors import InputError, RegistrationError
-from tlsvox.io import check_scan
+from tlsvox.readers import check_scan
 from tlsvox.register._features import consensus_groups, feature_matches, fpfh_features, ransac_transform
 from tlsvox.register._icp import coincidence, fitness_scores, off_ground, refine_icp
 from tlsvox.register._targets import detect_targets, match_targets

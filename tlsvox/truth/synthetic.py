@@ -29,7 +29,7 @@ import numpy as np
 from tlsvox.errors import InputError
 from tlsvox.truth._mesh import cylinders_mesh, leaf_mesh, orthonormal, polygon_area_factor, segment_distance
 from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
-from tlsvox.voxel.solid import cap_share, cylinder_cells, dilate
+from tlsvox.voxel.wood.solid import cap_share, cylinder_cells, dilate
 from voxlidar.leafangle import LeafAngle, LeafAzimuth, sample_leaf_normals
 from voxlidar.materials import Material
 from voxlidar.safeio import json_text, staged

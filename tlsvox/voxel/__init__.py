@@ -5,7 +5,7 @@
 - :mod:`tlsvox.voxel.weights`: how much of its beam each echo stops;
 - :mod:`tlsvox.voxel.trace`: beam tracing on OpenCL (per-voxel sums);
 - :mod:`tlsvox.voxel.estimators`: LAD estimators on those sums;
-- :mod:`tlsvox.voxel.wood`: wood per voxel;
+- :mod:`tlsvox.voxel.wood`: wood in one place: per voxel, and solid from cylinders fitted to the wood echoes;
 - :mod:`tlsvox.voxel.stages`: the whole stage as its stages, :func:`~tlsvox.voxel.stages.voxelize`;
 - :mod:`tlsvox.voxel.settings`: its settings, grouped by stage, and their TOML file;
 - :mod:`tlsvox.voxel.amapvox`: AMAPVox ``.vox`` import and export.

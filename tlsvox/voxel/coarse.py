@@ -4,7 +4,7 @@ The turbid-medium estimators need voxels wider than the leaves and crossed by
 many beams: with 5 cm leaves in 2 cm voxels every voxel is flagged
 ``LARGE_LEAVES``, most of the voxels behind a leaf are occluded, and the
 estimate loses most of the leaf area (docs/bench/memory.md).  Wood, though,
-is solid and well fitted at 2 cm (:mod:`tlsvox.qsm`).  So the leaves' amount
+is solid and well fitted at 2 cm (:mod:`tlsvox.voxel.wood.qsm`).  So the leaves' amount
 is estimated where the estimators hold, on a grid ``k`` times coarser (``fill``
 and the detection model run there too), and placed on the fine grid, whose
 wood, ground and echoes come from the fine run:

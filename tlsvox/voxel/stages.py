@@ -6,7 +6,7 @@ settings a group of :class:`~tlsvox.voxel.settings.VoxelizeSettings`): it takes
 registered scans (each with a world-from-scanner
 pose), turns every pulse into a beam (:mod:`tlsvox.voxel.pulses`), traces them
 through a voxel grid (:mod:`tlsvox.voxel.trace`), estimates leaf area density
-(:mod:`tlsvox.voxel.estimators`) and wood (:mod:`tlsvox.voxel.wood`), finds the ground
+(:mod:`tlsvox.voxel.estimators`) and wood (the wood package (:mod:`tlsvox.voxel.wood`)), finds the ground
 (:mod:`tlsvox.ground`), and returns a :class:`~voxlidar.scene.Scene` with the
 intermediate results for inspection.  :func:`score_lad` (:mod:`tlsvox.voxel.quality`) compares a LAD grid
 with a known truth; :func:`memory_plan` (:mod:`tlsvox.voxel.plan`) says what a
@@ -65,7 +65,7 @@ from tlsvox.voxel.quality import LAD_PLAUSIBLE_MAX, LINE_FIT_MIN, OCCLUDED_SHARE
 from tlsvox.voxel.settings import VoxelizeSettings
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
-from tlsvox.voxel.wood import WoodEstimate, WoodMethod, estimate_wood
+from tlsvox.voxel.wood.voxels import WoodEstimate, WoodMethod, estimate_wood
 from voxlidar.leafangle import LeafAngle, LeafAzimuth
 from voxlidar.scene import Scene
 

@@ -7,7 +7,7 @@ an airborne beam passes through, and its bark scatters as random facets.
 Here the wood echoes are grouped into branch pieces and a cylinder is fitted
 to each; well-supported cylinders then fill solid wood voxels
 (:func:`apply_cylinders`) with the machinery the truth's twin uses
-(:mod:`tlsvox.voxel.solid`: flat-ended cylinders, the cap share from the
+(:mod:`tlsvox.voxel.wood.solid`: flat-ended cylinders, the cap share from the
 cylinders' surface, the fitted cylinder's turbid bark beside its core
 dropped).  Wood echoes no cylinder explains stay turbid wood.  Leaf-classed
 echoes on a fitted cylinder's bark (:func:`bark_echoes`) are bark the
@@ -388,7 +388,7 @@ def apply_cylinders(scene, model: CylinderModel, wood_points=None, *, min_radius
     import dataclasses
 
     from tlsvox.truth.meshtruth import normal_moments_per_voxel
-    from tlsvox.voxel.solid import cap_share, cylinder_cells, cylinder_surface
+    from tlsvox.voxel.wood.solid import cap_share, cylinder_cells, cylinder_surface
 
     h = float(scene.voxel_size)
     shape = tuple(int(v) for v in scene.shape)

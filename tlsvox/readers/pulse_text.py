@@ -193,7 +193,7 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
         Malformed rows (one line naming the row and what is wrong), a miss
         row without a direction, or echoes whose times do not group pulses.
     """
-    from tlsvox.scan import read_pose_sidecar
+    from tlsvox.readers.las import read_pose_sidecar
 
     path = Path(path)
     where = str(path)

@@ -1,12 +1,13 @@
 """Read point clouds of any common format into a :class:`~tlsvox.scan.Scan`.
 
-LAS/LAZ go through :meth:`Scan.read` (laspy + lazrs, extra bytes and sidecar
+LAS/LAZ go through :func:`tlsvox.readers.las.read_las` (laspy + lazrs, extra bytes and sidecar
 files); PLY, PCD and the text formats XYZ / XYZI / PTS go through Open3D's
 tensor I/O, which keeps per-point attributes such as ``intensity`` or
 ``reflectance``.  Pulse-grouped text exports (``x y z time return_index
 return_count`` with miss rows: ``.txt``, ``.csv``, ``.asc``, or an ``.xyz``
-that reads as one) go through :func:`tlsvox.multireturn.read_pulse_text`, so
-their miss rows become pulses without echo, never echoes.  Every reader ends in :func:`check_scan`, so a caller gets
+that reads as one) go through :func:`tlsvox.readers.pulse_text.read_pulse_text`,
+so their miss rows become pulses without echo, never echoes.  Every reader ends
+in :func:`check_scan`, so a caller gets
 one clear error for the cases that make a scan useless: no points, a single
 point, NaN coordinates, or no reflectance/intensity when one is needed.
 
@@ -32,7 +33,7 @@ from tlsvox.errors import InputError, ScanFileError
 from tlsvox.scan import Scan
 from voxlidar.safeio import describe_kind, file_kind
 
-__all__ = ["ScanFormat", "check_scan", "read_any", "read_open3d"]
+__all__ = ["ScanFormat", "check_scan", "read_any", "read_open3d", "scan_format"]
 
 
 class ScanFormat(enum.Enum):
@@ -45,7 +46,7 @@ class ScanFormat(enum.Enum):
     XYZ = "xyz"
     XYZI = "xyzi"
     PTS = "pts"
-    PULSES = "pulses"  #: pulse-grouped text (tlsvox.multireturn); suffixes .txt, .csv, .asc
+    PULSES = "pulses"  #: pulse-grouped text (tlsvox.readers.pulse_text); suffixes .txt, .csv, .asc
 
     @classmethod
     def parse(cls, value: str | ScanFormat) -> ScanFormat:
@@ -141,7 +142,7 @@ def scan_format(path: Path, format=None) -> ScanFormat:
     """The format of a point-cloud file: ``format`` when given, else its content
     (LAS/LAZ, PLY and PCD by their first bytes; XYZ, XYZI and PTS text by their
     first lines, whichever of the three the suffix says; an ``.xyz`` whose rows read as
-    pulse-grouped, see :func:`tlsvox.multireturn.looks_pulse_grouped`), else
+    pulse-grouped, see `tlsvox.readers.pulse_text.looks_pulse_grouped`), else
     its suffix."""
     kind = file_kind(path) if format is None and path.is_file() else None  # the content decides, not the name
     if kind == "las":
@@ -154,7 +155,7 @@ def scan_format(path: Path, format=None) -> ScanFormat:
     if kind == "text" and format is None and fmt in _TEXT_FORMATS:
         fmt = _text_layout(path) or fmt
     if fmt is ScanFormat.XYZ and kind == "text" and format is None:
-        from tlsvox.multireturn import looks_pulse_grouped
+        from tlsvox.readers.pulse_text import looks_pulse_grouped
 
         if looks_pulse_grouped(path):  # x y z time return_index return_count: its miss rows must not be echoes
             return ScanFormat.PULSES
@@ -304,7 +305,7 @@ def read_any(path: str | os.PathLike, *, format: str | ScanFormat | None = None,
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         scan = Scan.read(path, scan_id=scan_id)
     elif fmt is ScanFormat.PULSES:
-        from tlsvox.multireturn import read_pulse_text
+        from tlsvox.readers.pulse_text import read_pulse_text
 
         scan = read_pulse_text(path, origin=(0.0, 0.0, 0.0) if origin is None else origin,
                                scan_id=0 if scan_id is None else scan_id)

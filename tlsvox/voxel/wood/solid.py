@@ -1,7 +1,7 @@
 """Solid wood voxels from cylinders: the cells inside them, their surface and cap share.
 
 Shared by the truth's twin (:meth:`tlsvox.truth.synthetic.SyntheticTree.truth_scene`,
-from the tree's own cylinders) and the TLS pipeline (:mod:`tlsvox.qsm`, from
+from the tree's own cylinders) and the TLS pipeline (:mod:`tlsvox.voxel.wood.qsm`, from
 cylinders fitted to the wood echoes), so both fill solid wood the same way: a
 voxel is solid when its centre lies inside a cylinder with flat ends; its
 surface is the cylinder's side and end caps, the caps' share of the bark
