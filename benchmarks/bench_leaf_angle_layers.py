@@ -52,7 +52,7 @@ def _shown(path) -> str:
 def layered_oak(seed: int, lower: str, upper: str):
     """The oak with ``lower`` leaf normals below the crown's middle height and ``upper`` above it."""
     from tlsvox.truth.synthetic import TreeParams, make_tree
-    from voxlidar.leafangle import LeafAngle, sample_leaf_normals
+    from voxlidar.leaf_orientation import LeafAngle, sample_leaf_normals
 
     tree = make_tree(TreeParams(leaf_angle=lower), seed=seed)
     p = tree.params
@@ -82,7 +82,7 @@ def main(argv=None):
     from tlsvox.truth.scanner import ScannerPreset, paper_scan_poses, simulate_scan
     from tlsvox.voxel.stages import voxelize
     from tlsvox.voxel.trace import Tracer
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     load0 = os.getloadavg()
     t_all = time.perf_counter()

@@ -156,7 +156,7 @@ def slab_scene(voxel):
 
 def oak_scene(voxel):
     from tlsvox.truth.synthetic import make_tree
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
     from voxlidar.scene import Scene
 
     s = make_tree(seed=0).truth_scene(voxel)

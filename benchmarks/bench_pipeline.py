@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-CACHE_SOURCES = ["clsim/validation/meshref.py", "clsim/transport/simulator.py", "clsim/waveform.py", "clsim/sensor.py",
+CACHE_SOURCES = ["clsim/validation/meshref.py", "clsim/transport/simulator.py", "clsim/digitize.py", "clsim/sensor.py",
                  "tlsvox/truth/synthetic.py", "voxlidar/scene.py"]
 
 
@@ -84,7 +84,7 @@ def cached(cache_dir, key: dict, compute):
 
 def noise_nrmse(result) -> float:
     """Monte Carlo noise of a result's waveform, as an NRMSE (from its batches)."""
-    from clsim.waveform import digitize
+    from clsim.digitize import digitize
 
     fb = result.fine_batches.sum(axis=(1, 2))  # (B, F)
     ok = result.batch_photons > 0

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from clsim.cli.simulate import benchmark_scene
-from clsim.transport.setup import Detect, Mode, prepare_run
+from clsim.transport.setup import InteractionModel, PhotonTally, prepare_run
 from clsim.transport.simulator import Simulator, _kernel_source, build_options
 from voxlidar.devices import build_program
 
@@ -52,7 +52,7 @@ class ProfSimulator(Simulator):
         self.extra = list(extra)
 
     def program(self, mode, detect, wood_dir=False):
-        key = (Mode.parse(mode, "mode"), Detect.parse(detect, "detect"), bool(wood_dir))
+        key = (InteractionModel.parse(mode, "mode"), PhotonTally.parse(detect, "detect"), bool(wood_dir))
         if key not in self._programs:
             src, inc = _kernel_source()
             opts = [inc] + build_options(self.info, key[0], key[1], wood_dir=key[2],
@@ -95,7 +95,7 @@ def walk_alone(device, rays, repeats):
     kerns = {}
     for uni in (True, False):
         for pool in (True, False):
-            opts = [inc] + build_options(base.info, Mode.EXACT, Detect.NEE,
+            opts = [inc] + build_options(base.info, InteractionModel.EXACT, PhotonTally.NEE,
                                          features=None if uni else {"uniform": False})
             opts += [] if pool else ["-DCLSIM_PROF_POOL=0"]
             kerns[uni, pool] = cl.Kernel(build_program(ctx, src, opts), "walk_bench")

@@ -10,8 +10,9 @@ return and, with ``hotspot=True``, for the correlated (one-way) return.
 
 import numpy as np
 
-from clsim import ReferenceSimulator, Sensor, testscenes
+from clsim import ReferenceSimulator, Sensor
 from clsim.errors import DeviceError
+from clsim.validation import testscenes
 
 
 def main():

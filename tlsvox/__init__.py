@@ -15,7 +15,7 @@ from tlsvox.voxel.settings import VoxelizeSettings
 from tlsvox.voxel.stages import voxelize
 from tlsvox.voxel.weights import EchoWeights
 from voxlidar import __version__  # one version for the distribution (pyproject.toml)
-from voxlidar.leafangle import LeafAngle, LeafAngleKind
+from voxlidar.leaf_orientation import LeafAngle, LeafAngleKind
 from voxlidar.materials import Material, Optics
 from voxlidar.scene import Scene
 from voxlidar.versions import show_versions

@@ -9,7 +9,7 @@ command-line convention and the versions report; see docs/architecture.md.
 from voxlidar import _moved
 from voxlidar._preload import preload_tbb
 from voxlidar.errors import DeviceError, InputError, VoxlidarError
-from voxlidar.leafangle import LeafAngle, LeafAngleKind
+from voxlidar.leaf_orientation import LeafAngle, LeafAngleKind
 from voxlidar.materials import Material, Optics
 from voxlidar.scene import Scene
 

@@ -16,7 +16,9 @@ import warnings
 #: old dotted name -> new dotted name (a package maps its submodules too)
 MOVED = {
     "tlsvox.scene": "voxlidar.scene",
-    "tlsvox.leafangle": "voxlidar.leafangle",
+    "tlsvox.leafangle": "voxlidar.leaf_orientation",
+    "voxlidar.leafangle": "voxlidar.leaf_orientation",
+    "clsim.waveform": "clsim.digitize",
     "tlsvox.materials": "voxlidar.materials",
     "tlsvox.versions": "voxlidar.versions",
     "clsim.choices": "voxlidar.choices",
@@ -96,3 +98,21 @@ def install() -> None:
     """Put the finder first on ``sys.meta_path`` (once)."""
     if not any(isinstance(f, _MovedFinder) for f in sys.meta_path):
         sys.meta_path.insert(0, _MovedFinder())
+
+
+def renamed(package: str, old: str, module: str, new: str | None):
+    """The object an old public name of ``package`` stands for (``new`` in ``module``, or the module itself
+    when ``new`` is None), with a :class:`DeprecationWarning` that names it.
+
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True) as w:
+    ...     warnings.simplefilter("always")
+    ...     obj = renamed("clsim", "Mode", "clsim.transport.setup", "InteractionModel")
+    >>> obj.__name__, "clsim.InteractionModel" in str(w[0].message)
+    ('InteractionModel', True)
+    """
+    mod = importlib.import_module(module)
+    target = f"{package}.{new}" if new else module  # the package exports the new name
+    warnings.warn(f"{package}.{old} is now {target}; use that name (the old one goes in 0.3)",
+                  DeprecationWarning, stacklevel=3)
+    return mod if new is None else getattr(mod, new)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from voxlidar.errors import InputError
-from voxlidar.leafangle import LeafAngle, LeafAzimuth
+from voxlidar.leaf_orientation import LeafAngle, LeafAzimuth
 from voxlidar.safeio import describe_kind, file_kind, json_text, open_npz, write_npz
 
 __all__ = ["Scene", "FORMAT_VERSION", "WOOD_KINDS"]

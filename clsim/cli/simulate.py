@@ -23,7 +23,7 @@ import numpy as np
 
 from clsim.errors import InputError
 from clsim.sensor import Sensor, list_presets
-from clsim.transport.simulator import Detect, Mode
+from clsim.transport.simulator import InteractionModel, PhotonTally
 from voxlidar.cli import number, numbers
 from voxlidar.safeio import check_figure_path, check_outputs, staged
 
@@ -56,9 +56,9 @@ def register(subparsers) -> None:
                    help=f"refuse a run estimated (by a pilot run) to take longer ({MAX_HOURS:g})")
     p.add_argument("--seed", type=int, default=1, help="random seed (same seed, same device: same output)")
     p.add_argument("-o", "--output", required=True, help="output waveform file (.npz)")
-    p.add_argument("--mode", choices=[m.value for m in Mode], default="exact",
+    p.add_argument("--mode", choices=[m.value for m in InteractionModel], default="exact",
                    help="interaction model: exact free flight, or the paper's fixed 2 cm step")
-    p.add_argument("--detect", choices=[d.value for d in Detect], default="nee",
+    p.add_argument("--detect", choices=[d.value for d in PhotonTally], default="nee",
                    help="next-event estimation, or analog counting through the virtual aperture")
     p.add_argument("--max-order", type=int, default=3, help="highest scattering order")
     p.add_argument("--leaf-off", action="store_true", help="drop the leaves (wood and ground only)")

@@ -37,7 +37,7 @@ from clsim.scenes._bricks import SharedBricks, ceil_div, merge_voxels
 from clsim.transport.bricks import BRICK, WOOD_P_MAX
 from voxlidar.choices import Choice
 from voxlidar.errors import InputError, finite_number
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leaf_orientation import LeafAngle
 from voxlidar.safeio import json_text, open_npz, write_npz
 from voxlidar.scene import Scene
 

@@ -12,7 +12,7 @@ from voxlidar.safeio import check_figure_path, finish_figure
 
 __all__ = ["plot_footprints", "plot_point_cloud", "plot_radargram"]
 
-#: The simulator's waveform unit (clsim.waveform).
+#: The simulator's waveform unit (clsim.digitize).
 POWER_UNIT = "fraction of emitted energy / ns"
 
 

@@ -9,6 +9,15 @@ The kernels themselves are ``.cl`` files in ``clsim/kernels/``.
 """
 
 from clsim.transport.reference import ReferenceSimulator
-from clsim.transport.simulator import Detect, Mode, SimulationResult, Simulator, list_devices
+from clsim.transport.simulator import InteractionModel, PhotonTally, SimulationResult, Simulator, list_devices
 
-__all__ = ["Detect", "Mode", "ReferenceSimulator", "SimulationResult", "Simulator", "list_devices"]
+__all__ = ["PhotonTally", "InteractionModel", "ReferenceSimulator", "SimulationResult", "Simulator", "list_devices"]
+
+
+def __getattr__(name):
+    if name in ("Mode", "Detect"):
+        from voxlidar._moved import renamed
+
+        return renamed("clsim.transport", name, "clsim.transport.setup",
+                       {"Mode": "InteractionModel", "Detect": "PhotonTally"}[name])
+    raise AttributeError(f"module 'clsim.transport' has no attribute {name!r}")

@@ -35,7 +35,7 @@ from clsim.transport.reference_geometry import (
 )
 from clsim.transport.reference_walk import ESCAPE, GROUND, LEAF, RR_SURVIVE, RR_THRESHOLD, WOOD, SceneWalker
 from clsim.transport.result import SimulationResult, assemble_result
-from clsim.transport.setup import QMC_STEP, STAT_NAMES, TRACE_EVENTS, Detect, RunSetup, prepare_run
+from clsim.transport.setup import QMC_STEP, STAT_NAMES, TRACE_EVENTS, PhotonTally, RunSetup, prepare_run
 
 __all__ = ["ReferenceSimulator"]
 
@@ -59,7 +59,7 @@ class _Transport(SceneWalker):
         self.norm_nee = setup.range_ref_m**2
         self.norm_analog = setup.range_ref_m**2 / setup.sensor.virtual_aperture_area_m2
         self.edges = setup.edges_ns
-        self.nee = setup.detect is Detect.NEE
+        self.nee = setup.detect is PhotonTally.NEE
         self.hotspot = bool(setup.p["hotspot"])
         self.leaf_avg = bool(setup.p["leaf_avg"])
         self.qmc = int(setup.p["qmc"])

@@ -16,7 +16,7 @@ from clsim.errors import InputError
 from clsim.transport.bricks import extinction, wood_direction
 from clsim.transport.reference_geometry import cosine_dir, row_dot, wood_majorant, wood_normal, wood_parts
 from clsim.transport.rng import uniforms
-from clsim.transport.setup import NG, NTAB, Mode, RunSetup
+from clsim.transport.setup import NG, NTAB, InteractionModel, RunSetup
 from voxlidar.scene import Scene
 
 __all__ = ["ESCAPE", "GROUND", "LEAF", "RR_SURVIVE", "RR_THRESHOLD", "WOOD", "SceneWalker"]
@@ -65,7 +65,7 @@ class SceneWalker:
         self.outward = sc.leaf_azimuth == "outward"
         self.spherical = bool(setup.p["leaf_avg"])  # spherical leaf angles, uniform azimuths
         self.ds = float(setup.p["ds"])
-        self.exact = setup.mode is Mode.EXACT
+        self.exact = setup.mode is InteractionModel.EXACT
         self.steps = 0
 
     # -- random numbers ---------------------------------------------------------------

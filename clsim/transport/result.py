@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from clsim.digitize import digitize
 from clsim.errors import InputError
 from clsim.transport.setup import COUNT_STATS, STAT_NAMES, RunSetup
-from clsim.waveform import digitize
 from voxlidar.safeio import atomic_write, json_text
 
 

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clsim.digitize import fine_edges
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS, Sensor
 from clsim.transport.bricks import BrickGrid, build_bricks
 from clsim.transport.rng import philox4x32_10, split_seed
-from clsim.waveform import fine_edges
 from voxlidar.choices import Choice
 from voxlidar.scene import Scene
 
@@ -67,15 +67,18 @@ def qmc_shift(seed: int) -> int:
     return int(philox4x32_10((0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 1), (lo, hi))[0])
 
 
-class Mode(str, Choice):
-    """Interaction model: ``exact`` free flight with thinning, or the ``paper``'s fixed step."""
+class InteractionModel(str, Choice):
+    """Where photons interact: ``exact`` free flight with thinning, or the ``paper``'s fixed step
+    (``Simulator.run(mode=...)``, ``clsim simulate --mode``)."""
 
     EXACT = "exact"
     PAPER = "paper"
 
 
-class Detect(str, Choice):
-    """Detection: ``nee`` next-event estimation, or ``analog`` photons through the aperture."""
+class PhotonTally(str, Choice):
+    """How photons are counted into the waveform: ``nee`` next-event estimation (every scattering event
+    sends its expected return to the receiver), or ``analog`` (only photons that fly through the aperture)
+    (``Simulator.run(detect=...)``, ``clsim simulate --detect``)."""
 
     NEE = "nee"
     ANALOG = "analog"
@@ -96,8 +99,8 @@ class RunSetup:
 
     scene: Scene
     sensor: Sensor
-    mode: Mode
-    detect: Detect
+    mode: InteractionModel
+    detect: PhotonTally
     photons: int
     seed: int
     max_order: int
@@ -211,8 +214,8 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     _check_scene(scene)
     if not isinstance(sensor, Sensor):
         raise InputError(f"sensor must be a clsim.Sensor (Sensor.preset(name)), got {type(sensor).__name__}")
-    mode = Mode.parse(mode, "mode")
-    detect = Detect.parse(detect, "detect")
+    mode = InteractionModel.parse(mode, "mode")
+    detect = PhotonTally.parse(detect, "detect")
     photons = _int_arg("photons", photons, 1, 2**40)
     max_order = _int_arg("max_order", max_order, 1, 64)
     batches = _int_arg("batches", batches, 1, 4096)
@@ -304,7 +307,7 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     if sensor.fov_mrad < sensor.divergence_mrad:
         flags.append(f"receiver FOV ({sensor.fov_mrad} mrad) is narrower than the beam divergence "
                      f"({sensor.divergence_mrad} mrad): part of the footprint is not seen")
-    if hotspot and detect is Detect.ANALOG:
+    if hotspot and detect is PhotonTally.ANALOG:
         flags.append("hotspot applies to next-event estimation only; analog detection keeps the "
                      "turbid (independent) return path")
     if photons < batches:

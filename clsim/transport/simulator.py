@@ -31,8 +31,8 @@ from clsim.transport.setup import (
     NTAB,
     STAT_NAMES,
     TRACE_EVENTS,
-    Detect,
-    Mode,
+    InteractionModel,
+    PhotonTally,
     RunSetup,
     SceneSetup,
     prepare_run,
@@ -42,7 +42,7 @@ from voxlidar.devices import DeviceInfo, build_program, choose_device, describe,
 from voxlidar.errors import DeviceError as AnyDeviceError
 from voxlidar.scene import Scene
 
-__all__ = ["Detect", "Mode", "PulseWaveforms", "RunSetup", "SceneSetup", "SimulationResult", "Simulator",
+__all__ = ["PhotonTally", "InteractionModel", "PulseWaveforms", "RunSetup", "SceneSetup", "SimulationResult", "Simulator",
            "build_options", "list_devices", "prepare_run", "prepare_scene", "working_devices"]
 
 
@@ -82,10 +82,10 @@ def build_options(info: DeviceInfo, mode, detect, *, atomics64: bool | None = No
     unknown = sorted(set(feats) - set(FEATURES))
     if unknown:
         raise InputError(f"unknown estimator feature(s) {unknown}; choose from {list(FEATURES)}")
-    mode = Mode.parse(mode, "mode")
-    detect = Detect.parse(detect, "detect")
+    mode = InteractionModel.parse(mode, "mode")
+    detect = PhotonTally.parse(detect, "detect")
     use64 = info.int64_atomics if atomics64 is None else bool(atomics64) and info.int64_atomics
-    opts = [f"-DMODE={1 if mode is Mode.PAPER else 0}", f"-DDETECT={1 if detect is Detect.ANALOG else 0}",
+    opts = [f"-DMODE={1 if mode is InteractionModel.PAPER else 0}", f"-DDETECT={1 if detect is PhotonTally.ANALOG else 0}",
             f"-DBRICK={BRICK}", f"-DBRICK_SHIFT={BRICK.bit_length() - 1}", f"-DNTAB={NTAB}", f"-DNG={NG}",
             f"-DTRACE_EVENTS={TRACE_EVENTS}", f"-DWOOD_DIR={int(bool(wood_dir))}"]
     opts += ["-cl-fast-relaxed-math"] if fast_math else ["-cl-mad-enable", "-cl-no-signed-zeros"]
@@ -110,7 +110,7 @@ def probe_build(device) -> str | None:
     info = describe(device)
     src, inc = _kernel_source()
     ctx = cl.Context([device])
-    build_program(ctx, src, [inc] + build_options(info, Mode.EXACT, Detect.NEE))
+    build_program(ctx, src, [inc] + build_options(info, InteractionModel.EXACT, PhotonTally.NEE))
     return None
 
 
@@ -164,7 +164,7 @@ class Simulator:
         self.atomics64 = atomics64
         self.fast_math = bool(fast_math)
         self.features = dict(features or {})
-        build_options(self.info, Mode.EXACT, Detect.NEE, features=self.features)  # checks the names
+        build_options(self.info, InteractionModel.EXACT, PhotonTally.NEE, features=self.features)  # checks the names
         try:
             self.context, self.queue = open_queue(self.info)
         except AnyDeviceError as err:
@@ -190,9 +190,9 @@ class Simulator:
     def device_name(self) -> str:
         return self.info.label
 
-    def program(self, mode: Mode, detect: Detect, wood_dir: bool = False):
+    def program(self, mode: InteractionModel, detect: PhotonTally, wood_dir: bool = False):
         """(program, kernel) built for a mode, detection and wood model (cached per Simulator)."""
-        key = (Mode.parse(mode, "mode"), Detect.parse(detect, "detect"), bool(wood_dir))
+        key = (InteractionModel.parse(mode, "mode"), PhotonTally.parse(detect, "detect"), bool(wood_dir))
         if key not in self._programs:
             src, inc = _kernel_source()
             opts = [inc] + build_options(self.info, key[0], key[1], atomics64=self.atomics64,

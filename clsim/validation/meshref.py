@@ -39,7 +39,7 @@ from clsim.sensor import C_M_PER_NS
 from clsim.transport.reference_geometry import beam_directions, cosine_dir, receiver_view, row_dot
 from clsim.transport.reference_walk import RR_SURVIVE, RR_THRESHOLD
 from clsim.transport.result import assemble_result
-from clsim.transport.setup import STAT_NAMES, Detect, prepare_run
+from clsim.transport.setup import STAT_NAMES, PhotonTally, prepare_run
 from voxlidar.materials import Material
 
 __all__ = ["MeshReferenceSimulator"]
@@ -95,7 +95,7 @@ class MeshReferenceSimulator:
         setup = prepare_run(twin, sensor, photons=photons, seed=seed, mode="exact", detect="nee",
                             max_order=max_order, leaf_off=leaf_off, batches=batches, bin_ns=bin_ns,
                             target=target)
-        if setup.detect is not Detect.NEE:  # pragma: no cover - prepare_run kept it
+        if setup.detect is not PhotonTally.NEE:  # pragma: no cover - prepare_run kept it
             raise InputError("the mesh reference detects by next-event estimation only")
         rc, tri_mat = self._raycaster(tree, leaf_off)
         opt = setup.settings["optics"]

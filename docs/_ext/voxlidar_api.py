@@ -18,7 +18,7 @@ from pathlib import Path
 PUBLIC = [
     ("voxlidar", "the shared floor: scene, leaf angles, materials, errors"),
     ("voxlidar.scene", "the voxel scene and its file"),
-    ("voxlidar.leafangle", "leaf inclination distributions and G(θ)"),
+    ("voxlidar.leaf_orientation", "leaf inclination distributions and G(θ)"),
     ("voxlidar.materials", "materials and their optical properties"),
     ("voxlidar.devices", "the OpenCL device layer"),
     ("voxlidar.safeio", "outputs that never lose an input"),

@@ -7,7 +7,7 @@ import pytest
 
 from tlsvox.errors import InputError
 from tlsvox.leafangles import fit_beta, histogram_G, measure_leaf_angles
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leaf_orientation import LeafAngle
 
 
 @pytest.mark.parametrize("kind", ["uniform", "planophile", "erectophile"])

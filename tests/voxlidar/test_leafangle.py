@@ -7,7 +7,7 @@ import pytest
 from scipy import integrate, stats
 
 from tlsvox.errors import InputError
-from voxlidar.leafangle import LeafAngle, LeafAngleKind, ross_kernel
+from voxlidar.leaf_orientation import LeafAngle, LeafAngleKind, ross_kernel
 
 THETA = np.linspace(0.0, np.pi / 2, 37)
 SMOOTH = ["planophile", "erectophile", "plagiophile", "extremophile", "uniform", "spherical"]

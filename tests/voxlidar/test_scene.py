@@ -7,7 +7,7 @@ import pytest
 
 from tlsvox.errors import InputError
 from tlsvox.voxel.amapvox import read_vox, write_vox
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leaf_orientation import LeafAngle
 from voxlidar.scene import Scene
 
 

@@ -207,7 +207,7 @@ def _cmd_view(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from voxlidar.leafangle import LeafAzimuth
+    from voxlidar.leaf_orientation import LeafAzimuth
 
     parser = with_debug(Parser(prog="tlsvox", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter))

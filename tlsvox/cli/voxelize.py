@@ -73,7 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from tlsvox.voxel.stages import Layout
     from tlsvox.voxel.weights import EchoWeights
     from tlsvox.voxel.wood.voxels import WoodMethod
-    from voxlidar.leafangle import LeafAngleKind, LeafAzimuth
+    from voxlidar.leaf_orientation import LeafAngleKind, LeafAzimuth
 
     p.add_argument("scans", nargs="+", metavar="SCAN",
                    help="LAS/LAZ scans (with .pose.json / .pulses.npz sidecars), or pulse-grouped text exports "

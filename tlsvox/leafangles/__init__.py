@@ -71,7 +71,7 @@ leaf behind the first has the first's inclination bin.
 The crown is cut into ``layers`` equal-height layers between the 1st and 99th
 height percentiles of the leaf echoes with a plane fit; every layer gets its
 histogram, mean inclination and a beta distribution (Goel & Strebel 1984)
-fitted by moments, a :class:`~voxlidar.leafangle.LeafAngle` usable as
+fitted by moments, a :class:`~voxlidar.leaf_orientation.LeafAngle` usable as
 ``voxelize(leaf_angle=...)`` and stored in the scene file like any other.
 
 Examples

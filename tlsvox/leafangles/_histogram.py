@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from tlsvox.errors import InputError
-from voxlidar.leafangle import LeafAngle, ross_kernel
+from voxlidar.leaf_orientation import LeafAngle, ross_kernel
 
 HALF_PI = 0.5 * np.pi
 

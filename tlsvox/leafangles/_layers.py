@@ -8,7 +8,7 @@ import numpy as np
 
 from tlsvox.leafangles._histogram import histogram_G
 from voxlidar.choices import Choice
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leaf_orientation import LeafAngle
 
 
 class LeafAngleMethod(str, Choice):

@@ -10,7 +10,7 @@ from tlsvox.leafangles._layers import LayerLeafAngles, LeafAngleMeasurement, Lea
 from tlsvox.leafangles._planes import _fit_scan, trunk_center
 from tlsvox.leafangles._simulate import _layer_rows
 from tlsvox.leafangles.settings import LeafAngleSettings
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leaf_orientation import LeafAngle
 
 
 def _class_mask(scan, material, point_class):
@@ -178,7 +178,7 @@ def measure_leaf_angles(scans, settings: LeafAngleSettings | None = None, *, lea
 
 def check_settings(s: LeafAngleSettings):
     """Refuse settings out of their range; ``(method, beam, crown_center)`` parsed."""
-    from voxlidar.leafangle import LeafAzimuth
+    from voxlidar.leaf_orientation import LeafAzimuth
 
     h, pf, ins, dc = s.histogram, s.planes, s.instrument, s.deconvolution
     method = LeafAngleMethod.parse(h.method, "method")

@@ -30,7 +30,7 @@ from tlsvox.errors import InputError
 from tlsvox.truth._mesh import cylinders_mesh, leaf_mesh, orthonormal, polygon_area_factor, segment_distance
 from tlsvox.truth.meshtruth import area_per_voxel, triangle_areas
 from tlsvox.voxel.wood.solid import cap_share, cylinder_cells, dilate
-from voxlidar.leafangle import LeafAngle, LeafAzimuth, sample_leaf_normals
+from voxlidar.leaf_orientation import LeafAngle, LeafAzimuth, sample_leaf_normals
 from voxlidar.materials import Material
 from voxlidar.safeio import json_text, staged
 
@@ -60,7 +60,7 @@ class TreeParams:
     #: leaf length and width (an elliptical polygon), m
     leaf_length: float = 0.05
     leaf_width: float = 0.025
-    #: leaf inclination model (voxlidar.leafangle.LeafAngle name) and its beta parameters
+    #: leaf inclination model (voxlidar.leaf_orientation.LeafAngle name) and its beta parameters
     leaf_angle: str = "uniform"
     leaf_mu: float = 1.0
     leaf_nu: float = 1.0

@@ -258,7 +258,7 @@ def voxelize_beams(beams: Beams, *, voxel_size: float, bounds=None, estimator="b
     """
     from tlsvox.voxel.estimators import estimate_lad
     from tlsvox.voxel.trace import Tracer
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
     from voxlidar.scene import Scene
 
     if not (np.isfinite(voxel_size) and voxel_size > 0):

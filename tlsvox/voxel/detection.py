@@ -326,7 +326,7 @@ def projection_tables(model: DetectionModel, leaf_angle, *, ranges, outward: boo
     w : (n_w,) float64
         The beam radii of the last axis, metres.
     """
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     la = LeafAngle.from_dict(leaf_angle)
     lo, hi = (float(v) for v in ranges)

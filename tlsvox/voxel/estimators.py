@@ -2,7 +2,7 @@ r"""Leaf area density (LAD) estimators on traced beam statistics.
 
 All estimators read the per-voxel sums of :mod:`tlsvox.voxel.trace` (weights ``w``:
 a pulse of ``n`` echoes gives each echo ``1/n``).  ``G`` is the projection
-function of the leaf angle model (:mod:`voxlidar.leafangle`), evaluated per beam
+function of the leaf angle model (:mod:`voxlidar.leaf_orientation`), evaluated per beam
 at its zenith angle during tracing, so scans seen from different angles pool
 exactly.
 

@@ -303,7 +303,7 @@ def outward_g_table(leaf_angle, *, n_theta: int = 181, n_c: int = 129, nodes: in
 
     Examples
     --------
-    >>> from voxlidar.leafangle import LeafAngle
+    >>> from voxlidar.leaf_orientation import LeafAngle
     >>> t = outward_g_table(LeafAngle("horizontal"), n_theta=3, n_c=3)   # flat leaves: |cos theta|
     >>> np.round(t, 6).tolist()
     [[1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]
@@ -330,7 +330,7 @@ def layer_g_tables(models, *, outward: bool, n_theta: int | None = None, n_c: in
 
     Examples
     --------
-    >>> from voxlidar.leafangle import LeafAngle
+    >>> from voxlidar.leaf_orientation import LeafAngle
     >>> t = layer_g_tables([LeafAngle("horizontal"), LeafAngle("vertical")], outward=False, n_theta=3)
     >>> np.round(t[:, 1, :], 6).tolist()   # a horizontal beam: flat leaves 0, upright ones 2/pi
     [[0.0, 0.0, 0.0], [0.63662, 0.63662, 0.63662]]

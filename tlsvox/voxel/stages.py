@@ -66,7 +66,7 @@ from tlsvox.voxel.settings import VoxelizeSettings
 from tlsvox.voxel.trace import Beams, EchoKind, Tracer, VoxelStats, echo_voxels
 from tlsvox.voxel.weights import EchoWeights, resolve_rule
 from tlsvox.voxel.wood.voxels import WoodEstimate, WoodMethod, estimate_wood
-from voxlidar.leafangle import LeafAngle, LeafAzimuth
+from voxlidar.leaf_orientation import LeafAngle, LeafAzimuth
 from voxlidar.scene import Scene
 
 __all__ = ["Checked", "Echoes", "Layout", "MemoryPlan", "Projection", "TraceRun", "VoxelizeResult", "build_scene",

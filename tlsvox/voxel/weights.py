@@ -133,7 +133,7 @@ def full_hit_cosine(leaf_angle, theta) -> np.ndarray:
     -------
     (B,) float in (0, 1]
     """
-    from voxlidar.leafangle import LeafAngle, LeafAngleKind
+    from voxlidar.leaf_orientation import LeafAngle, LeafAngleKind
 
     la = LeafAngle.from_dict(leaf_angle)
     theta = np.asarray(theta, dtype=np.float64)

@@ -253,7 +253,8 @@ def test_example_prints_the_closed_forms(tmp_path, capsys):
 def test_survey_pulses_run_through_the_simulator_oracle():
     """The NumPy oracle places the sensor at the platform and returns the
     Lambertian ground's A/R^2 rho cos(theta)/pi for each pulse of a Palmer scan."""
-    from clsim import ReferenceSimulator, testscenes
+    from clsim import ReferenceSimulator
+    from clsim.validation import testscenes
 
     scene = testscenes.ground_only(width=40.0, voxel_size=2.0)
     p = survey_pulses(line(), pattern("palmer", fov_deg=30.0), first=7, count=2, seed=11)

@@ -339,7 +339,8 @@ def test_simulated_ground_returns_lie_on_the_ground(tmp_path):
     one return lies on the ground. Tolerance 5 mm: the footprint (0.31 m across, 15 deg
     incidence) spreads the echo over +-4 cm of range, symmetric about the beam axis to
     0.04 mm; 2000 photons leave its centroid about 0.5 mm uncertain."""
-    from clsim import ReferenceSimulator, testscenes
+    from clsim import ReferenceSimulator
+    from clsim.validation import testscenes
 
     scene = testscenes.ground_only(width=40.0, voxel_size=2.0)
     tr = Trajectory.line((-5.0, 0.0), (5.0, 0.0), altitude_m=300.0, speed_mps=50.0)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from clsim.cli.simulate import register
+from clsim.digitize import digitize, fine_edges, pulse_kernel
 from clsim.errors import DeviceError, InputError
 from clsim.sensor import Sensor, list_presets
 from clsim.transport.bricks import build_bricks, extinction
@@ -17,7 +18,6 @@ from clsim.transport.rng import philox4x32_10, uniforms
 from clsim.transport.setup import PARAMS_DTYPE
 from clsim.transport.simulator import Simulator, build_options
 from clsim.validation import testscenes
-from clsim.waveform import digitize, fine_edges, pulse_kernel
 
 
 def test_philox_known_answers():

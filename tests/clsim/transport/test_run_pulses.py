@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from clsim.digitize import convolve_fine, pulse_kernel
 from clsim.errors import InputError
 from clsim.sensor import Sensor
 from clsim.survey import ScanPattern, Trajectory, survey_pulses
 from clsim.transport.result import PulseWaveforms
 from clsim.transport.setup import prepare_scene
 from clsim.validation import testscenes
-from clsim.waveform import convolve_fine, pulse_kernel
 
 BASE = Sensor.preset("riegl-lms-q680i")
 

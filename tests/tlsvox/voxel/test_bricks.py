@@ -304,7 +304,7 @@ def test_outward_leaves_take_g_per_voxel(tracer):
 def test_outward_g_table_averages_to_g():
     """Averaged over the beam's azimuth against the outward direction, outward leaves project as G(theta)."""
     from tlsvox.voxel.pulses import outward_g_table
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     for name in ("uniform", "planophile", "erectophile"):
         la = LeafAngle(name)

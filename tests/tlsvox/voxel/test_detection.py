@@ -39,7 +39,7 @@ def test_missed_share_falls_with_incidence_and_partial_hits_widen_the_leaf():
 
 
 def test_unrecorded_projection_is_at_most_g():
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     m = DetectionModel(**VZ400)
     for la in (LeafAngle("uniform"), LeafAngle("erectophile")):
@@ -112,7 +112,7 @@ def test_missed_share_matches_the_scanner(slab_scan, lad, angle, size):
     Tolerance: 3 standard errors of the measured share (echoes independent) plus 3 of the
     model's own Monte Carlo, taken from three other seeds of its placements."""
     from tlsvox.voxel import detection
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     s = slab_scan(lad, angle, size)
     leaf = s.truth_material == 1
@@ -269,7 +269,7 @@ def test_a_beam_without_divergence_has_one_radius_node():
     import dataclasses
 
     from tlsvox.voxel import detection
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     m = dataclasses.replace(DetectionModel(**VZ400), half_divergence=0.0)
     h, g_any, w = projection_tables(m, LeafAngle("uniform"), ranges=(5.0, 20.0), n_theta=19, nodes=64)
@@ -285,7 +285,7 @@ def test_added_echoes_are_returned_with_their_voxels():
     from tlsvox.voxel.beams import Beams, EchoKind, echo_voxels, voxels_along
     from tlsvox.voxel.detection import unrecorded_echoes
     from tlsvox.voxel.grid import VoxelGrid
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     rng = np.random.default_rng(5)
     grid = VoxelGrid((0.0, 0.0, 0.0), 0.5, (12, 12, 12))

@@ -14,7 +14,7 @@ from tlsvox.errors import InputError
 from tlsvox.voxel.estimators import Estimator, Flag, estimate_lad
 from tlsvox.voxel.grid import VoxelGrid
 from tlsvox.voxel.trace import Beams, EchoKind, trace
-from voxlidar.leafangle import LeafAngle
+from voxlidar.leaf_orientation import LeafAngle
 
 
 def _slab_beams(rng, grid, n, rate, *, axis=0, g=1.0, first=0.0):

@@ -103,7 +103,7 @@ def test_rules_that_need_reflectance_say_so():
 
 
 def _la(kind):
-    from voxlidar.leafangle import LeafAngle
+    from voxlidar.leaf_orientation import LeafAngle
 
     return LeafAngle(kind)
 
