@@ -250,7 +250,10 @@ def read_scan(path, scan_id: int, origin=None):
     from tlsvox.scan import Scan
 
     path = Path(path)
-    fmt = scan_format(path) if path.is_file() else ScanFormat.LAS
+    if not path.is_file():
+        raise InputError(f"scan file {str(path)!r} does not exist" if not path.exists() else
+                         f"{str(path)!r} is not a file (a directory?); give the scan files themselves")
+    fmt = scan_format(path)
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
         if origin is not None:
             raise InputError(f"--scan-origin is for pulse-grouped text files; {path} is LAS/LAZ (its pulses start at "
