@@ -210,16 +210,9 @@ class SyntheticTree:
         return origin, tuple(int(v) for v in shape)
 
     def solid_wood_voxels(self, *, origin, voxel_size, shape) -> tuple[np.ndarray, np.ndarray]:
-        """Voxels whose centre lies inside a bark cylinder, and that cylinder's axis.
-
-        Returns
-        -------
-        flat : (K,) int64
-            Sorted flat (C-order) indices of the voxels.
-        axis : (K, 3) float64
-            Unit axis (z >= 0) of the cylinder holding each centre (the last
-            one listed where cylinders overlap).
-        """
+        """Voxels whose centre lies inside a bark cylinder, and that cylinder's axis: ``(flat, axis)`` as
+        :func:`tlsvox.voxel.wood.solid.cylinder_cells` returns them (sorted flat C-order indices; unit axes,
+        z >= 0, the last cylinder listed where cylinders overlap)."""
         return self._solid_cells(origin, voxel_size, shape)[:2]
 
     def _solid_cells(self, origin, voxel_size, shape):
