@@ -100,7 +100,10 @@ def ws(tmp_path_factory):
             scan.write(d / "nopose.laz")
     Scan(xyz=np.random.default_rng(0).normal(size=(200, 3)), name="plain").write(d / "plain.las")
     for name, text in (("zero.las", ""), ("zero.laz", ""), ("notlas.las", "hello, I am not a LAS file\n"),
-                       ("x.txt", "1,2,3\n"), ("text.csv", "a,b,c\nfoo,bar\n"), ("empty.csv", ""),
+                       ("x.txt", "1,2,3\n"), ("x.dat", "1,2,3\n"),
+                       ("fw_short.txt", "1 0 0 100 0 0 -1 300 304\n"),
+                       ("fw_nan.txt", "1 0 0 100 0 0 -1 300 304 12.5 0 nan 1\n"),
+                       ("fw_dir.txt", "1 0 0 100 0 0 -3 300 304 12.5 0 1 1\n"), ("text.csv", "a,b,c\nfoo,bar\n"), ("empty.csv", ""),
                        ("nan.csv", "10,12,nan,90,40,12,10\n"),
                        ("badcell.csv", "1,2,3,4,5\n1,2,x3,4,5\n"), ("zeros.csv", "0\n0\n0\n0\n"),
                        ("impulse.csv", "0.1\n0.5\n1.0\n0.5\n0.1\n"), ("broken.json", "{\"scans\": [\n"),

@@ -7,7 +7,8 @@ handler takes the parsed namespace and returns an exit status.
 
 Inputs by suffix: ``.las``/``.laz`` (LAS 1.3/1.4 waveform packets, ``.wdp``
 beside), ``.pls`` (PulseWaves, ``.wvs`` beside), ``.csv`` (one waveform per
-row, e.g. the NEON ``return.csv``; trailing zeros are padding).
+row, e.g. the NEON ``return.csv``; trailing zeros are padding), ``.txt``
+(HELIOS++ full-waveform output, :mod:`clsim.waveforms.io.helios`).
 """
 
 from __future__ import annotations
@@ -204,8 +205,16 @@ def load_waveforms(path: Path, *, dt_ns=None, geolocation=None) -> _Waveforms:
             geo = _neon_geolocation(Path(geolocation), len(waves))
         return _Waveforms("CSV (one waveform per row)", waves, [dt] * len(waves), geo,
                           dict(rows=len(waves)))
+    if suffix == ".txt":
+        from clsim.waveforms.io.helios import read_helios_fullwave
+
+        fw = read_helios_fullwave(path)
+        return _Waveforms("HELIOS++ full waveform (text)", list(fw.samples), fw.dt_ns.tolist(),
+                          [fw.sample_geometry(i) for i in range(len(fw))],
+                          dict(pulses=len(fw), time_axis="one-way travel time (HELIOS++)"),
+                          pulse_id=fw.index.tolist(), gps_time=fw.gps_time.tolist())
     raise InputError(f"{path.name}: unknown waveform file type {suffix!r}; expected .las, "
-                     ".laz, .pls or .csv")
+                     ".laz, .pls, .csv or .txt (HELIOS++ full waveform)")
 
 
 def _neon_geolocation(path: Path, n: int) -> list:
@@ -237,7 +246,9 @@ def cmd_info(args) -> int:
         print(f"samples per waveform: min {min(lens)} max {max(lens)}", file=out)
         print(f"sample spacing: {sorted(set(wf.dt_ns))} ns", file=out)
         first = wf.waves[0][:16]
-        print(f"first waveform (first 16 samples): {first.astype(np.int64).tolist()}", file=out)
+        shown = (first.astype(np.int64).tolist() if np.array_equal(first, np.round(first))
+                 else [float(f"{v:.4g}") for v in first])
+        print(f"first waveform (first 16 samples): {shown}", file=out)
     return 0
 
 

@@ -49,7 +49,7 @@ PUBLIC = [
     ("clsim.transport", "the Monte Carlo photon transport"),
     ("clsim.survey", "surveys: trajectories, scan patterns, runs, LAS output"),
     ("clsim.scenes", "plots of many trees"),
-    ("clsim.waveforms.io", "waveform files: LAS packets, PulseWaves"),
+    ("clsim.waveforms.io", "waveform files: LAS packets, PulseWaves, HELIOS++ full waveforms"),
     ("clsim.waveforms.decompose", "Gaussian decomposition of waveforms"),
     ("clsim.waveforms.metrics", "waveform metrics and comparisons"),
     ("clsim.waveforms.pointing", "laser pointing per pulse"),

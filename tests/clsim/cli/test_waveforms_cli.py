@@ -103,7 +103,7 @@ def test_decompose_batch_device_numpy(shared_data, tmp_path):
 
 
 def test_decompose_rejects_unknown_type(tmp_path, capsys):
-    f = tmp_path / "x.txt"
+    f = tmp_path / "x.dat"
     f.write_text("1,2,3")
     assert run(["decompose", str(f), "-o", str(tmp_path / "o.csv")]) == 2
     assert "unknown waveform file type" in capsys.readouterr().err
