@@ -11,6 +11,16 @@ pulse without echo (a gap, which leaf area density needs), never an echo.
   (whitespace or commas; an optional header line names the columns, and may
   add ``reflectance_db``, ``intensity`` or ``beam_fraction``) into a
   :class:`~tlsvox.scan.Scan` with its full pulse table;
+- HELIOS++ point output (``legNNN_points.xyz``: ``x y z intensity echo_width
+  return_number number_of_returns fullwave_index hit_object_id classification
+  gps_time``, 11 columns, no header; the layout of HELIOS++'s
+  ``DirectMeasurementWriteStrategy``): the same reader, its pulses grouped by
+  the full-waveform index (one per pulse, shared with its
+  ``*_fullwave.txt`` line). HELIOS++ writes no rows for pulses that hit
+  nothing, so such a scan comes without a pulse table, its echoes in the
+  scanner's frame (translated by ``origin``, its pose that translation):
+  ``voxelize`` rebuilds the empty pulses from the angular grid (``tlsvox
+  voxelize --angular-grid``) and says so when none is given;
 - :func:`pulse_ids_from_time`: the pulse of every echo from its time, checked
   against the return numbers; :meth:`Scan.read <tlsvox.scan.Scan.read>` uses
   it for LAS/LAZ files without a ``pulse_id`` dimension whose pulses are
@@ -38,10 +48,14 @@ import numpy as np
 from tlsvox.errors import InputError, ScanFileError
 from tlsvox.scan import PulseTable, Scan
 
-__all__ = ["COLUMNS", "DEFAULT_MISS_RANGE_M", "looks_pulse_grouped", "pulse_ids_from_time", "read_pulse_text"]
+__all__ = ["COLUMNS", "DEFAULT_MISS_RANGE_M", "HELIOS_COLUMNS", "looks_pulse_grouped", "pulse_ids_from_time",
+           "read_pulse_text"]
 
 #: the columns of a file without a header line, in order
 COLUMNS = ("x", "y", "z", "time", "return_index", "return_count")
+#: HELIOS++'s point output, in order (no header line; 11 columns)
+HELIOS_COLUMNS = ("x", "y", "z", "intensity", "echo_width", "return_index", "return_count", "fullwave_index",
+                  "hit_object_id", "classification", "time")
 #: a row farther than this from the scanner is a miss (no scanner records echoes 10 km away)
 DEFAULT_MISS_RANGE_M = 10_000.0
 
@@ -54,6 +68,7 @@ _ALIASES = {
     "n_returns": "return_count", "returns": "return_count", "echo_count": "return_count",
     "reflectance_db": "reflectance_db", "reflectance": "reflectance_db", "intensity": "intensity",
     "beam_fraction": "beam_fraction", "fraction": "beam_fraction",
+    "fullwave_index": "fullwave_index", "fullwaveindex": "fullwave_index",
 }
 
 
@@ -100,8 +115,12 @@ def looks_pulse_grouped(path: str | os.PathLike) -> bool:
         rows = np.array([[float(v) for v in re.split(r"[,\s;]+", ln.strip()) if v] for ln in lines[:200]])
     except ValueError:
         return False
-    if rows.ndim != 2 or rows.shape[1] != 6:
+    if rows.ndim != 2 or rows.shape[1] not in (6, len(HELIOS_COLUMNS)):
         return False
+    if rows.shape[1] == len(HELIOS_COLUMNS):  # HELIOS++: pulses by their full-waveform index
+        idx, cnt, t = rows[:, 5], rows[:, 6], rows[:, 7]
+        return bool(np.all(t == np.round(t)) and np.all(idx == np.round(idx)) and np.all(cnt == np.round(cnt))
+                    and np.all((idx >= 1) & (idx <= cnt) & (cnt <= 31)))
     idx, cnt, t = rows[:, 4], rows[:, 5], rows[:, 3]
     whole = np.all(idx == np.round(idx)) and np.all(cnt == np.round(cnt))
     return bool(whole and np.all((idx >= 0) & (idx <= cnt) & (cnt <= 31)) and np.all(np.diff(t) >= 0))
@@ -218,6 +237,8 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
                              f"the columns {' '.join(COLUMNS)}")
     else:
         cols = list(COLUMNS)
+        if len(re.split(r"[,\s;]+", lines[0].strip())) == len(HELIOS_COLUMNS):
+            cols = list(HELIOS_COLUMNS)
     delimiter = "," if "," in (_first_lines(path, 2)[-1]) else None
     try:
         with warnings.catch_warnings():
@@ -234,6 +255,9 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
     c = {name: data[:, i] for i, name in enumerate(cols) if name in _ALIASES.values()}
     xyz = np.column_stack([c["x"], c["y"], c["z"]])
     idx, cnt, t = c["return_index"], c["return_count"], c["time"]
+    grouping = "time"
+    if "fullwave_index" in c:  # HELIOS++: one full-waveform index per pulse, the truer key than a rounded time
+        t, grouping = c["fullwave_index"], "fullwave_index"
     for label, v in (("return_index", idx), ("return_count", cnt)):
         bad = ~np.isfinite(v) | (v != np.round(v)) | (v < 0) | (v > 255)
         if bad.any():
@@ -287,9 +311,29 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
     echo = ~miss
     extra = {k: c[k][echo] for k in ("reflectance_db", "intensity", "beam_fraction") if k in c}
     doc = read_pose_sidecar(path)
+    if cols == list(HELIOS_COLUMNS) and not miss.any():
+        return _without_empty_pulses(xyz[echo] - o, o, idx[echo], np.maximum(cnt[echo], idx[echo]), pid[echo],
+                                     extra, doc, scan_id, name or path.stem, where)
     return Scan(xyz=xyz[echo], return_number=idx[echo], number_of_returns=np.maximum(cnt[echo], idx[echo]),
                 pulse_id=pid[echo], pulses=PulseTable(direction, np.minimum(count, 255), origin=o),
                 pose=doc.get("pose"), pose_true=doc.get("pose_true"),
                 scan_id=int(doc.get("scan_id", scan_id)), name=doc.get("name", name or path.stem),
-                meta={**(doc.get("meta") or {}), "pulse_grouping": "time",
-                      "miss_rows": int(miss.sum()), "source": where}, **extra)
+                meta={**(doc.get("meta") or {}), "pulse_grouping": grouping,
+                      "miss_rows": int(miss.sum()), "source": where,
+                      **({"layout": "HELIOS++ point output"} if cols == list(HELIOS_COLUMNS) else {})}, **extra)
+
+
+def _without_empty_pulses(xyz, origin, index, count, pid, extra, doc, scan_id, name, where) -> Scan:
+    """A scan whose file recorded no pulse that missed (HELIOS++ writes none): echoes in the scanner's frame
+    (translated by ``origin``), pulses by ``pid``, and no pulse table, so that voxelize rebuilds the empty
+    pulses from the scanner's angular grid (``--angular-grid``), or says it needs one."""
+    pose = doc.get("pose")
+    if pose is None:
+        pose = np.eye(4)
+        pose[:3, 3] = origin
+    return Scan(xyz=xyz, return_number=index, number_of_returns=count, pulse_id=pid, pulses=None, pose=pose,
+                pose_true=doc.get("pose_true"), scan_id=int(doc.get("scan_id", scan_id)), name=doc.get("name", name),
+                meta={**(doc.get("meta") or {}), "pulse_grouping": "fullwave_index", "miss_rows": 0,
+                      "source": where, "layout": "HELIOS++ point output",
+                      "empty_pulses": "none recorded (HELIOS++ writes no row for a pulse that hit nothing): "
+                                      "rebuilt from the angular grid (--angular-grid)"}, **extra)
