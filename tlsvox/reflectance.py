@@ -260,7 +260,7 @@ def apparent_reflectance(scan: Scan, *, source: str | ReflectanceSource = Reflec
         raise InputError(
             f"scan {scan.name!r}: only raw intensity is available, which gives relative "
             "values; pass calibration=CalibrationTable(...) for absolute reflectance, or "
-            "allow_relative=True"
+            "allow_relative=True (CLI: tlsvox classify --intensity relative)"
         )
     r0 = float(np.median(ranges)) if reference_range_m is None else reference_range_m
     return range_normalise(scan.intensity, ranges, reference_range_m=r0)

@@ -6,7 +6,8 @@ group            fields                                                         
 ``mixture``      method, rule, components, fit_single_returns, smooth_k             the Gaussian fit and the
                                                                                     leaf/wood threshold
 ``reflectance``  source, reference_range_m, allow_relative, wavelength_nm,          each echo's reflectance
-                 incidence_correction, normal_k, min_cos, target_threshold
+                 incidence_correction, normal_k, min_cos, target_threshold,
+                 relative_target_factor
 ``noise``        noise_radius_cells, noise_min_neighbours,                          the noise echoes
                  nominal_leaf_reflectance, noise_fraction
 ``ground``       ground, ground_band_m, ground_tolerance_m                          the ground plane
@@ -57,6 +58,7 @@ class ReflectanceSettings:
     normal_k: int = 20  #: neighbours of the normal estimate
     min_cos: float = 0.2  #: the incidence cosine's floor
     target_threshold: float = 1.0  #: linear reflectance above which an echo is a target
+    relative_target_factor: float = 10.0  #: relative intensity: targets this many times the scan's median
 
 
 @dataclass(frozen=True)

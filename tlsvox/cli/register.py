@@ -85,6 +85,11 @@ def register(subparsers) -> None:
                    help="divide reflectance by the estimated incidence cosine before the fit")
     c.add_argument("--refine", action="store_true", help="geometric refinement of branch edges")
     c.add_argument("--no-ground", action="store_true", help="do not set the ground plane apart")
+    c.add_argument("--intensity", choices=["calibrated", "relative"], default="calibrated",
+                   help="calibrated (default): reflectance (dB) as the scan holds it; relative: raw intensity, "
+                        "range-normalised and divided by the scan's median (the leaf/wood split does not depend "
+                        "on the scale; targets are echoes 10 times the median or brighter; stated in "
+                        "classification.json)")
     c.add_argument("--plot", type=Path, default=None, metavar="PATH",
                    help="also write the reflectance histograms (paper Fig. 3) to PATH (.png, .pdf, .svg, .jpg)")
     c.set_defaults(func=cmd_classify)
@@ -134,7 +139,7 @@ def _components(text: str):
 
 def cmd_classify(args) -> int:
     """Handler of ``tlsvox classify``."""
-    from tlsvox.classify import classify_scan, score
+    from tlsvox.classify import ClassifySettings, classify_scan, score
     from tlsvox.readers import read_any
     from voxlidar.safeio import atomic_write
 
@@ -147,9 +152,12 @@ def cmd_classify(args) -> int:
                   + [("--plot", args.plot)])
     check_figure_path("--plot", args.plot)
     scans = [read_any(p, scan_id=k, require_reflectance=True) for k, p in enumerate(args.scans)]
-    results = [classify_scan(s, method=args.method, rule=args.rule, components=args.components, refine=args.refine,
-                             incidence_correction=args.incidence_correction, ground=not args.no_ground)
-               for s in scans]
+    settings = ClassifySettings.from_kwargs(method=args.method, rule=args.rule, components=args.components,
+                                            refine=args.refine, incidence_correction=args.incidence_correction,
+                                            ground=not args.no_ground)
+    if args.intensity == "relative":
+        settings = ClassifySettings.from_kwargs(settings, source="intensity", allow_relative=True)
+    results = [classify_scan(s, settings) for s in scans]
     doc = {"scans": []}
     out.mkdir(parents=True, exist_ok=True)
     for s, c, name in zip(scans, results, names):

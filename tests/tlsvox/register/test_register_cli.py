@@ -89,3 +89,27 @@ def test_help_reads_like_a_man_page(capsys):
         run(["register", "--help"])
     text = capsys.readouterr().out
     assert "retro-reflective" in text and "--transforms" in text
+
+
+def test_classify_raw_intensity_needs_and_takes_the_relative_flag(toy_files, tmp_path, capsys):
+    """A scan with raw intensity only: refused with the flag named, classified with --intensity relative,
+    the same labels as from its reflectance (the split does not depend on the scale), the mode stated."""
+    import dataclasses
+
+    d, A, _ = toy_files
+    r = np.linalg.norm(A.xyz, axis=1)
+    raw = dataclasses.replace(A, reflectance_db=None,
+                              intensity=np.round(5e4 * 10 ** (A.reflectance_db / 10.0) / r ** 2))  # within uint16
+    raw.write(tmp_path / "raw.laz")
+    assert run(["classify", str(tmp_path / "raw.laz"), "-o", str(tmp_path / "no")]) == 2
+    assert "--intensity relative" in capsys.readouterr().err and not (tmp_path / "no").exists()
+    # two Gaussians for both: the toy's reflectances are two exact values, which the BIC reads as two or three
+    # once the intensity is rounded to whole counts (the synthetic oak's test runs the default)
+    assert run(["classify", str(tmp_path / "raw.laz"), "-o", str(tmp_path / "rel"), "--intensity", "relative",
+                "--components", "2"]) == 0
+    assert run(["classify", str(d / "A.laz"), "-o", str(tmp_path / "db"), "--components", "2"]) == 0
+    rel, db = (json.loads((tmp_path / k / "classification.json").read_text())["scans"][0] for k in ("rel", "db"))
+    assert "relative intensity" in rel["feature"] and rel["settings"]["reflectance"]["allow_relative"] is True
+    assert rel["counts"]["target"] == db["counts"]["target"] > 0
+    a, b = (Scan.read(tmp_path / k / f"{n}.classified.laz").classification for k, n in (("rel", "raw"), ("db", "A")))
+    assert np.mean(a == b) > 0.98, np.mean(a == b)  # intensity stored as whole numbers: a few echoes move
