@@ -80,6 +80,9 @@ def register(subparsers) -> None:
                    help="run the NumPy float64 oracle instead of OpenCL (slow; no device needed)")
     p.add_argument("--progress", action="store_true", help=argparse.SUPPRESS)  # the default now; kept for old scripts
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse a scene written with quality warnings (tlsvox voxelize records them; they are "
+                        "repeated here either way)")
     p.set_defaults(func=cmd_simulate)
 
     d = subparsers.add_parser("devices", help="list OpenCL devices and whether each works",
@@ -174,6 +177,7 @@ def cmd_simulate(args) -> int:
     from clsim.scenes import load_scene
 
     scene = load_scene(args.scene)
+    _repeat_warnings("simulate", args.scene, scene, args.strict)
     over = {}
     if args.off_nadir is not None:
         over["off_nadir_deg"] = args.off_nadir
@@ -331,3 +335,15 @@ def cmd_bench(args) -> int:
               f"{'yes' if r['uniform'] else 'no':7s} {r['photons_per_s']:12,.0f} {r['steps_per_s'] / 1e6:12,.1f} M "
               f"{r['walk_steps_per_s'] / 1e6:12,.1f} M")
     return 0
+
+
+def _repeat_warnings(cmd: str, path, scene, strict: bool) -> None:
+    """Repeat the quality warnings the scene was written with; with ``--strict``, refuse it."""
+    from clsim.scenes import scene_warnings
+
+    said = scene_warnings(scene)
+    for w in said:
+        print(f"clsim {cmd}: warning: {path} was written with a quality warning: {w}", file=sys.stderr)
+    if strict and said:
+        raise InputError(f"{path}: {len(said)} quality warning(s) recorded when the scene was made, with "
+                         "--strict; fix the voxelisation (see the warnings) or drop --strict")

@@ -87,6 +87,9 @@ def register(subparsers) -> None:
                    help="delete the batches of an earlier run in OUT and start over (default: resume)")
     p.add_argument("--no-las", action="store_true", help="keep only the batch files, write no LAS")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse a scene written with quality warnings (tlsvox voxelize records them; they are "
+                        "repeated here either way)")
     p.set_defaults(func=cmd_survey)
 
 
@@ -105,6 +108,7 @@ def cmd_survey(args) -> int:
     from clsim.survey.distributed import SurveyJob, load_survey, run_survey
 
     scene = load_scene(args.scene)  # a voxel scene, a plot of trees (PlotScene.save) or an AMAPVox .vox
+    _repeat_warnings("survey", args.scene, scene, args.strict)
     sensor = Sensor.preset(args.sensor)
     overrides = {k: v for k, v in (("pulse_rate_hz", args.pulse_rate), ("scan_rate_hz", args.scan_rate),
                                    ("fov_deg", args.fov)) if v is not None}
@@ -149,3 +153,15 @@ def cmd_survey(args) -> int:
                                 sensor=sensor)
     say(f"survey: wrote {las} (points: the decomposed returns) and {wdp.name} (the waveforms)")
     return 0
+
+
+def _repeat_warnings(cmd: str, path, scene, strict: bool) -> None:
+    """Repeat the quality warnings the scene was written with; with ``--strict``, refuse it."""
+    from clsim.scenes import scene_warnings
+
+    said = scene_warnings(scene)
+    for w in said:
+        print(f"clsim {cmd}: warning: {path} was written with a quality warning: {w}", file=sys.stderr)
+    if strict and said:
+        raise InputError(f"{path}: {len(said)} quality warning(s) recorded when the scene was made, with "
+                         "--strict; fix the voxelisation (see the warnings) or drop --strict")

@@ -9,7 +9,7 @@ from clsim.scenes._plot import TABLE_DTYPE, PlotScene, Snap
 from clsim.scenes.pictures import plot_canopy
 
 __all__ = ["PlotScene", "Snap", "TABLE_DTYPE", "TREE_KINDS", "load_scene", "make_plot", "merge_voxels",
-           "plot_canopy", "random_tree_params", "synthetic_tree_scene"]
+           "plot_canopy", "random_tree_params", "scene_warnings", "synthetic_tree_scene"]
 
 
 def load_scene(path):
@@ -26,3 +26,10 @@ def load_scene(path):
 
         return read_vox(path)
     return PlotScene.load(path) if PlotScene.is_plot_file(path) else Scene.load(path)
+
+
+def scene_warnings(scene) -> list[str]:
+    """The quality warnings a scene was written with (``tlsvox voxelize`` records them in ``meta["warnings"]``),
+    for the simulator to repeat when it loads the scene; none for a scene without them (a plot, a ``.vox``)."""
+    meta = getattr(scene, "meta", None) or {}
+    return [str(w) for w in meta.get("warnings", [])]

@@ -258,3 +258,23 @@ def test_helios_point_output_read_and_voxelised_with_the_angular_grid(sim, tmp_p
     assert a.scene.n_voxels == b.scene.n_voxels > 0
     # the rebuilt directions sit on the grid, the measured ones scatter by the sub-rays: within 2 %
     assert abs(b.lad.lad.sum() / a.lad.lad.sum() - 1) < 0.02
+
+
+def test_a_scan_without_its_misses_is_named_as_the_cause(sim, tmp_path):
+    """An export that dropped its miss rows reads (every pulse it lists has an echo); voxelize then warns that
+    the scan has no empty pulses and blames them, not the grid or the units, for the implausible LAD."""
+    path = write_rows(sim, tmp_path / "nomiss.txt")
+    lines = [ln for ln in path.read_text().splitlines() if not ln.endswith(" 0 0")]  # the miss rows go
+    path.write_text("\n".join(lines) + "\n")
+    back = read_any(path, origin=ORIGIN)
+    assert back.meta["miss_rows"] == 0 and (back.pulses.n_echoes > 0).all()
+    shifted = np.eye(4)
+    shifted[:3, 3] = -ORIGIN
+    back.pose = shifted
+    res = voxelize([back], voxel_size=0.25, ground=None, bounds=[[2.5, -0.5, -0.5], [3.5, 0.5, 0.5]],
+                   progress=False)
+    said = [w for w in res.scene.meta["warnings"] if "no empty pulses" in w]
+    assert len(said) == 1 and "--angular-grid" in said[0] and "biased high" in said[0]
+    with_misses = voxelize([sim], voxel_size=0.25, ground=None, bounds=[[2.5, -0.5, -0.5], [3.5, 0.5, 0.5]],
+                           progress=False, scanner_frame=True)
+    assert not any("no empty pulses" in w for w in with_misses.scene.meta["warnings"])

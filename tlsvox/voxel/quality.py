@@ -23,7 +23,7 @@ def quality_warnings(lad, occluded, infos) -> list[str]:
     lad : (M,) float, m2/m3, and occluded : (M,) bool
         The stored voxels.
     infos : list of dict
-        Per-scan pulse bookkeeping (``line_fit`` where empty pulses were rebuilt).
+        Per-scan pulse bookkeeping (``pulses``, ``empty``; ``line_fit`` where empty pulses were rebuilt).
 
     Examples
     --------
@@ -33,10 +33,19 @@ def quality_warnings(lad, occluded, infos) -> list[str]:
     out = []
     lad = np.asarray(lad, dtype=np.float64)
     occluded = np.asarray(occluded, dtype=bool)
+    # a scan whose every pulse left an echo: the misses were not exported (a merged cloud, an echo-only export)
+    full = [info for info in infos if info.get("pulses", 0) > 0 and info.get("empty", 1) == 0]
+    for info in full:
+        out.append(f"scan {info.get('scan', '?')!r} has no empty pulses: each of its {info['pulses']} pulses left "
+                   "an echo, so the pulses that went through were not exported, and every voxel its beams cross "
+                   "looks full (LAD biased high); give the scan's pulse table, or rebuild its empty pulses from "
+                   "the angular grid (--angular-grid)")
     high = lad > LAD_PLAUSIBLE_MAX
     if high.any():
+        cause = ("the scans without empty pulses above are the likely cause" if full else
+                 "check the angular grid, the voxel size and the scan's units")
         out.append(f"{int(high.sum())} voxels have LAD above {LAD_PLAUSIBLE_MAX:g} m2/m3 (max {lad.max():.0f}), "
-                   "more than any canopy holds: check the angular grid, the voxel size and the scan's units")
+                   f"more than any canopy holds: {cause}")
     if occluded.size and occluded.mean() > OCCLUDED_SHARE_MAX:
         out.append(f"{100 * occluded.mean():.0f} % of the stored voxels are occluded (no estimate): add scan "
                    "positions, or use a larger voxel size")

@@ -33,3 +33,17 @@ def test_survey_runs_resumes_and_refuses_another_job(tmp_path, capsys):
     assert "holds another survey (differs in seed)" in capsys.readouterr().err
     assert main(["survey", str(scene), "-o", str(out), *ARGS, "--seed", "2", "--restart"]) == 0
     assert not np.array_equal(load_survey(out).waveform, wf.waveform)
+
+
+def test_a_flagged_scene_is_said_and_refused_with_strict(tmp_path, capsys):
+    """A scene written with quality warnings (tlsvox voxelize records them): clsim simulate and survey repeat
+    each one when they load it, and with --strict refuse it before writing anything."""
+    scene = testscenes.homogeneous_layer(width=4.0, thickness=1.0, voxel_size=0.5)
+    scene.meta["warnings"] = ["scan 'merged' has no empty pulses: each of its 10 pulses left an echo"]
+    path = scene.save(tmp_path / "flagged.npz")
+    assert main(["simulate", str(path), "--photons", "2000", "-q", "-o", str(tmp_path / "w.npz")]) == 0
+    assert "was written with a quality warning: scan 'merged' has no empty pulses" in capsys.readouterr().err
+    assert main(["simulate", str(path), "--photons", "2000", "-q", "--strict", "-o", str(tmp_path / "w2.npz")]) == 2
+    assert "--strict" in capsys.readouterr().err and not (tmp_path / "w2.npz").exists()
+    assert main(["survey", str(path), "-o", str(tmp_path / "sv"), *ARGS, "--strict"]) == 2
+    assert "no empty pulses" in capsys.readouterr().err and not (tmp_path / "sv").exists()
