@@ -174,10 +174,10 @@ def cmd_simulate(args) -> int:
             raise InputError("--targets runs one pulse per row: drop --target and --trace-plot")
         targets = read_targets(args.targets)
 
-    from clsim.scenes import load_scene
+    from clsim.scenes import load_scene, repeat_scene_warnings
 
     scene = load_scene(args.scene)
-    _repeat_warnings("simulate", args.scene, scene, args.strict)
+    repeat_scene_warnings("clsim simulate", args.scene, scene, strict=args.strict)
     over = {}
     if args.off_nadir is not None:
         over["off_nadir_deg"] = args.off_nadir
@@ -335,15 +335,3 @@ def cmd_bench(args) -> int:
               f"{'yes' if r['uniform'] else 'no':7s} {r['photons_per_s']:12,.0f} {r['steps_per_s'] / 1e6:12,.1f} M "
               f"{r['walk_steps_per_s'] / 1e6:12,.1f} M")
     return 0
-
-
-def _repeat_warnings(cmd: str, path, scene, strict: bool) -> None:
-    """Repeat the quality warnings the scene was written with; with ``--strict``, refuse it."""
-    from clsim.scenes import scene_warnings
-
-    said = scene_warnings(scene)
-    for w in said:
-        print(f"clsim {cmd}: warning: {path} was written with a quality warning: {w}", file=sys.stderr)
-    if strict and said:
-        raise InputError(f"{path}: {len(said)} quality warning(s) recorded when the scene was made, with "
-                         "--strict; fix the voxelisation (see the warnings) or drop --strict")

@@ -102,13 +102,13 @@ def line_through(scene, start=None, end=None):
 
 
 def cmd_survey(args) -> int:
-    from clsim.scenes import load_scene
+    from clsim.scenes import load_scene, repeat_scene_warnings
     from clsim.sensor import Sensor
     from clsim.survey import ScanPattern, Trajectory, pulse_count, typical_flight
     from clsim.survey.distributed import SurveyJob, load_survey, run_survey
 
     scene = load_scene(args.scene)  # a voxel scene, a plot of trees (PlotScene.save) or an AMAPVox .vox
-    _repeat_warnings("survey", args.scene, scene, args.strict)
+    repeat_scene_warnings("clsim survey", args.scene, scene, strict=args.strict)
     sensor = Sensor.preset(args.sensor)
     overrides = {k: v for k, v in (("pulse_rate_hz", args.pulse_rate), ("scan_rate_hz", args.scan_rate),
                                    ("fov_deg", args.fov)) if v is not None}
@@ -153,15 +153,3 @@ def cmd_survey(args) -> int:
                                 sensor=sensor)
     say(f"survey: wrote {las} (points: the decomposed returns) and {wdp.name} (the waveforms)")
     return 0
-
-
-def _repeat_warnings(cmd: str, path, scene, strict: bool) -> None:
-    """Repeat the quality warnings the scene was written with; with ``--strict``, refuse it."""
-    from clsim.scenes import scene_warnings
-
-    said = scene_warnings(scene)
-    for w in said:
-        print(f"clsim {cmd}: warning: {path} was written with a quality warning: {w}", file=sys.stderr)
-    if strict and said:
-        raise InputError(f"{path}: {len(said)} quality warning(s) recorded when the scene was made, with "
-                         "--strict; fix the voxelisation (see the warnings) or drop --strict")

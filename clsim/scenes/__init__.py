@@ -9,7 +9,7 @@ from clsim.scenes._plot import TABLE_DTYPE, PlotScene, Snap
 from clsim.scenes.pictures import plot_canopy
 
 __all__ = ["PlotScene", "Snap", "TABLE_DTYPE", "TREE_KINDS", "load_scene", "make_plot", "merge_voxels",
-           "plot_canopy", "random_tree_params", "scene_warnings", "synthetic_tree_scene"]
+           "plot_canopy", "random_tree_params", "repeat_scene_warnings", "scene_warnings", "synthetic_tree_scene"]
 
 
 def load_scene(path):
@@ -33,3 +33,19 @@ def scene_warnings(scene) -> list[str]:
     for the simulator to repeat when it loads the scene; none for a scene without them (a plot, a ``.vox``)."""
     meta = getattr(scene, "meta", None) or {}
     return [str(w) for w in meta.get("warnings", [])]
+
+
+def repeat_scene_warnings(tool: str, path, scene, *, strict: bool = False) -> list[str]:
+    """Print the scene's recorded quality warnings to stderr (``tool: warning: ...``); with ``strict``, raise
+    :class:`~clsim.errors.InputError` when there is any. Returns them."""
+    import sys
+
+    from clsim.errors import InputError
+
+    said = scene_warnings(scene)
+    for w in said:
+        print(f"{tool}: warning: {path} was written with a quality warning: {w}", file=sys.stderr)
+    if strict and said:
+        raise InputError(f"{path}: {len(said)} quality warning(s) recorded when the scene was made, with --strict; "
+                         "fix the voxelisation (see the warnings) or drop --strict")
+    return said
