@@ -401,7 +401,7 @@ def straight_trajectory(points, directions, times) -> tuple[np.ndarray, np.ndarr
     >>> d = np.c_[0.1 * np.sin(40 * t), 0.1 * np.cos(33 * t), -np.ones(50)]
     >>> truth = np.array([0.0, 0, 1000]) + t[:, None] * [60.0, 0, 0]
     >>> S0, v = straight_trajectory(truth + 5000 * d, d, t)
-    >>> S0.round(3).tolist(), v.round(3).tolist()
+    >>> (S0.round(3) + 0.0).tolist(), (v.round(3) + 0.0).tolist()  # + 0.0: no negative zeros
     ([0.0, 0.0, 1000.0], [60.0, 0.0, 0.0])
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
