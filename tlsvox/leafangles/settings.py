@@ -46,7 +46,7 @@ class PlaneFitSettings:
     radius: float = 0.025  #: neighbourhood radius, metres
     min_points: int = 5  #: echoes a neighbourhood needs (>= 3)
     min_spread: float = 0.0  #: smallest in-plane minor spread kept, metres
-    cap: float = 0.2  #: smallest |cos| between a normal and its beam kept
+    cap: float = 0.2  #: smallest absolute cosine between a normal and its beam kept
 
 
 @dataclass(frozen=True)
