@@ -6,6 +6,10 @@ pulse share its time.  Pulses that returned nothing are written as *miss
 rows*: a row whose return count or index is 0, whose coordinates are NaN, or
 a point placed far along the beam (beyond ``miss_range``).  A miss row is a
 pulse without echo (a gap, which leaf area density needs), never an echo.
+In a pulse that has echoes too (other simulators write one for a partly
+intercepted pulse, numbered past its echoes and counted in its return count),
+the miss row is the beam's *tail*: the share of the pulse that went on, one of
+its ``n`` targets, so each echo removes ``1/n`` and ``1/n`` flies on.
 
 - :func:`read_pulse_text`: ASCII ``x y z time return_index return_count``
   (whitespace or commas; an optional header line names the columns, and may
@@ -263,15 +267,15 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
         if bad.any():
             row = int(np.nonzero(bad)[0][0])
             raise InputError(f"{where}: row {row + 1 + skip}: {label}={float(v[row])!r} must be a whole number 0..255")
-    bad = np.isfinite(cnt) & (idx > cnt) & (cnt > 0)
-    if bad.any():
-        row = int(np.nonzero(bad)[0][0])
-        raise InputError(f"{where}: row {row + 1 + skip}: return_index {int(idx[row])} is above its "
-                         f"return_count {int(cnt[row])}")
     finite = np.all(np.isfinite(xyz), axis=1)
     rng = np.full(len(xyz), np.inf)
     rng[finite] = np.linalg.norm(xyz[finite] - o, axis=1)
     miss = (cnt == 0) | (idx == 0) | ~finite | (rng > miss_range)
+    bad = ~miss & (idx > cnt) & (cnt > 0)  # a miss row may carry any index (some tools number it past the echoes)
+    if bad.any():
+        row = int(np.nonzero(bad)[0][0])
+        raise InputError(f"{where}: row {row + 1 + skip}: return_index {int(idx[row])} is above its "
+                         f"return_count {int(cnt[row])}")
     undirected = miss & (~finite | (rng == 0))
     if undirected.any():
         row = int(np.nonzero(undirected)[0][0])
@@ -290,10 +294,7 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
     p = len(times)
     n_miss = np.bincount(pid[miss], minlength=p)
     n_echo = np.bincount(pid[~miss], minlength=p)
-    both = np.nonzero((n_miss > 0) & (n_echo > 0))[0]
-    if len(both):
-        raise InputError(f"{where}: the pulse at time {float(times[both[0]])!r} has both echoes and a miss row; "
-                         "a miss row stands for a pulse with no echo")
+    tail = (n_miss > 0) & (n_echo > 0)  # a partly intercepted pulse: its miss row is the share that went on
     twice = np.nonzero(n_miss > 1)[0]
     if len(twice):
         raise InputError(f"{where}: the pulse at time {float(times[twice[0]])!r} has {n_miss[twice[0]]} miss rows; "
@@ -307,19 +308,20 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
     direction = v / np.linalg.norm(v, axis=1, keepdims=True)
     count = np.zeros(p, np.int64)
     np.maximum.at(count, pid[~miss], cnt[~miss].astype(np.int64))
-    count = np.maximum(count, n_echo)
+    count = np.maximum(count, n_echo + tail)  # the tail counts as one of the pulse's targets
     echo = ~miss
     extra = {k: c[k][echo] for k in ("reflectance_db", "intensity", "beam_fraction") if k in c}
     doc = read_pose_sidecar(path)
     if cols == list(HELIOS_COLUMNS) and not miss.any():
         return _without_empty_pulses(xyz[echo] - o, o, idx[echo], np.maximum(cnt[echo], idx[echo]), pid[echo],
                                      extra, doc, scan_id, name or path.stem, where)
-    return Scan(xyz=xyz[echo], return_number=idx[echo], number_of_returns=np.maximum(cnt[echo], idx[echo]),
+    n_of = np.maximum(np.maximum(cnt[echo], idx[echo]), count[pid[echo]])  # with its tail, if it has one
+    return Scan(xyz=xyz[echo], return_number=idx[echo], number_of_returns=n_of,
                 pulse_id=pid[echo], pulses=PulseTable(direction, np.minimum(count, 255), origin=o),
                 pose=doc.get("pose"), pose_true=doc.get("pose_true"),
                 scan_id=int(doc.get("scan_id", scan_id)), name=doc.get("name", name or path.stem),
                 meta={**(doc.get("meta") or {}), "pulse_grouping": grouping,
-                      "miss_rows": int(miss.sum()), "source": where,
+                      "miss_rows": int(miss.sum()), "tail_rows": int(tail.sum()), "source": where,
                       **({"layout": "HELIOS++ point output"} if cols == list(HELIOS_COLUMNS) else {})}, **extra)
 
 
