@@ -71,6 +71,16 @@ def register(subparsers) -> None:
     p.add_argument("--hotspot", action="store_true",
                    help="single scattering returns along its free incoming path (the hot spot of a small footprint; "
                         "docs/method.md) instead of through the canopy independently")
+    p.add_argument("--first-order", choices=("mc", "deterministic"), default="mc",
+                   help="single scattering by the photons (mc), or integrated along --beam-samples directions "
+                        "through the beam, all the pulses of a batch in one kernel launch, without Monte Carlo "
+                        "noise (deterministic; with --max-order 1 no photons are traced)")
+    p.add_argument("--beam-samples", type=number(int, lo=1, hi=100000), default=19,
+                   help="directions through the beam of --first-order deterministic (more: closer to the "
+                        "Gaussian beam, slower; docs/survey.md)")
+    p.add_argument("--bin-ns", type=number(lo=0.001, hi=1.0, unit="ns"), default=None,
+                   help="fine time bin before the pulse convolution (default 0.05 ns; with --first-order "
+                        "deterministic, whose bins hold exact integrals, a 16th of the pulse width)")
     p.add_argument("--seed", type=number(int, lo=0), default=1, help="base seed: pulse k gets seed + k")
     p.add_argument("--batch-size", type=number(int, lo=1), default=256, help="pulses per task and per file")
     p.add_argument("--workers", type=number(int, lo=0), default=os.cpu_count() or 1,
@@ -124,15 +134,21 @@ def cmd_survey(args) -> int:
         count = pulse_count(args.duration, pattern.pulse_rate_hz)         # the pulses with t_k < duration
     job = SurveyJob(scene_path=args.scene, trajectory=tr, pattern=pattern, sensor=sensor, photons=args.photons,
                     count=count, seed=args.seed, batch_size=args.batch_size, max_order=args.max_order,
-                    hotspot=args.hotspot, device=args.device)
+                    hotspot=args.hotspot, device=args.device, first_order=args.first_order,
+                    bin_ns=args.bin_ns or (sensor.pulse_fwhm_ns / 16 if args.first_order == "deterministic" else 0.05),
+                    beam_samples=args.beam_samples)
     out = Path(args.output)
     if args.restart and out.is_dir():
         shutil.rmtree(out / "batches", ignore_errors=True)
         (out / "survey.json").unlink(missing_ok=True)
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     n_b = len(job.ranges())
+    how = f"{args.photons:,} photons each"
+    if args.first_order == "deterministic":
+        how = f"single scattering along {args.beam_samples} beam samples" + (
+            f", orders 2-{args.max_order} by {args.photons:,} photons each" if args.max_order > 1 else "")
     say(f"survey: {job.count:,} pulses ({job.count / pattern.pulse_rate_hz:.3g} s of a {tr.duration_s:.3g} s "
-        f"line at {tr.legs[0].start[2]:g} m), {args.photons:,} photons each, {n_b} batches of "
+        f"line at {tr.legs[0].start[2]:g} m), {how}, {n_b} batches of "
         f"{args.batch_size}; " + ("a plain loop" if args.workers == 0 and not args.scheduler else
                                   f"Dask {'scheduler ' + args.scheduler if args.scheduler else f'{args.workers} local workers'}"))
     run = run_survey(job, out, workers=max(args.workers, 1), scheduler=args.scheduler,

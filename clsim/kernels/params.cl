@@ -32,6 +32,7 @@ typedef struct {
     int leaf_avg;       /* 1: spherical leaf angles, uniform azimuths: the next-event weight averaged,
                          * the leaf normal drawn directly, G = 1/2 */
     uint qmc;           /* random shift of the lattice of first free paths, from the seed */
+    int skip_first;     /* 1: no order-1 next-event tallies (the deterministic first order adds them) */
 } params_t;
 
 /* stats[] slots: fixed-point weights (x 2^32) unless noted */

@@ -98,7 +98,7 @@ class SurveyJob:
         scene's ``ground_z``, else the bottom of its grid).
     batch_size : int
         Pulses per task and per file.
-    max_order, mode, detect, batches, bin_ns, hotspot, leaf_off
+    max_order, mode, detect, batches, bin_ns, hotspot, leaf_off, first_order, beam_samples
         As :meth:`clsim.Simulator.run_pulses`.
     device : str, optional
         OpenCL device spec each worker opens (default: its ``VOXLIDAR_DEVICE``
@@ -124,6 +124,8 @@ class SurveyJob:
     hotspot: bool = False
     leaf_off: bool = False
     device: str | None = None
+    first_order: str = "mc"
+    beam_samples: int = 19
 
     def __post_init__(self):
         if not isinstance(self.trajectory, Trajectory):
@@ -136,7 +138,9 @@ class SurveyJob:
         if not path.is_file():
             raise InputError(f"scene file {str(path)!r} does not exist; write one with Scene.save(path)")
         object.__setattr__(self, "scene_path", str(path.resolve()))
-        for name, lo in (("photons", 1), ("batch_size", 1)):
+        if self.first_order not in ("mc", "deterministic"):
+            raise InputError(f"first_order must be 'mc' or 'deterministic', got {self.first_order!r}")
+        for name, lo in (("photons", 1), ("batch_size", 1), ("beam_samples", 1)):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < lo:
                 raise InputError(f"{name} must be an integer >= {lo}, got {v!r}")
@@ -166,8 +170,11 @@ class SurveyJob:
                              ground=self.ground_z, seed=self.seed)
 
     def run_options(self) -> dict:
-        return dict(photons=self.photons, max_order=self.max_order, mode=self.mode, detect=self.detect,
+        opts = dict(photons=self.photons, max_order=self.max_order, mode=self.mode, detect=self.detect,
                     batches=self.batches, bin_ns=self.bin_ns, hotspot=self.hotspot, leaf_off=self.leaf_off)
+        if self.first_order != "mc":  # the same survey.json as before for Monte Carlo surveys (resume)
+            opts.update(first_order=self.first_order, beam_samples=self.beam_samples)
+        return opts
 
     def to_dict(self) -> dict:
         """Plain data (JSON) naming every input of the output, the scene by its SHA-256."""

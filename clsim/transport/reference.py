@@ -61,6 +61,7 @@ class _Transport(SceneWalker):
         self.edges = setup.edges_ns
         self.nee = setup.detect is PhotonTally.NEE
         self.hotspot = bool(setup.p["hotspot"])
+        self.skip_first = bool(setup.p["skip_first"])
         self.leaf_avg = bool(setup.p["leaf_avg"])
         self.qmc = int(setup.p["qmc"])
         B, K, F = setup.batches, setup.max_order, len(self.edges) - 1
@@ -179,7 +180,7 @@ class _Transport(SceneWalker):
             lf = ev == LEAF
             f = np.where(lf, leaf_avg_f(d[a], drx, R, T), f)
             ok = (f > 0) & in_fov(x[a] - self.sensor, self.axis, self.tan2_fov)
-        if not ok.any():
+        if not ok.any() or (k == 1 and self.skip_first):
             return
         i = a[ok]
         self.shadow += i.size

@@ -51,7 +51,7 @@ PARAMS_DTYPE = np.dtype([
     ("wood_R", "<f4"), ("wood_T", "<f4"), ("ground_R", "<f4"), ("crown_c", "<f4", 2),
     ("outward", "<i4"), ("ds", "<f4"), ("t0_ns", "<f4"), ("dt_ns", "<f4"), ("nbins", "<i4"),
     ("max_order", "<i4"), ("n_batches", "<i4"), ("n_trace", "<i4"), ("hotspot", "<i4"),
-    ("leaf_avg", "<i4"), ("qmc", "<u4"),
+    ("leaf_avg", "<i4"), ("qmc", "<u4"), ("skip_first", "<i4"),
 ])
 
 #: Step of the golden-ratio lattice of first free paths (kernels/transport.cl QMC_STEP):

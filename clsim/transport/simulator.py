@@ -114,6 +114,17 @@ def probe_build(device) -> str | None:
     return None
 
 
+def _add_on_clock(a, ta: float, b, tb: float, period: float):
+    """The sum of two waveforms sampled on one clock (first samples at ``ta``, ``tb``, multiples of
+    ``period`` apart), over the span of both: (samples, first sample time)."""
+    off = int(round((tb - ta) / period))
+    lo, hi = min(0, off), max(len(a), off + len(b))
+    out = np.zeros(hi - lo)
+    out[-lo:-lo + len(a)] += a
+    out[off - lo:off - lo + len(b)] += b
+    return out, ta + lo * period
+
+
 class Simulator:
     """Owns an OpenCL context, queue and the built transport programs.
 
@@ -281,7 +292,8 @@ class Simulator:
     def run_pulses(self, scene: Scene, pulses, base: Sensor, *, photons: int, mode="exact", detect="nee",
                    max_order: int = 3, leaf_off: bool = False, batches: int = 1, bin_ns: float = 0.05,
                    step_m: float = 0.02, hotspot: bool = False, chunk: int = 1 << 20,
-                   progress: bool = False, scene_setup: SceneSetup | None = None) -> PulseWaveforms:
+                   progress: bool = False, scene_setup: SceneSetup | None = None,
+                   first_order: str = "mc", beam_samples: int = 19) -> PulseWaveforms:
         """Simulate every pulse of a survey over one scene: the waveforms in the sensor's samples.
 
         Pulse ``i`` is ``base`` placed by ``pulses.sensor(i, base)``, aimed at
@@ -310,6 +322,16 @@ class Simulator:
             As :meth:`run`.
         progress : bool
             A tqdm bar over the pulses.
+        first_order : {"mc", "deterministic"}
+            How the single-scattering return is computed: by the photons (``"mc"``), or integrated
+            along ``beam_samples`` fixed directions through the beam, every pulse of the call in
+            one kernel launch and digitised on the device (``"deterministic"``;
+            :mod:`clsim.transport.first_order`, docs/method.md): no Monte Carlo noise, and with
+            ``max_order=1`` no photons at all (``photons`` is then unused).  Higher orders stay
+            Monte Carlo.  Needs ``mode="exact"`` and ``detect="nee"``.
+        beam_samples : int
+            Directions through the beam of the deterministic first order (a sunflower spiral of
+            equal weights; :func:`~clsim.transport.first_order.beam_samples`).
 
         Returns
         -------
@@ -321,9 +343,16 @@ class Simulator:
             raise InputError(f"pulses must be clsim.survey.Pulses (survey_pulses(...)), got {type(pulses).__name__}")
         if not isinstance(base, Sensor):
             raise InputError(f"base must be a clsim.Sensor (Sensor.preset(name)), got {type(base).__name__}")
+        if first_order not in ("mc", "deterministic"):
+            raise InputError(f"first_order must be 'mc' or 'deterministic', got {first_order!r}")
         if scene_setup is None:
             scene_setup = prepare_scene(scene, wavelength_nm=base.wavelength_nm, leaf_off=leaf_off,
                                         bricks=self._cached_bricks(scene, leaf_off))
+        if first_order == "deterministic":
+            return self._run_pulses_first_order(scene, pulses, base, scene_setup, photons=photons, mode=mode,
+                                                detect=detect, max_order=max_order, batches=batches,
+                                                bin_ns=bin_ns, step_m=step_m, hotspot=hotspot, chunk=chunk,
+                                                progress=progress, beam_samples=beam_samples)
         n = len(pulses)
         rows, t0, energy = [], np.zeros(n), np.zeros(n)
         bufs, bar, kernel_s = None, None, 0.0
@@ -352,6 +381,40 @@ class Simulator:
                 bar.close()
         return PulseWaveforms.from_rows(pulses.index, rows, t0_ns=t0, bin_ns=1.0 / base.sampling_ghz,
                                         energy=energy, kernel_s=kernel_s)
+
+    def _run_pulses_first_order(self, scene, pulses, base: Sensor, scene_setup: SceneSetup, *, photons, mode,
+                                detect, max_order, batches, bin_ns, step_m, hotspot, chunk, progress,
+                                beam_samples) -> PulseWaveforms:
+        """:meth:`run_pulses` with the deterministic first order: one launch for the order-1
+        waveforms of all the pulses; orders 2 and up by the photons, pulse by pulse, their order-1
+        tallies skipped, added on the same sample clock."""
+        from clsim.transport import first_order as fo
+
+        fo.check_first_order(mode=mode, detect=detect)
+        samples = fo.beam_samples(beam_samples)
+        if getattr(self, "_first_order", None) is None:
+            self._first_order = fo.FirstOrderRunner(self)
+        grid = fo.pulse_grid(scene, pulses, base, bin_ns=bin_ns)
+        wave, energy, _, kernel_s = self._first_order.run(scene_setup, grid, base, samples, hotspot=hotspot)
+        period = 1.0 / base.sampling_ghz
+        rows = [wave[i, :grid.n_samples[i]] for i in range(len(pulses))]
+        t0 = grid.t0_ns.copy()
+        if max_order > 1:
+            bufs = None
+            for i in range(len(pulses)):
+                setup = prepare_run(scene, pulses.sensor(i, base), photons=photons, seed=int(pulses.seed[i]),
+                                    mode=mode, detect=detect, max_order=max_order, batches=batches,
+                                    bin_ns=bin_ns, step_m=step_m, target=pulses.target[i], hotspot=hotspot,
+                                    scene_setup=scene_setup, leaf_off=scene_setup.leaf_off)
+                setup.params[0]["skip_first"] = 1
+                bufs = bufs or self._scene_buffers(setup)
+                hist, _, _, elapsed = self._launch(setup, bufs, chunk=chunk, hist_only=True)
+                kernel_s += elapsed
+                time_ns, by_order, fine = digitized(setup, hist.astype(np.float64) / FIXED_SCALE)
+                energy[i] += fine.sum()
+                rows[i], t0[i] = _add_on_clock(rows[i], t0[i], by_order.sum(axis=0), time_ns[0], period)
+        return PulseWaveforms.from_rows(pulses.index, rows, t0_ns=t0, bin_ns=period, energy=energy,
+                                        kernel_s=kernel_s)
 
     def _scene_buffers(self, setup: RunSetup) -> dict:
         """Device copies of what the kernel reads from the scene (sparse bricks, their uniform

@@ -47,6 +47,7 @@ PUBLIC = [
     ("clsim", "the airborne full-waveform simulator"),
     ("clsim.sensor", "airborne sensors and their presets"),
     ("clsim.transport", "the Monte Carlo photon transport"),
+    ("clsim.transport.first_order", "the deterministic first order: single scattering along the beam"),
     ("clsim.survey", "surveys: trajectories, scan patterns, runs, LAS output"),
     ("clsim.scenes", "plots of many trees"),
     ("clsim.waveforms.io", "waveform files: LAS packets, PulseWaves, HELIOS++ full waveforms"),

@@ -185,3 +185,24 @@ def test_survey_plot_example_runs_end_to_end(tmp_path, capsys):
                      "survey_plot_footprints.png", "survey_plot_points.png", "survey_plot_radargram.png"]
     assert example["main"](args) == 0
     assert "0 batches computed, 1 already on disk" in capsys.readouterr().out
+
+
+def test_deterministic_first_order_survey(scene_file, tmp_path, sim):
+    """--first-order deterministic: the same waveforms whatever the batching (each pulse keeps its
+    own window), resumed to the same bits, and recorded in survey.json (a Monte Carlo survey's
+    survey.json is unchanged, so old folders still resume)."""
+    job = make_job(scene_file, first_order="deterministic", max_order=1, photons=1)
+    run_survey(job, tmp_path / "a", direct=True, progress=False, simulator=sim)
+    run_survey(make_job(scene_file, first_order="deterministic", max_order=1, photons=1, batch_size=30),
+               tmp_path / "b", direct=True, progress=False, simulator=sim)
+    a, b = load_survey(tmp_path / "a"), load_survey(tmp_path / "b")
+    assert same(a, b) and np.all(a.energy > 0)
+    import json
+
+    saved = json.loads((tmp_path / "a" / "survey.json").read_text())
+    assert saved["first_order"] == "deterministic" and saved["beam_samples"] == 19
+    assert "first_order" not in make_job(scene_file).to_dict()
+    with pytest.raises(InputError, match="first_order"):
+        make_job(scene_file, first_order="photons")
+    with pytest.raises(InputError, match="beam_samples"):
+        make_job(scene_file, first_order="deterministic", beam_samples=0)
