@@ -3,9 +3,10 @@
 The pulses come from :mod:`clsim.survey` (a straight line, the preset's scan
 pattern); batches run on a local Dask cluster, a running Dask scheduler, or in
 a plain loop (``--workers 0``), each written to ``OUT/batches/`` as it
-finishes, so that running the same command again resumes a stopped run.  At
-the end the waveforms are written as LAS 1.4 (``OUT/survey.las`` with its
-``.wdp``, :func:`clsim.survey.las.write_survey_las`) unless ``--no-las``.
+finishes, so that running the same command again resumes a stopped run.  The
+waveforms and their returns go to LAS 1.4 (``OUT/survey.las`` with its
+``.wdp``) batch by batch as they finish, in memory bounded by a batch
+(:mod:`clsim.survey._las_feed`), unless ``--no-las``.
 
 Examples
 --------
@@ -115,7 +116,7 @@ def cmd_survey(args) -> int:
     from clsim.scenes import load_scene, repeat_scene_warnings
     from clsim.sensor import Sensor
     from clsim.survey import ScanPattern, Trajectory, pulse_count, typical_flight
-    from clsim.survey.distributed import SurveyJob, load_survey, run_survey
+    from clsim.survey.distributed import SurveyJob, run_survey
 
     scene = load_scene(args.scene)  # a voxel scene, a plot of trees (PlotScene.save) or an AMAPVox .vox
     repeat_scene_warnings("clsim survey", args.scene, scene, strict=args.strict)
@@ -153,7 +154,7 @@ def cmd_survey(args) -> int:
                                   f"Dask {'scheduler ' + args.scheduler if args.scheduler else f'{args.workers} local workers'}"))
     run = run_survey(job, out, workers=max(args.workers, 1), scheduler=args.scheduler,
                      direct=args.workers == 0 and not args.scheduler, in_flight=args.in_flight,
-                     progress=not args.quiet)
+                     progress=not args.quiet, las=None if args.no_las else out / "survey.las")
     if run.computed:
         say(f"survey: {run.computed} batches computed ({run.pulses:,} pulses, {run.pulses / run.seconds:,.0f} "
             f"pulses/s), {run.skipped} already on disk")
@@ -162,10 +163,11 @@ def cmd_survey(args) -> int:
     if args.no_las:
         say(f"survey: waveforms in {out / 'batches'} (one .npz per batch; clsim.survey.load_survey reads them)")
         return 0
-    from clsim.survey.las import write_survey_las
-
-    wf = load_survey(out)
-    las, wdp = write_survey_las(out / "survey.las", job.pulses(), wf.waveform, t0_ns=wf.t0_ns, bin_ns=wf.bin_ns,
-                                sensor=sensor)
-    say(f"survey: wrote {las} (points: the decomposed returns) and {wdp.name} (the waveforms)")
+    if run.las is None:
+        raise InputError(f"{out}: not every batch is on disk, so no survey.las; run the same command again to resume")
+    las, wdp = run.las
+    say(f"survey: wrote {las} ({run.las_points:,} points: the decomposed returns) and {wdp.name} (the "
+        "waveforms), batch by batch as they finished")
+    if run.las_clipped:
+        say(f"survey: warning: {run.las_clipped:,} waveform samples clipped at the digitiser's top count")
     return 0

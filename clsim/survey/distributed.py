@@ -208,6 +208,10 @@ class SurveyRun:
         Whether every batch of the job is on disk.
     task_seconds : list of float
         Per batch computed: seconds the worker spent in it.
+    las : tuple of Path or None
+        ``(las, wdp)`` written by ``run_survey(..., las=PATH)`` when every batch is in.
+    las_points, las_clipped : int
+        Points written to the LAS and samples clipped by its digitiser (0 without ``las``).
     """
 
     n_batches: int
@@ -218,6 +222,9 @@ class SurveyRun:
     workers: int
     finished: bool
     task_seconds: list
+    las: tuple | None = None
+    las_points: int = 0
+    las_clipped: int = 0
 
 
 # -- the worker side ----------------------------------------------------------------
@@ -355,7 +362,7 @@ def _cluster(workers: int, scheduler: str | None):
 
 def run_survey(job: SurveyJob, out_dir, *, workers: int = 1, scheduler: str | None = None,
                direct: bool = False, in_flight: int = 2, progress: bool = True,
-               stop_after: int | None = None, simulator=None, client=None) -> SurveyRun:
+               stop_after: int | None = None, simulator=None, client=None, las=None) -> SurveyRun:
     """Simulate every batch of ``job`` not yet in ``out_dir/batches``.
 
     Parameters
@@ -384,6 +391,12 @@ def run_survey(job: SurveyJob, out_dir, *, workers: int = 1, scheduler: str | No
         Used by the direct loop (default: one opened for this thread).
     client : dask.distributed.Client, optional
         An open client to use (not closed here).
+    las : path, optional
+        Write the waveforms and their returns to this LAS 1.4 file (with its ``.wdp``) as the
+        batches finish, in pulse order, in memory bounded by a batch
+        (:mod:`clsim.survey._las_feed`); it appears under its name when every batch is in.  The
+        echoes of each batch are kept beside it, so a resumed run rebuilds the file from the
+        batches on disk without decomposing them again, to the same bytes.
     """
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -402,13 +415,18 @@ def run_survey(job: SurveyJob, out_dir, *, workers: int = 1, scheduler: str | No
     todo = [r for r in ranges if r not in done]
     limit = len(todo) if stop_after is None else min(len(todo), int(stop_after))
     t0 = time.perf_counter()
+    feed = None
+    if las is not None:
+        from clsim.survey._las_feed import LasFeed
+
+        feed = LasFeed(job, out_dir, las, device=job.device)
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=job.count, initial=job.count - sum(b - a for a, b in todo), unit="pulse",
                    unit_scale=True, desc="survey", smoothing=0.1)
-    task_s, n_workers = [], 1
+    task_s, n_workers, written = [], 1, None
     try:
         if direct:
             for a, b in todo[:limit]:
@@ -416,6 +434,7 @@ def run_survey(job: SurveyJob, out_dir, *, workers: int = 1, scheduler: str | No
                 task_s.append(info["seconds"])
                 if bar is not None:
                     bar.update(b - a)
+                _drain(feed, bar)
         else:
             own = client is None
             cluster = None
@@ -424,22 +443,37 @@ def run_survey(job: SurveyJob, out_dir, *, workers: int = 1, scheduler: str | No
             else:
                 n_workers = max(1, len(client.scheduler_info().get("workers", {})))
             try:
-                task_s = _run_dask(client, job, out_dir, todo[:limit], n_workers * in_flight, bar)
+                task_s = _run_dask(client, job, out_dir, todo[:limit], n_workers * in_flight, bar, feed)
             finally:
                 if own:
                     client.close()
                     if cluster is not None:
                         cluster.close()
+        if feed is not None:
+            _drain(feed, bar)
+            written = feed.finish()
+    except BaseException:
+        if feed is not None:
+            feed.abort()
+        raise
     finally:
         if bar is not None:
             bar.close()
     finished = completed_batches(out_dir) >= set(ranges)
     return SurveyRun(n_batches=len(ranges), skipped=len(ranges) - len(todo), computed=len(task_s),
                      pulses=sum(b - a for a, b in todo[:len(task_s)]), seconds=time.perf_counter() - t0,
-                     workers=n_workers, finished=finished, task_seconds=task_s)
+                     workers=n_workers, finished=finished, task_seconds=task_s, las=written,
+                     las_points=feed.writer.points if feed is not None else 0,
+                     las_clipped=feed.writer.clipped if feed is not None else 0)
 
 
-def _run_dask(client, job, out_dir, todo, max_in_flight: int, bar) -> list:
+def _drain(feed, bar) -> None:
+    """Append the batches now ready to the LAS; the bar says how far the file is."""
+    if feed is not None and feed.drain() and bar is not None:
+        bar.set_postfix_str(f"LAS {feed.pulses:,} pulses", refresh=False)
+
+
+def _run_dask(client, job, out_dir, todo, max_in_flight: int, bar, feed=None) -> list:
     """Submit ``todo`` with at most ``max_in_flight`` tasks out at once; the workers' seconds per task."""
     from dask.distributed import as_completed
 
@@ -454,6 +488,7 @@ def _run_dask(client, job, out_dir, todo, max_in_flight: int, bar) -> list:
     first = [submit(r) for _, r in zip(range(max_in_flight), pending)]
     seconds = []
     queue = as_completed(first)
+    _drain(feed, bar)                                         # the batches of an earlier run, meanwhile
     for fut in queue:
         info = fut.result()                                   # a worker's error is raised here
         seconds.append(info["seconds"])
@@ -462,6 +497,7 @@ def _run_dask(client, job, out_dir, todo, max_in_flight: int, bar) -> list:
         nxt = next(pending, None)
         if nxt is not None:
             queue.add(submit(nxt))
+        _drain(feed, bar)
     return seconds
 
 

@@ -40,21 +40,10 @@ import numpy as np
 
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS, Sensor
+from clsim.survey._las_writer import SCAN_ANGLE_STEP_DEG, SurveyLasWriter
 from voxlidar.errors import finite_number
 
 __all__ = ["SurveyLas", "read_survey_las", "write_survey_las"]
-
-#: LAS 1.4 point format 6-10 scan angle unit, degrees.
-SCAN_ANGLE_STEP_DEG = 0.006
-#: LAS 1.4 allows return numbers 1-15.
-MAX_RETURNS_LAS = 15
-_EMPTY = ("withheld", "drop")
-_EXTRA = {
-    "pulse_index": ("u8", "survey pulse number"),
-    "amplitude": ("f4", "echo amplitude, waveform units"),
-    "echo_width_ns": ("f4", "echo Gaussian sigma, ns"),
-}
-
 
 def _quantiser(w, bits, gain, offset):
     """(raw dtype, gain, offset): ``offset + gain * raw`` spans ``w`` unless given."""
@@ -193,93 +182,22 @@ def write_survey_las(path: str | os.PathLike, pulses, waveforms, *, t0_ns, bin_n
     Not written: scan direction and edge-of-flight-line flags (the pulses do
     not say where a scan line turns), classification (0, never classified).
     """
-    from clsim.waveforms.io.las import LasWaveforms, WavePacketDescriptor, write_las_waveforms
-
-    path = Path(path)
-    if path.suffix.lower() != ".las":
-        raise InputError(f"path must end in .las (the waveform packets go to a .wdp beside it); "
-                         f"got {str(path)!r}")
     w, t0, b = _check(pulses, waveforms, t0_ns, bin_ns, sensor)
-    if empty not in _EMPTY:
-        raise InputError(f"empty must be one of {_EMPTY}; got {empty!r}")
-    if not 1 <= int(max_returns) <= MAX_RETURNS_LAS:
-        raise InputError(f"max_returns must be 1-{MAX_RETURNS_LAS} (LAS return numbers); "
-                         f"got {max_returns!r}")
     n, n_bins = w.shape
-    dtype, gain, offset = _quantiser(w, int(bits), gain, offset)
-    info = np.iinfo(dtype)
-    spacing_ps = max(1, int(round(b * 1000.0)))
-    desc = WavePacketDescriptor(1, int(bits), int(n_bins), spacing_ps, float(gain), float(offset))
-    desc.check()
+    _, gain, offset = _quantiser(w, int(bits), gain, offset)
+    if offsets is None:     # the floor of the smallest coordinate a sample (so a point) can have
+        d = np.asarray(pulses.direction, dtype=np.float64)
+        ends = [np.asarray(pulses.position, dtype=np.float64) + (0.5 * C_M_PER_NS * t)[:, None] * d
+                for t in (t0, t0 + (n_bins - 1) * b)]
+        offsets = np.floor(np.minimum(*ends).min(axis=0))
     step = max(1, int(chunk))
-    raw = np.empty((n, n_bins), dtype)
-    for lo in range(0, n, step):                      # memory: the raw samples and one chunk
-        raw[lo:lo + step] = np.clip(np.rint((w[lo:lo + step].astype(np.float64) - offset) / gain),
-                                    info.min, info.max)
-
-    # returns: (pulse, time after emission ns, amplitude, sigma ns, synthetic)
-    pulse, tau, amp, sig = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
-    if returns:
-        from clsim.waveforms.decompose import decompose_batch
-
-        parts = []
-        for lo in range(0, n, step):
-            # the quantised waveforms (what the file keeps); the sensor's pulse for every
-            # chunk, so the echoes do not depend on the chunking
-            table = decompose_batch(offset + gain * raw[lo:lo + step].astype(np.float64), dt_ns=b,
-                                    t0_ns=t0[lo:lo + step], pulse_sigma_ns=sensor.pulse_sigma_ns,
-                                    false_alarm=false_alarm, max_components=int(max_returns),
-                                    device=device, chunk=step)
-            parts.append((table.waveform + lo, table.location_ns, table.amplitude, table.sigma_ns))
-        pulse, tau, amp, sig = (np.concatenate(c) for c in zip(*parts))
-        keep = ((amp > float(min_amplitude)) & (tau >= t0[pulse])
-                & (tau <= t0[pulse] + (n_bins - 1) * b))
-        pulse, tau, amp, sig = pulse[keep], tau[keep], amp[keep], sig[keep]
-    synthetic = np.zeros(pulse.size, bool)
-    withheld = np.zeros(pulse.size, bool)
-    lonely = np.setdiff1d(np.arange(n), pulse)
-    if lonely.size and (empty == "withheld" or not returns):
-        j = np.argmax(raw[lonely], axis=1)                 # gain > 0: the strongest sample
-        pulse = np.concatenate([pulse, lonely])
-        tau = np.concatenate([tau, t0[lonely] + j * b])
-        amp = np.concatenate([amp, np.zeros(lonely.size)])
-        sig = np.concatenate([sig, np.zeros(lonely.size)])
-        synthetic = np.concatenate([synthetic, np.ones(lonely.size, bool)])
-        withheld = np.concatenate([withheld, np.full(lonely.size, bool(returns))])
-    order = np.lexsort((tau, pulse))
-    pulse, tau, amp, sig = pulse[order], tau[order], amp[order], sig[order]
-    synthetic, withheld = synthetic[order], withheld[order]
-    counts = np.bincount(pulse, minlength=n)
-    first = np.concatenate(([0], np.cumsum(counts)[:-1]))
-    rn = np.arange(pulse.size) - first[pulse] + 1
-
-    # the pulses that have points keep a packet, in pulse order
-    kept = np.flatnonzero(counts > 0)
-    packet_of_pulse = np.full(n, -1, np.int64)
-    packet_of_pulse[kept] = np.arange(kept.size)
-    d = np.asarray(pulses.direction, dtype=np.float64)[pulse]
-    xyz = np.asarray(pulses.position, dtype=np.float64)[pulse] + (0.5 * C_M_PER_NS * tau)[:, None] * d
-    step_per_ps = 0.5 * C_M_PER_NS * b / spacing_ps               # m per digitiser ps
-    data = LasWaveforms.from_arrays(
-        xyz, np.zeros((pulse.size, 1)), spacing_ps=1, return_location_ps=(tau - t0[pulse]) / b
-        * spacing_ps, xyz_t=-d * step_per_ps, gps_time=float(gps_time_offset_s)
-        + np.asarray(pulses.time_s, dtype=np.float64)[pulse], return_number=rn,
-        number_of_returns=counts[pulse],
-        intensity=np.clip(np.rint(amp / gain), 0, 65535), scales=scales, offsets=offsets)
-    data.raw = raw[kept]
-    data.packet = packet_of_pulse[pulse]
-    data.packet_descriptor = np.ones(kept.size, np.uint8)
-    data.descriptors = {1: desc}
-    scan = np.rint(np.asarray(pulses.scan_angle_deg, dtype=np.float64)[pulse] / SCAN_ANGLE_STEP_DEG)
-    fields = {"scan_angle": np.clip(scan, -30000, 30000).astype(np.int16),
-              "point_source_id": (np.asarray(pulses.leg)[pulse] + 1).astype(np.uint16),
-              "synthetic": synthetic.astype(np.uint8), "withheld": withheld.astype(np.uint8)}
-    extra = {"pulse_index": (np.asarray(pulses.index)[pulse].astype(np.uint64),
-                             _EXTRA["pulse_index"][1]),
-             "amplitude": (amp.astype(np.float32), _EXTRA["amplitude"][1]),
-             "echo_width_ns": (sig.astype(np.float32), _EXTRA["echo_width_ns"][1])}
-    return write_las_waveforms(path, data, point_fields=fields, extra_bytes=extra,
-                               system_identifier=f"clsim {sensor.name}")
+    with SurveyLasWriter(path, sensor, n_samples=n_bins, bin_ns=b, gain=gain, offset=offset, offsets=offsets,
+                         bits=int(bits), returns=returns, false_alarm=false_alarm, min_amplitude=min_amplitude,
+                         max_returns=max_returns, empty=empty, gps_time_offset_s=gps_time_offset_s,
+                         scales=scales, device=device, chunk=step) as out:
+        for lo in range(0, n, step):                  # memory: the input and one chunk
+            out.append(pulses[lo:lo + step], w[lo:lo + step], t0[lo:lo + step])
+    return out.path, out.wdp_path
 
 
 @dataclass

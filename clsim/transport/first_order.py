@@ -39,7 +39,7 @@ from clsim.transport.setup import NG, PARAMS_DTYPE, SceneSetup
 from voxlidar.devices import build_program, short_reason
 
 __all__ = ["PULSE_FIELDS", "FirstOrderGrid", "FirstOrderRunner", "beam_samples", "check_first_order",
-           "first_order_reference", "leaf_cos2", "pulse_grid"]
+           "first_order_reference", "leaf_cos2", "pulse_grid", "window_ns"]
 
 #: floats per pulse record of the kernel (kernels/first_order.cl PULSE_STRIDE): sensor (3),
 #: beam axis (3), e1 (3), e2 (3), the fine grid's first edge (ns), the pulse's fine bins, 2 unused
@@ -120,6 +120,26 @@ class FirstOrderGrid:
         return self.t0_ns - 0.5 * self.dt_ns
 
 
+def window_ns(lo, hi, ground, S, target, pulse_fwhm_ns: float, max_order: int = 1):
+    """(t_start, t_end) ns of each pulse's record: from the nearest point of the scene box (or the
+    ground) to its farthest corner (or the pulse's ground target), two pulse widths each side, and
+    for ``max_order > 1`` the box's diagonal of wandering after the farthest point
+    (:func:`clsim.transport.setup.prepare_run`'s window, for many pulses at once)."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    near = np.linalg.norm(np.maximum(np.maximum(lo - S, 0.0), S - hi), axis=1)
+    far = np.linalg.norm(corners[None, :, :] - S[:, None, :], axis=2).max(axis=1)
+    if ground is not None:
+        near = np.minimum(near, S[:, 2] - ground)
+        far = np.maximum(far, np.linalg.norm(np.asarray(target, dtype=np.float64) - S, axis=1))
+    t_start = 2.0 * near / C_M_PER_NS - 2.0 * pulse_fwhm_ns
+    t_end = 2.0 * far / C_M_PER_NS + 2.0 * pulse_fwhm_ns
+    if max_order > 1:
+        t_end = t_end + 2.0 * float(np.linalg.norm(hi - lo)) / C_M_PER_NS
+    return t_start, t_end
+
+
 def pulse_grid(scene, pulses, sensor: Sensor, *, bin_ns: float = 0.05) -> FirstOrderGrid:
     """The pulses' geometry and time grids (vectorised; :func:`clsim.transport.setup.prepare_run`'s
     window for ``max_order=1``: the scene box and the ground, two pulse widths each side).
@@ -138,14 +158,7 @@ def pulse_grid(scene, pulses, sensor: Sensor, *, bin_ns: float = 0.05) -> FirstO
     if len(S) and S[:, 2].min() <= top:
         raise InputError(f"a pulse is fired from z = {S[:, 2].min():.2f} m, not above the scene (top {top:.2f} m); "
                          "raise the flight's altitude")
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    near = np.linalg.norm(np.maximum(np.maximum(lo - S, 0.0), S - hi), axis=1)
-    far = np.linalg.norm(corners[None, :, :] - S[:, None, :], axis=2).max(axis=1)
-    if ground is not None:
-        near = np.minimum(near, S[:, 2] - ground)
-        far = np.maximum(far, np.linalg.norm(np.asarray(pulses.target, dtype=np.float64) - S, axis=1))
-    t_start = 2.0 * near / C_M_PER_NS - 2.0 * sensor.pulse_fwhm_ns
-    t_end = 2.0 * far / C_M_PER_NS + 2.0 * sensor.pulse_fwhm_ns
+    t_start, t_end = window_ns(lo, hi, ground, S, pulses.target, sensor.pulse_fwhm_ns)
     period = 1.0 / sensor.sampling_ghz
     k = max(1, int(math.ceil(period / bin_ns - 1e-9)))
     dt = period / k

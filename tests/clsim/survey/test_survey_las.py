@@ -244,7 +244,7 @@ def test_a_failed_write_leaves_no_file(tmp_path, monkeypatch):
     def boom(self, *a, **k):
         raise OSError("disk full")
 
-    monkeypatch.setattr(laspy.LasData, "write", boom)
+    monkeypatch.setattr(laspy.LasWriter, "write_points", boom)
     with pytest.raises(OSError, match="disk full"):
         write_survey_las(tmp_path / "x.las", p, w, t0_ns=t0, bin_ns=1.0, sensor=SENSOR,
                          device="numpy")

@@ -112,11 +112,13 @@ def test_two_dask_workers_match_the_direct_loop(scene_file, tmp_path):
     """Bit-identical over a local cluster of 2 worker processes, which also resumes a run
     that the direct loop stopped."""
     job = _dask_job(scene_file)
-    run_survey(job, tmp_path / "direct", direct=True, progress=False)
+    run_survey(job, tmp_path / "direct", direct=True, progress=False, las=tmp_path / "direct" / "s.las")
     run_survey(job, tmp_path / "two", direct=True, progress=False, stop_after=1)
-    two = run_survey(job, tmp_path / "two", workers=2, in_flight=1, progress=False)
+    two = run_survey(job, tmp_path / "two", workers=2, in_flight=1, progress=False, las=tmp_path / "two" / "s.las")
     assert (two.workers, two.skipped, two.computed, two.finished) == (2, 1, 4, True)
     assert same(load_survey(tmp_path / "two"), load_survey(tmp_path / "direct"))
+    # the LAS streamed by the driver as the workers' batches came in, in whatever order: the same bytes
+    assert (tmp_path / "two" / "s.las").read_bytes() == (tmp_path / "direct" / "s.las").read_bytes()
 
 
 @pytest.mark.slow
@@ -130,11 +132,12 @@ def test_one_dask_worker_matches_the_direct_loop(scene_file, tmp_path):
 
 @pytest.mark.slow
 def test_killed_process_resumes_to_the_same_output(scene_file, tmp_path):
-    """``clsim survey`` killed (SIGKILL) after its first batches; the same command again finishes it."""
+    """``clsim survey`` killed (SIGKILL) after its first batches; the same command again finishes it,
+    its LAS (streamed batch by batch) the same bytes as an uninterrupted run's."""
     args = [sys.executable, "-m", "clsim.cli", "survey", scene_file, "--sensor", "riegl-lms-q680i",
             "--start=-2,0", "--end", "2,0", "--altitude", "250", "--speed", "10", "--pulse-rate", "400",
             "--scan-rate", "37", "--fov", "1", "--pulses", "100", "--photons", "10000", "--batch-size", "4", "--seed", "5",
-            "--workers", "0", "--no-las", "-q"]
+            "--workers", "0", "-q"]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen(args + ["-o", str(tmp_path / "killed")], env=env, cwd=tmp_path)
     deadline = time.monotonic() + 120
@@ -151,6 +154,9 @@ def test_killed_process_resumes_to_the_same_output(scene_file, tmp_path):
     subprocess.run(args + ["-o", str(tmp_path / "whole")], env=env, cwd=tmp_path, check=True)
     assert not list((tmp_path / "killed" / "batches").glob(".*"))  # no temporary file left
     assert same(load_survey(tmp_path / "killed"), load_survey(tmp_path / "whole"))
+    assert not [p for p in (tmp_path / "killed").iterdir() if p.name.startswith(".")]  # no partial LAS left
+    for name in ("survey.las", "survey.wdp"):
+        assert (tmp_path / "killed" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
 
 
 def test_a_plot_of_many_trees_flies_from_its_file(tmp_path, sim):
