@@ -17,7 +17,7 @@ point.
 Examples
 --------
 >>> s = beam_samples(19)
->>> s.shape, float(s[:, 2].sum())
+>>> s.shape, round(float(s[:, 2].sum()), 12)
 ((19, 3), 1.0)
 """
 
