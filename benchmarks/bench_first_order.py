@@ -83,11 +83,12 @@ def judge_pulses(sc, pulses, n: int):
     return sorted(picked)
 
 
-def mesh_waveforms(idx, twin_path, sc, sensor, pulses, photons: int, voxel: float):
-    """The mesh reference's order-1 waveforms (time, waveform) of pulses ``idx``, cached."""
+def mesh_waveforms(idx, twin_path, sc, sensor, pulses, photons: int, voxel: float, tag: str = "first_order"):
+    """The mesh reference's order-1 waveforms (time, waveform) of pulses ``idx``, cached (``tag``
+    names the pulses' origin in the cache file's name)."""
     from clsim.validation.meshref import MeshReferenceSimulator
 
-    path = CACHE / f"meshref_first_order_{voxel:g}_{len(pulses)}_{photons}_{'-'.join(map(str, idx))}.npz"
+    path = CACHE / f"meshref_{tag}_{voxel:g}_{len(pulses)}_{photons}_{'-'.join(map(str, idx))}.npz"
     if path.is_file():
         z = np.load(path, allow_pickle=False)
         return [(z[f"t{i}"], z[f"w{i}"]) for i in range(len(idx))], float(z["seconds"])
@@ -203,7 +204,7 @@ def main(argv=None) -> int:
         "# First order: survey speed against agreement with the explicit mesh",
         "",
         f"`{cmd}`; {platform.processor() or platform.machine()}, {os.cpu_count()} cores, device "
-        f"{sim.device_name}; {machine_line(load0, load1)}.",
+        f"{sim.device_name}; {machine_line(load0, load1)}",
         "",
         f"The shared case: the synthetic oak of seed 1, its exact-LAD twin at {args.voxel:g} m "
         f"({sc.n_voxels:,} voxels) for clsim; one 20 m line at 600 m and 60 m/s, polygon over +-1 deg at 100 "

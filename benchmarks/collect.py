@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-ORDER = ["scanner", "register_classify", "voxelize", "memory", "echo_weights", "lad_terms", "leaf_angles", "clsim", "mitransient", "plot", "devices", "walk_profile", "kernel_ab", "decompose", "decompose_loop", "decompose_returns", "replay_neon", "replay_leica", "replay_oak", "pipeline", "waveform_terms", "qsm", "survey", "first_order"]
+ORDER = ["scanner", "register_classify", "voxelize", "memory", "echo_weights", "lad_terms", "leaf_angles", "clsim", "mitransient", "plot", "devices", "walk_profile", "kernel_ab", "decompose", "decompose_loop", "decompose_returns", "replay_neon", "replay_leica", "replay_oak", "pipeline", "waveform_terms", "qsm", "survey", "first_order", "helios", "million"]
 
 HEADER = """# Benchmarks
 
