@@ -72,11 +72,15 @@ def shared_case(voxel: float, pulse_rate: float):
 
 def judge_pulses(sc, pulses, n: int):
     """Indices of ``n`` pulses nearest the crown centre, spread over distinct scan lines."""
-    d = np.linalg.norm(pulses.target[:, :2] - np.asarray(sc.crown_center[:2]), axis=1)
-    order = np.argsort(d)
-    picked = []
-    for i in order:
-        if all(abs(int(i) - j) > 20 for j in picked):
+    return nearest_spread(np.linalg.norm(pulses.target[:, :2] - np.asarray(sc.crown_center[:2]), axis=1), n)
+
+
+def nearest_spread(distance, n: int, gap: int = 20) -> list[int]:
+    """The ``n`` pulses of least ``distance``, no two within ``gap`` pulses of each other (so on
+    distinct scan lines), in pulse order."""
+    picked: list[int] = []
+    for i in np.argsort(distance):
+        if all(abs(int(i) - j) > gap for j in picked):
             picked.append(int(i))
         if len(picked) == n:
             break

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 from _bench import machine_line, write_page
-from bench_first_order import end_to_end, log, mesh_waveforms, shared_case
+from bench_first_order import end_to_end, log, mesh_waveforms, nearest_spread, shared_case
 
 ROOT = Path(__file__).resolve().parents[1]
 PEERS = ROOT / "benchmarks" / "peers"
@@ -86,14 +86,7 @@ def pick_pulses(crown_xy, n: int) -> list[int]:
     p = hw.exact_pulses(int(hw_rate()))
     o, d = p["origin"], p["direction"]
     ground = o + (o[:, 2] / -d[:, 2])[:, None] * d
-    order = np.argsort(np.linalg.norm(ground[:, :2] - np.asarray(crown_xy), axis=1))
-    picked: list[int] = []
-    for i in order:
-        if all(abs(int(i) - j) > 20 for j in picked):
-            picked.append(int(i))
-        if len(picked) == n:
-            break
-    return sorted(picked)
+    return nearest_spread(np.linalg.norm(ground[:, :2] - np.asarray(crown_xy), axis=1), n)
 
 
 def ground_aligned_r(t_a, a, t_b, b, ground_time_a, ground_time_b) -> float:

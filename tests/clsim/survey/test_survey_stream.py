@@ -11,27 +11,11 @@ import numpy as np
 import pytest
 
 from clsim.errors import InputError
-from clsim.sensor import Sensor
-from clsim.survey import ScanPattern, SurveyJob, Trajectory, load_survey, read_survey_las, run_survey
+from clsim.survey import ScanPattern, Trajectory, load_survey, read_survey_las, run_survey
 from clsim.survey._las_feed import echoes_path, las_layout
 from clsim.survey._las_writer import SurveyLasWriter
 from clsim.survey.las import write_survey_las
-from clsim.validation import testscenes
-
-BASE = Sensor.preset("riegl-lms-q680i")
-
-
-@pytest.fixture(scope="module")
-def scene_file(tmp_path_factory):
-    s = testscenes.homogeneous_layer(width=6.0, thickness=1.5, lad=1.0, voxel_size=0.5, base_height=3.0)
-    return str(s.save(tmp_path_factory.mktemp("scene") / "layer.npz"))
-
-
-def make_job(scene_file, **kw):
-    tr = Trajectory.line((-2.0, 0.0), (2.0, 0.0), altitude_m=250.0, speed_mps=40.0)
-    pat = ScanPattern(kind="palmer", pulse_rate_hz=400.0, scan_rate_hz=37.0, fov_deg=1.0)
-    return SurveyJob(**{**dict(scene_path=scene_file, trajectory=tr, pattern=pat, sensor=BASE, photons=300,
-                               count=30, batch_size=7, seed=5, max_order=2), **kw})
+from tests.clsim.survey.test_survey_run import BASE, make_job
 
 
 @pytest.mark.parametrize("first_order", ["mc", "deterministic"])
