@@ -22,9 +22,16 @@ from clsim.sensor import Sensor
 from clsim.survey import ScanPattern, SurveyJob, Trajectory, load_survey, run_survey
 from clsim.survey.distributed import batch_path, completed_batches, projected_rate
 from clsim.transport.result import PulseWaveforms
+from clsim.validation import testscenes
 
 ROOT = Path(__file__).resolve().parents[3]
 BASE = Sensor.preset("riegl-lms-q680i")
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory):
+    s = testscenes.homogeneous_layer(width=6.0, thickness=1.5, lad=1.0, voxel_size=0.5, base_height=3.0)
+    return str(s.save(tmp_path_factory.mktemp("scene") / "layer.npz"))
 
 
 def make_job(scene_file, **kw):

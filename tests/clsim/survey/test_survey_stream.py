@@ -15,11 +15,11 @@ from clsim.survey import ScanPattern, Trajectory, load_survey, read_survey_las, 
 from clsim.survey._las_feed import echoes_path, las_layout
 from clsim.survey._las_writer import SurveyLasWriter
 from clsim.survey.las import write_survey_las
-from tests.clsim.survey.test_survey_run import BASE, make_job
+from tests.clsim.survey.test_survey_run import BASE, make_job, scene_file  # noqa: F401  (fixture)
 
 
 @pytest.mark.parametrize("first_order", ["mc", "deterministic"])
-def test_streamed_las_is_the_file_written_at_once(scene_file, tmp_path, sim, first_order):
+def test_streamed_las_is_the_file_written_at_once(scene_file, tmp_path, sim, first_order):  # noqa: F811
     job = make_job(scene_file, first_order=first_order, bin_ns=0.25 if first_order == "deterministic" else 0.05)
     run = run_survey(job, tmp_path / "s", direct=True, progress=False, simulator=sim, las=tmp_path / "s" / "a.las")
     las, wdp = run.las
@@ -40,7 +40,7 @@ def test_streamed_las_is_the_file_written_at_once(scene_file, tmp_path, sim, fir
     assert not [p for p in (tmp_path / "s").iterdir() if p.name.startswith(".")]
 
 
-def test_stopped_run_resumes_to_the_same_las(scene_file, tmp_path, sim):
+def test_stopped_run_resumes_to_the_same_las(scene_file, tmp_path, sim):  # noqa: F811
     job = make_job(scene_file)
     whole = run_survey(job, tmp_path / "whole", direct=True, progress=False, simulator=sim,
                        las=tmp_path / "whole" / "survey.las")
@@ -60,7 +60,7 @@ def test_stopped_run_resumes_to_the_same_las(scene_file, tmp_path, sim):
     assert whole.las_points == done.las_points == again.las_points
 
 
-def test_echoes_found_with_other_settings_are_not_reused(scene_file, tmp_path, sim):
+def test_echoes_found_with_other_settings_are_not_reused(scene_file, tmp_path, sim):  # noqa: F811
     """A cached batch's echoes carry their settings: another pulse width finds them again."""
     job = make_job(scene_file, count=7)
     run_survey(job, tmp_path, direct=True, progress=False, simulator=sim, las=tmp_path / "a.las")
