@@ -533,7 +533,20 @@ def main(argv=None) -> int:
                     help="skip the voxel-walk profile")
     ap.add_argument("--no-variants", dest="variants", action="store_false",
                     help="skip clsim's estimator variants (each feature off)")
+    ap.add_argument("--dump-slab-spec", default=None, metavar="JSON",
+                    help="write the peer's slab spec (laser end, max_depth 4) for peers/mitransient_plain.py and stop")
     args = ap.parse_args(argv)
+    if args.dump_slab_spec:
+        from clsim.sensor import Sensor
+        from clsim.transport.setup import prepare_run
+
+        with tempfile.TemporaryDirectory() as tmp:
+            spec = peer_spec(slab_scene(0.5), prepare_run(slab_scene(0.5), Sensor.preset("ahab-chiroptera-i"),
+                                                          photons=1, seed=0, bin_ns=BIN_NS, max_order=MAX_ORDER),
+                             "laser", max_depth=MAX_ORDER + 1, tmp=Path(tmp))
+        Path(args.dump_slab_spec).write_text(json.dumps(spec))
+        print(f"wrote {args.dump_slab_spec}")
+        return 0
     q = args.quick
     args.series = [1 << 12, 1 << 14, 1 << 16, 1 << 18] if q else [1 << 12, 1 << 14, 1 << 16, 1 << 18, 1 << 20]
     args.repeats = 2
