@@ -8,11 +8,11 @@
 # HELIOS_GIT, LASTOOLS_GIT: git repositories (a bare one is fine) of
 #   github:3dgeo-heidelberg/helios  (built at commit fd94d1ff, reports v2.2.3.dev0)
 #   github:CGAL/LAStools            (CGAL's fork: LASlib + LASzip under one CMakeLists; commit 654f84e7)
-# In the project's sandbox both come from the search tool's `fetch` (a bare git dir under /work/.mirror/);
+# In the project's sandbox both come from the search tool's `fetch` (a bare git dir in its mirror folder);
 # elsewhere, without arguments, they are cloned from https://github.com/ (needs network).
 #
 # What it does (Debian 12, as root, ~15 min on 2 cores; the project's .venv is not touched):
-#  1. Runs the shared recipe ../shared/peers/build_helios.sh (next to the repository, /work/shared/peers/),
+#  1. Runs the shared recipe ../shared/peers/build_helios.sh (in the shared folder beside the repository),
 #     which apt-installs the build dependencies (cmake, ninja, boost, gdal, glm, tinyxml2, armadillo, ...),
 #     builds and installs LASlib into PREFIX/lastools-install, and pip-installs HELIOS++ (pyhelios and
 #     the helios++ executable) from PREFIX/src into the venv PREFIX/venv (build dir PREFIX/build-skb).

@@ -57,6 +57,7 @@ def las_layout(job, bits: int = 16) -> LasLayout:
     - ``offsets``: the floor of the scene grid's lower corner.
     """
     from clsim.scenes import load_scene
+    from clsim.survey._las_writer import quantiser
     from clsim.transport.first_order import window_ns
 
     scene = load_scene(job.scene_path)
@@ -80,10 +81,8 @@ def las_layout(job, bits: int = 16) -> LasLayout:
                          "raise its altitude")
     peak = _GAIN_HEADROOM * sensor.aperture_area_m2 / (math.pi * r_min**2) / (
         sensor.pulse_sigma_ns * math.sqrt(2.0 * math.pi))
-    top = {8: 255, 16: 65535, 32: 4294967295}.get(int(bits))    # the unsigned samples' top count
-    if top is None:
-        raise InputError(f"bits must be 8, 16 or 32 (the digitiser's sample size); got {bits!r}")
-    gain = peak / float(top)
+    dtype, _, _ = quantiser(int(bits), 1.0, 0.0)
+    gain = peak / float(np.iinfo(dtype).max)
     return LasLayout(n_samples=n_samples, gain=gain, offsets=tuple(float(v) for v in np.floor(lo)))
 
 

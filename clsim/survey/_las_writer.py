@@ -49,6 +49,11 @@ class Echoes:
         self.amplitude = np.asarray(amplitude, dtype=np.float64)
         self.sigma = np.asarray(sigma, dtype=np.float64)
 
+    @classmethod
+    def none(cls) -> Echoes:
+        """No echo."""
+        return cls(*(np.zeros(0) for _ in cls.FIELDS))
+
     def save(self, path, key: str) -> Path:
         """Write to ``path`` (atomically) with ``key`` naming the settings they were found with."""
         from voxlidar.safeio import atomic_write
@@ -210,7 +215,7 @@ class SurveyLasWriter:
                                     max_components=self.max_returns, device=self.device, chunk=self.chunk)
             parts.append((table.waveform + lo, table.location_ns, table.amplitude, table.sigma_ns))
         if not parts:
-            return Echoes(*(np.zeros(0) for _ in Echoes.FIELDS))
+            return Echoes.none()
         return Echoes(*(np.concatenate(c) for c in zip(*parts)))
 
     def echo_key(self) -> str:
@@ -250,7 +255,7 @@ class SurveyLasWriter:
         t0 = np.broadcast_to(np.asarray(t0_ns, dtype=np.float64), (n,)).copy()
         raw = self.quantise(w)
         if echoes is None:
-            echoes = self.find_echoes(raw, t0) if self.returns else Echoes(*(np.zeros(0) for _ in Echoes.FIELDS))
+            echoes = self.find_echoes(raw, t0) if self.returns else Echoes.none()
         self._write(pulses, raw, t0, echoes)
         self.pulses += n
         return echoes

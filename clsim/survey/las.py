@@ -40,28 +40,22 @@ import numpy as np
 
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS, Sensor
-from clsim.survey._las_writer import SCAN_ANGLE_STEP_DEG, SurveyLasWriter
+from clsim.survey._las_writer import SCAN_ANGLE_STEP_DEG, SurveyLasWriter, quantiser
 from voxlidar.errors import finite_number
 
 __all__ = ["SurveyLas", "read_survey_las", "write_survey_las"]
 
-def _quantiser(w, bits, gain, offset):
-    """(raw dtype, gain, offset): ``offset + gain * raw`` spans ``w`` unless given."""
-    from clsim.waveforms.io.las import _SAMPLE_DTYPES
-
-    if bits not in _SAMPLE_DTYPES:
-        raise InputError(f"bits must be 8, 16 or 32 (the digitiser's sample size); got {bits!r}")
-    top = float(np.iinfo(_SAMPLE_DTYPES[bits]).max)
+def _default_gain(w, bits, gain, offset):
+    """(gain, offset): ``offset + gain * raw`` spans ``w`` unless given (the writer checks them)."""
+    dtype, _, _ = quantiser(bits, 1.0, 0.0)
+    top = float(np.iinfo(dtype).max)
     if offset is None:
         offset = min(0.0, float(w.min())) if w.size else 0.0
     offset = finite_number(offset, "offset")
     if gain is None:
         span = (float(w.max()) - offset) if w.size else 0.0
         gain = span / top if span > 0 else 1.0
-    gain = finite_number(gain, "gain")
-    if not gain > 0:
-        raise InputError(f"gain must be > 0 (volts or power per digitiser count); got {gain!r}")
-    return _SAMPLE_DTYPES[bits], gain, offset
+    return gain, offset
 
 
 def _check(pulses, waveforms, t0_ns, bin_ns, sensor):
@@ -184,7 +178,7 @@ def write_survey_las(path: str | os.PathLike, pulses, waveforms, *, t0_ns, bin_n
     """
     w, t0, b = _check(pulses, waveforms, t0_ns, bin_ns, sensor)
     n, n_bins = w.shape
-    _, gain, offset = _quantiser(w, int(bits), gain, offset)
+    gain, offset = _default_gain(w, int(bits), gain, offset)
     if offsets is None:     # the floor of the smallest coordinate a sample (so a point) can have
         d = np.asarray(pulses.direction, dtype=np.float64)
         ends = [np.asarray(pulses.position, dtype=np.float64) + (0.5 * C_M_PER_NS * t)[:, None] * d

@@ -35,7 +35,7 @@ from clsim.digitize import pulse_kernel
 from clsim.errors import DeviceError, InputError
 from clsim.sensor import C_M_PER_NS, Sensor
 from clsim.transport.bricks import extinction, wood_direction
-from clsim.transport.setup import NG, PARAMS_DTYPE, SceneSetup
+from clsim.transport.setup import NG, PARAMS_DTYPE, SceneSetup, scene_params
 from voxlidar.devices import build_program, short_reason
 
 __all__ = ["PULSE_FIELDS", "FirstOrderGrid", "FirstOrderRunner", "beam_samples", "check_first_order",
@@ -178,27 +178,14 @@ def pulse_grid(scene, pulses, sensor: Sensor, *, bin_ns: float = 0.05) -> FirstO
 
 def _params(scene_setup: SceneSetup, sensor: Sensor, grid: FirstOrderGrid, hotspot: bool) -> np.ndarray:
     """The kernel's shared parameters (:data:`~clsim.transport.setup.PARAMS_DTYPE`) of a batch."""
-    scene, g = scene_setup.scene, scene_setup.bricks
     rec = np.zeros(1, dtype=PARAMS_DTYPE)
     r = rec[0]
-    r["beam_sigma"] = 0.5e-3 * sensor.divergence_mrad
-    r["tan2_fov"] = math.tan(1e-3 * sensor.fov_mrad) ** 2
-    r["h"] = scene.voxel_size
-    r["shape"] = scene.shape
-    r["bshape"] = g.brick_shape
-    r["ground_z"] = 0.0 if scene.ground_z is None else scene.ground_z - scene.origin[2]
-    r["has_ground"] = scene.ground_z is not None
-    r["leaf_R"], r["leaf_T"] = scene_setup.optics["leaf"]
-    r["wood_R"], r["wood_T"] = scene_setup.optics["bark"]
-    r["ground_R"] = scene_setup.optics["ground"][0]
+    scene_params(r, scene_setup, sensor)
     r["dt_ns"] = grid.dt_ns
     r["nbins"] = grid.nbins
     r["max_order"] = 1
     r["n_batches"] = 1
     r["hotspot"] = bool(hotspot)
-    r["outward"] = scene.leaf_azimuth == "outward"
-    r["crown_c"] = scene.crown_center - scene.origin[:2]
-    r["leaf_avg"] = scene.leaf_angle.kind.value == "spherical" and not r["outward"]
     return rec
 
 

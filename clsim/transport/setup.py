@@ -199,6 +199,27 @@ def _int_arg(name, value, lo, hi):
     return v
 
 
+def scene_params(r, scene_setup: SceneSetup, sensor: Sensor) -> None:
+    """Fill the fields of a :data:`PARAMS_DTYPE` record ``r`` that the scene and the beam fix (grid,
+    bricks, ground, optics, leaf azimuths, divergence and field of view), for every kernel that reads
+    the medium (the photon walk, the deterministic first order)."""
+    scene, lo, ground = scene_setup.scene, scene_setup.scene.origin, scene_setup.scene.ground_z
+    r["beam_sigma"] = 0.5e-3 * sensor.divergence_mrad
+    r["tan2_fov"] = math.tan(1e-3 * sensor.fov_mrad) ** 2
+    r["h"] = scene.voxel_size
+    r["shape"] = scene.shape
+    r["bshape"] = scene_setup.bricks.brick_shape
+    r["ground_z"] = 0.0 if ground is None else ground - lo[2]
+    r["has_ground"] = ground is not None
+    r["leaf_R"], r["leaf_T"] = scene_setup.optics["leaf"]
+    r["wood_R"], r["wood_T"] = scene_setup.optics["bark"]
+    r["ground_R"] = scene_setup.optics["ground"][0]
+    r["crown_c"] = scene.crown_center - lo[:2]
+    r["outward"] = scene.leaf_azimuth == "outward"
+    # the averaged next-event weight is exact for spherical leaf angles with uniform azimuths
+    r["leaf_avg"] = scene.leaf_angle.kind.value == "spherical" and scene.leaf_azimuth != "outward"
+
+
 def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="exact",
                 detect="nee", max_order: int = 3, leaf_off: bool = False, batches: int = 16,
                 bin_ns: float = 0.05, step_m: float = 0.02, target=None, trace: int = 0,
@@ -276,21 +297,10 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     r["axis"] = axis
     r["e1"] = e1
     r["e2"] = e2
-    r["beam_sigma"] = 0.5e-3 * sensor.divergence_mrad
-    r["tan2_fov"] = math.tan(1e-3 * sensor.fov_mrad) ** 2
+    scene_params(r, scene_setup, sensor)
     r["virt_r2"] = (0.5 * sensor.virtual_aperture_m) ** 2
     r["norm_nee"] = R_ref**2
     r["norm_analog"] = R_ref**2 / sensor.virtual_aperture_area_m2
-    r["h"] = scene.voxel_size
-    r["shape"] = scene.shape
-    r["bshape"] = bricks.brick_shape
-    r["ground_z"] = 0.0 if ground is None else ground - lo[2]
-    r["has_ground"] = ground is not None
-    r["leaf_R"], r["leaf_T"] = optics["leaf"]
-    r["wood_R"], r["wood_T"] = optics["bark"]
-    r["ground_R"] = optics["ground"][0]
-    r["crown_c"] = scene.crown_center - lo[:2]
-    r["outward"] = scene.leaf_azimuth == "outward"
     r["ds"] = step_m
     r["t0_ns"] = edges[0]
     r["dt_ns"] = bin_ns
@@ -299,8 +309,6 @@ def prepare_run(scene: Scene, sensor: Sensor, *, photons: int, seed: int, mode="
     r["n_batches"] = batches
     r["n_trace"] = trace
     r["hotspot"] = bool(hotspot)
-    # the averaged next-event weight is exact for spherical leaf angles with uniform azimuths
-    r["leaf_avg"] = scene.leaf_angle.kind.value == "spherical" and scene.leaf_azimuth != "outward"
     r["qmc"] = qmc_shift(seed)
 
     ppf, gtab = scene_setup.ppf, scene_setup.gtab
