@@ -81,3 +81,47 @@ def test_tutorial_survey_plot_runs(tmp_path):
     for name in ("tutorial-plot.png", "tutorial-plot-survey/survey.las", "tutorial-radargram.png",
                  "tutorial-points.png"):
         assert (tmp_path / "out" / name).stat().st_size > 0, name
+
+
+HOWTOS = sorted(p for p in (ROOT / "docs" / "howto").glob("*.md") if p.name != "index.md")
+
+
+def command_lines(page: Path) -> list[list[str]]:
+    """Every ``tlsvox``/``clsim`` line of a page's ``sh`` blocks, split as the shell would."""
+    import shlex
+
+    out = []
+    for kind, code in blocks(page):
+        for line in code.splitlines():
+            words = shlex.split(line, comments=True)
+            while words and "=" in words[0] and not words[0].startswith("-"):  # VAR=value before the command
+                words = words[1:]
+            if kind == "sh" and words and words[0] in ("tlsvox", "clsim"):
+                out.append(words)
+    return out
+
+
+@pytest.mark.parametrize("page", HOWTOS, ids=lambda p: p.stem)
+def test_howto_commands_parse(page):
+    """Each how-to's commands name options their parsers have (a renamed flag fails here, not for a user)."""
+    from clsim.cli import build_parser as clsim_parser
+    from tlsvox.cli import build_parser as tlsvox_parser
+
+    lines = command_lines(page)
+    assert lines, f"{page.name} runs no tlsvox or clsim command"
+    parsers = {"tlsvox": tlsvox_parser(), "clsim": clsim_parser()}
+    for words in lines:
+        try:
+            parsers[words[0]].parse_args(words[1:])
+        except SystemExit as err:  # --help exits 0
+            if err.code in (0, None):
+                continue
+            pytest.fail(f"{page.name}: {' '.join(words)} is refused by the parser (exit {err.code})")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("page", HOWTOS, ids=lambda p: p.stem)
+def test_howto_runs(page, tmp_path):
+    """Each how-to runs start to finish on the small synthetic tree it makes (10-50 s each)."""
+    run_page(page, tmp_path)
+    assert (tmp_path / "out" / "small" / "oak.ply").stat().st_size > 0

@@ -100,6 +100,27 @@ def test_cli_voxelize_leaf_angle_measured(tmp_path, capsys):
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_cli_refuses_a_scan_without_a_pose_before_measuring(tmp_path, capsys, monkeypatch):
+    """A simulated scan not yet registered (a true pose, no pose) is refused at once, not after the
+    measurement has run on its true pose (half a minute on a real crown)."""
+    import tlsvox.leafangles
+    from tlsvox.cli.voxelize import main as cli_main
+
+    _, scan = _scan_of("uniform", noise=0.0)
+    assert scan.pose is None and scan.pose_true is not None
+    path = tmp_path / "slab.laz"
+    scan.write(path)
+
+    def never(*args, **kwargs):
+        raise AssertionError("measured before the pose was checked")
+
+    monkeypatch.setattr(tlsvox.leafangles, "measure_leaf_angles", never)
+    rc = cli_main([str(path), "--leaf-angle", "measured", "-q", "-o", str(tmp_path / "x.npz")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no pose" in err and "--scanner-frame" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.npz").exists()
+
+
 def test_em_recovers_the_distribution_and_the_mixes_from_rows_of_different_kernels():
     """The crown inverts the rows of every scan, layer and zenith group together: one distribution, an
     occlusion mix per row set and an azimuth mix explain them all (exact rows, so only the EM's convergence

@@ -350,9 +350,11 @@ def run(args) -> int:
     leaf_angle = args.leaf_angle or from_config
     if args.leaf_angle == "measured":
         from tlsvox.leafangles import measure_leaf_angles
+        from tlsvox.voxel.stages import scan_poses
 
         if args.leaf_angle_layers < 1:
             raise InputError(f"--leaf-angle-layers {args.leaf_angle_layers} must be >= 1 (e.g. 4)")
+        scan_poses(scans, args.scanner_frame)  # refuse a scan without a pose before the long measurement
         measured = measure_leaf_angles(scans, layers=args.leaf_angle_layers)
         leaf_angle = measured.leaf_angle
     res = voxelize(scans, leaf_angle=leaf_angle, leaf_angle_layers=measured if args.leaf_angle_by_layer else None,

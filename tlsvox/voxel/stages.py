@@ -71,7 +71,7 @@ from voxlidar.scene import Scene
 
 __all__ = ["Checked", "Echoes", "Layout", "MemoryPlan", "Projection", "TraceRun", "VoxelizeResult", "build_scene",
            "check_settings", "estimate", "give_back_undetected", "leaf_projection", "make_beams", "make_grid", "memory_plan",
-           "scene_ground", "score_lad", "undetected_bytes", "voxelize", "world_echoes"]
+           "scan_poses", "scene_ground", "score_lad", "undetected_bytes", "voxelize", "world_echoes"]
 
 @dataclass
 class VoxelizeResult:
@@ -348,6 +348,25 @@ class Projection:
     crown_center: object  #: the given or measured crown centre (None: the LAD centroid, later)
 
 
+def scan_poses(scans, scanner_frame: bool = False) -> list:
+    """Each scan's world-from-scanner pose; refused in one line for a scan without one.
+
+    A single scan without a pose takes its own frame when ``scanner_frame``.
+    """
+    poses = []
+    for sc in scans:
+        if sc.pose is not None:
+            poses.append(sc.pose)
+        elif scanner_frame and len(scans) == 1:
+            poses.append(np.eye(4))
+        else:
+            hint = ("; or for a single scan use its own frame (scanner_frame=True, CLI --scanner-frame)"
+                    if len(scans) == 1 else "")
+            raise InputError(f"scan {sc.name!r} has no pose (world-from-scanner 4x4): register the scans "
+                             f"first (tlsvox register){hint}")
+    return poses
+
+
 def world_echoes(scans, classes, settings: VoxelizeSettings) -> Echoes:
     """Stage 1: each scan checked, its pose found, its echoes put in the world frame with their kinds."""
     if isinstance(scans, Scan):
@@ -364,17 +383,7 @@ def world_echoes(scans, classes, settings: VoxelizeSettings) -> Echoes:
     if max_range is not None and not (np.isfinite(max_range) and max_range > 0):
         raise InputError(f"max_range={max_range!r} must be a positive distance in metres (how far empty "
                          "pulses are followed), or None for the scanner's range")
-    poses = []
-    for sc in scans:
-        if sc.pose is not None:
-            poses.append(sc.pose)
-        elif settings.poses.scanner_frame and len(scans) == 1:
-            poses.append(np.eye(4))
-        else:
-            hint = ("; or for a single scan use its own frame (scanner_frame=True, CLI --scanner-frame)"
-                    if len(scans) == 1 else "")
-            raise InputError(f"scan {sc.name!r} has no pose (world-from-scanner 4x4): register the scans "
-                             f"first (tlsvox register){hint}")
+    poses = scan_poses(scans, settings.poses.scanner_frame)
     world = [sc.world_xyz(p) for sc, p in zip(scans, poses)]
     if len(world) > 1:
         boxes = [(w.min(axis=0), w.max(axis=0)) for w in world if len(w)]
