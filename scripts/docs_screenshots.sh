@@ -29,3 +29,5 @@ shot index.html docs/img/site-front.png
 shot tutorials/decompose.html docs/img/site-tutorial.png
 shot reference/api/tlsvox.html docs/img/site-api.png
 shot reference/cli.html docs/img/site-cli.png
+shot howto/echo_weights.html docs/img/site-howto.png
+shot benchmarks.html docs/img/site-benchmarks.png

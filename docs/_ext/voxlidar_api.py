@@ -39,6 +39,8 @@ PUBLIC = [
     ("tlsvox.voxel.settings", "the voxel stage's settings, grouped by stage"),
     ("tlsvox.voxel.estimators", "LAD estimators, one function each"),
     ("tlsvox.voxel.fills", "occluded voxels filled"),
+    ("tlsvox.voxel.weights", "echo weights: how echoes share their pulse"),
+    ("tlsvox.voxel.footprint", "echo weights from the beam's footprint, without reflectance"),
     ("tlsvox.voxel.airborne", "scenes from airborne pulses"),
     ("tlsvox.voxel.amapvox", "AMAPVox .vox files"),
     ("tlsvox.voxel.wood", "wood: per voxel, and solid from fitted cylinders"),

@@ -37,8 +37,11 @@ Echo weights (--echo-weights): how much of its pulse each echo stops. 'auto'
 beam_fraction column (simulated scans), else 1/n ('uniform'); 'fraction'
 takes the share from the column or else from apparent reflectance over the
 nominal reflectance of a full hit; 'threshold' is the paper's rule (drop
-returns under half the nominal leaf reflectance, then 1/n). The summary
-states the rule used per scan (docs/voxelize.md compares them).
+returns under half the nominal leaf reflectance, then 1/n); 'geometric' is
+for multi-return scans with neither column nor reflectance: each echo's
+expected share of the beam from the scanner's footprint, the leaf size
+(--leaf-shape) and the scan's own returns per pulse. The summary states the
+rule used per scan (docs/voxelize.md compares them).
 
 Leaf angles (--leaf-angle): a named distribution, or 'measured' from the scans'
 leaf echoes (truth material or the leaf class of 'tlsvox classify'): plane fits
@@ -164,7 +167,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     weights = p.add_argument_group("echo weights: how echoes share their pulse ([echoes] in --config)")
     weights.add_argument("--echo-weights", default="auto", choices=[w.value for w in EchoWeights],
                          help="how echoes share their pulse: auto (default: fraction with a beam_fraction column, "
-                              "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper)")
+                              "else uniform), uniform (1/n), fraction (intercepted share), threshold (the paper), "
+                              "geometric (the expected share from the beam's footprint: no reflectance needed)")
     weights.add_argument("--leaf-reflectance", type=float,
                          help="nominal leaf reflectance of a full hit (fraction from reflectance, threshold); "
                               "default the leaf optics at the scanner's wavelength")
@@ -175,7 +179,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                              "model (give the expected unrecorded interception back; docs/voxelize.md)")
     missed.add_argument("--leaf-shape", default="0.05,0.025", type=numbers(2, what="length,width in metres",
                                                                    example="0.05,0.025"),
-                        help="leaf length,width in metres for --undetected model (default 0.05,0.025)")
+                        help="leaf length,width in metres for --undetected model and --echo-weights geometric "
+                             "(default 0.05,0.025)")
     missed.add_argument("--detection-threshold-db", type=float,
                         help="the scanner's detection threshold, dB of a white target (default: the scan's preset; "
                              "the RIEGL VZ-400: -20)")

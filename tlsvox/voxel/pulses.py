@@ -350,7 +350,8 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
                     angular_grid: AngularGrid | None = None, socs_rotation=None,
                     reconstruct: bool = True, echo_weights="auto",
                     leaf_reflectance: float | None = None,
-                    wood_reflectance: float | None = None) -> tuple[Beams, dict]:
+                    wood_reflectance: float | None = None,
+                    leaf_shape: tuple = (0.05, 0.025), lad_field=None) -> tuple[Beams, dict]:
     """Every pulse of ``scan`` as world-frame :class:`~tlsvox.voxel.trace.Beams`.
 
     Parameters
@@ -374,16 +375,22 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
         Scan frame from the scanner's own frame (:func:`rotation_from_rpy`).
     reconstruct : bool
         False: use only pulses that returned (biased: no gaps!).
-    echo_weights : {"uniform", "fraction", "threshold", "auto"}
+    echo_weights : {"uniform", "fraction", "threshold", "geometric", "auto"}
         How echoes share their pulse (:class:`~tlsvox.voxel.weights.EchoWeights`):
         ``1/n``, the intercepted fraction of the beam (``beam_fraction``
-        column, else reflectance), or the paper's threshold; ``auto``
+        column, else reflectance), the paper's threshold, or the expected
+        share from the beam's footprint (:mod:`tlsvox.voxel.footprint`); ``auto``
         (default): fraction when the scan has a ``beam_fraction`` column,
         else uniform.  ``info["echo_weights"]`` says which was used.
     leaf_reflectance, wood_reflectance : float, optional
         Nominal reflectance of a full hit at normal incidence for the
         ``fraction`` (from reflectance) and ``threshold`` rules; default the
         :mod:`voxlidar.materials` optics at the scanner's wavelength.
+    leaf_shape : (float, float), metres
+        Leaf length and width of the ``geometric`` rule's footprint model.
+    lad_field : tlsvox.voxel.footprint.LadField, optional
+        The ``geometric`` rule's leaf area density (an estimate made with
+        other weights); without it the rule's first pass gives ``1/n``.
 
     Returns
     -------
@@ -474,6 +481,21 @@ def beams_from_scan(scan: Scan, *, kinds=None, pose=None, leaf_angle=None, max_r
         frac, info["echo_weights_source"] = echo_fractions(scan, kinds, theta, leaf_angle=leaf_angle,
                                                            nominal=nominal)
         w = _fraction_weights(frac[keep][order], pulse_k, p)
+    elif rule is EchoWeights.GEOMETRIC and lad_field is not None:
+        from tlsvox.voxel.footprint import FootprintModel, footprint_fractions
+
+        veg = (kind_k == EchoKind.LEAF) | (kind_k == EchoKind.WOOD)
+        at = float(np.median(rng_k[veg])) if veg.any() else 10.0
+        model = FootprintModel.for_scan(scan, at, leaf_length=leaf_shape[0], leaf_width=leaf_shape[1],
+                                        leaf_reflectance=leaf_reflectance)
+        frac, meta = footprint_fractions(pulse_k, rng_k, kind_k, rot @ origin_s + trans, world_dirs, model, lad_field,
+                                         leaf_angle=leaf_angle if leaf_angle is not None else "uniform")
+        w = _fraction_weights(frac, pulse_k, p)
+        info["echo_weights_source"] = (f"the beam's footprint ({model.n_subrays} sub-rays, radius "
+                                       f"{1000 * model.beam_radius:.1f} mm at {at:.1f} m; leaves "
+                                       f"{100 * leaf_shape[0]:g} x {100 * leaf_shape[1]:g} cm) through the "
+                                       "estimated leaf area density")
+        info["echo_weights_model"] = meta
     else:
         w = 1.0 / n_eff[pulse_k]
         # more echoes present than announced: renormalise so the weights sum to 1

@@ -302,6 +302,11 @@ def voxelize(scans, settings: VoxelizeSettings | None = None, *, classes=None, l
 
     t3 = time.perf_counter()
     lad = estimate(stats, checks.estimator, checks.fill, s, scan_stats=scan_stats)
+    if checks.weights is EchoWeights.GEOMETRIC:  # the first estimate took 1/n: the rule's rounds
+        stats, lad, parts, beams, infos = geometric_rounds(run, echoes, checks, s, lad, per_scan=per_scan,
+                                                           progress=progress)
+        if checks.detection is None and not per_scan:
+            parts = None
     if checks.detection is not None:
         stats, lad, undetected_meta = give_back_undetected(run, parts, beams, stats, lad, checks, projection, s)
     else:
@@ -505,9 +510,11 @@ def leaf_projection(echoes: Echoes, grid: VoxelGrid, la: LeafAngle, azimuth: Lea
     return Projection(outward, g_tables, g_layer, layers, crown_center)
 
 
-def make_beams(echoes: Echoes, la: LeafAngle, settings: VoxelizeSettings, *, progress: bool = False):
+def make_beams(echoes: Echoes, la: LeafAngle, settings: VoxelizeSettings, *, progress: bool = False, lad_field=None):
     """Stage 5: every pulse of every scan as a beam with its echoes and their weights.
 
+    ``lad_field`` (:class:`~tlsvox.voxel.footprint.LadField`) is the
+    ``geometric`` rule's leaf area density (:func:`geometric_rounds`).
     Returns the per-scan :class:`~tlsvox.voxel.beams.Beams` and their info dicts.
     """
     p, e = settings.poses, settings.echoes
@@ -523,10 +530,41 @@ def make_beams(echoes: Echoes, la: LeafAngle, settings: VoxelizeSettings, *, pro
     for sc, pose, k in it:
         part, info = beams_from_scan(sc, kinds=k, pose=pose, leaf_angle=la, max_range=p.max_range,
                                      angular_grid=angular, socs_rotation=rotation, echo_weights=weights,
-                                     leaf_reflectance=e.leaf_reflectance, wood_reflectance=e.wood_reflectance)
+                                     leaf_reflectance=e.leaf_reflectance, wood_reflectance=e.wood_reflectance,
+                                     leaf_shape=tuple(settings.undetected.leaf_shape), lad_field=lad_field)
         parts.append(part)
         infos.append(info)
     return parts, infos
+
+
+#: estimates made with the geometric echo weights, each from the one before (the first takes 1/n)
+GEOMETRIC_ROUNDS = 2
+
+
+def geometric_rounds(run, echoes: Echoes, checks, settings: VoxelizeSettings, lad, *, per_scan: bool,
+                     progress: bool = False, rounds: int | None = None):
+    """The ``geometric`` echo weights' rounds: weights from the estimate's leaf area density, traced and
+    estimated again, ``rounds`` times (:mod:`tlsvox.voxel.footprint`).
+
+    Returns the last round's sums, estimate, per-scan beams, joined beams and info dicts.
+    """
+    from tlsvox.voxel.footprint import LadField
+
+    rounds = GEOMETRIC_ROUNDS if rounds is None else rounds
+    for _ in range(rounds):
+        dense = lad.lad
+        if lad.rows is not None:  # sparse rows onto the grid (echo-free voxels: no leaves)
+            dense = np.zeros(run.grid.shape, np.float32)
+            dense[tuple(lad.rows.ijk.T)] = lad.lad
+        field = LadField(np.asarray(run.grid.lower, dtype=np.float64), float(run.grid.voxel_size),
+                         np.nan_to_num(np.asarray(dense, dtype=np.float64)))
+        parts, infos = make_beams(echoes, checks.leaf_angle, settings, progress=progress, lad_field=field)
+        beams = parts[0] if len(parts) == 1 else Beams.concat(parts)
+        stats, scan_stats = run.sums(beams, parts if per_scan else None)
+        lad = estimate(stats, checks.estimator, checks.fill, settings, scan_stats=scan_stats)
+    for info in infos:
+        info["echo_weights_rounds"] = rounds
+    return stats, lad, parts, beams, infos
 
 
 @dataclass

@@ -27,6 +27,13 @@ The rules (:class:`EchoWeights`):
     The paper's rule: leaf and wood echoes reading under half the nominal
     leaf reflectance are dropped as noise (they neither stop the beam nor
     count in ``n``), the others weigh ``1/n``.
+``geometric``
+    Every echo weighs the share of the beam a return of its rank in a pulse
+    of ``n`` returns stops in expectation, from the beam's footprint, the
+    leaves' size and the scan's own statistics of returns per pulse
+    (:mod:`tlsvox.voxel.footprint`): for multi-return scans with neither a
+    ``beam_fraction`` column nor calibrated reflectance.  Ground and targets
+    take what the pulse has left.
 ``auto`` (default)
     ``fraction`` for a scan with a ``beam_fraction`` column, else ``uniform``.
     The rule used is stated per scan in ``Scene.meta["scans"][i]["echo_weights"]``.
@@ -74,6 +81,7 @@ class EchoWeights(Choice):
     UNIFORM = "uniform"  #: 1/n
     FRACTION = "fraction"  #: the intercepted share of the beam
     THRESHOLD = "threshold"  #: drop returns under 50 % of the nominal leaf reflectance, then 1/n
+    GEOMETRIC = "geometric"  #: the expected share from the beam's footprint (tlsvox.voxel.footprint)
 
 
 @dataclass(frozen=True)
