@@ -97,6 +97,9 @@ def register(subparsers) -> None:
     p.add_argument("--restart", action="store_true",
                    help="delete the batches of an earlier run in OUT and start over (default: resume)")
     p.add_argument("--no-las", action="store_true", help="keep only the batch files, write no LAS")
+    p.add_argument("--helios", metavar="DIR", default=None,
+                   help="also write the HELIOS++ scene, scanner, platform and survey XML (and the scene as an "
+                        "AMAPVox .vox) that fly the same pulses, into DIR (clsim.survey.helios)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--strict", action="store_true",
                    help="refuse a scene written with quality warnings (tlsvox voxelize records them; they are "
@@ -139,6 +142,12 @@ def cmd_survey(args) -> int:
                     bin_ns=args.bin_ns or (sensor.pulse_fwhm_ns / 16 if args.first_order == "deterministic" else 0.05),
                     beam_samples=args.beam_samples)
     out = Path(args.output)
+    if args.helios:
+        from clsim.survey.helios import write_helios_survey
+
+        files = write_helios_survey(job, args.helios)
+        print(f"survey: wrote {files.survey} (HELIOS++: its pulse k is this run's pulse {files.first} + k; run "
+              f"helios++ {files.survey.name} --assets <helios>/python/pyhelios --fullwave)", file=sys.stderr)
     if args.restart and out.is_dir():
         shutil.rmtree(out / "batches", ignore_errors=True)
         (out / "survey.json").unlink(missing_ok=True)

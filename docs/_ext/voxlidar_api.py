@@ -51,6 +51,7 @@ PUBLIC = [
     ("clsim.transport", "the Monte Carlo photon transport"),
     ("clsim.transport.first_order", "the deterministic first order: single scattering along the beam"),
     ("clsim.survey", "surveys: trajectories, scan patterns, runs, LAS output"),
+    ("clsim.survey.helios", "a survey as HELIOS++ files"),
     ("clsim.scenes", "plots of many trees"),
     ("clsim.waveforms.io", "waveform files: LAS packets, PulseWaves, HELIOS++ full waveforms"),
     ("clsim.waveforms.decompose", "Gaussian decomposition of waveforms"),

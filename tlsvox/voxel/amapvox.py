@@ -49,6 +49,10 @@ from voxlidar.scene import Scene
 __all__ = ["read_vox", "write_vox"]
 
 COLUMNS = ("PadBVTotal", "wood", "occluded", "lad_std")
+#: AMAPVox's own columns, in its order (``write_vox(amapvox_columns=True)``)
+AMAPVOX_COLUMNS = ("PadBVTotal", "angleMean", "bsEntering", "bsIntercepted", "bsPotential", "ground_distance",
+                   "lMeanTotal", "lgTotal", "nbEchos", "nbSampling", "transmittance", "attenuation",
+                   "attenuationBiasCorrection")
 #: written only for a scene with directional bark
 WOOD_DIR_COLUMNS = ("wood_beta", "wood_axis_x", "wood_axis_y", "wood_axis_z")
 SOLID_COLUMNS = ("wood_solid", "wood_cap")
@@ -59,7 +63,7 @@ VOX_MAX_VOXELS = 20_000_000
 
 
 def write_vox(scene: Scene, path: str | os.PathLike, *, max_pad: float | None = None,
-              metadata: bool = True) -> Path:
+              metadata: bool = True, amapvox_columns: bool = False) -> Path:
     """Write ``scene`` as an AMAPVox ``.vox`` file (atomic).
 
     Parameters
@@ -71,6 +75,15 @@ def write_vox(scene: Scene, path: str | os.PathLike, *, max_pad: float | None = 
     metadata : bool
         Add the ``#voxlidar:`` line with the leaf angle model, ground and
         wood kind (ignored by other readers that skip unknown ``#`` lines).
+    amapvox_columns : bool
+        Write AMAPVox's own 13 columns first, in its order (``PadBVTotal
+        angleMean bsEntering bsIntercepted bsPotential ground_distance
+        lMeanTotal lgTotal nbEchos nbSampling transmittance attenuation
+        attenuationBiasCorrection``), then this package's: readers that parse
+        by position (HELIOS++'s detailed voxels) need that order.  The beam
+        statistics a scene does not keep are 0; ``ground_distance`` is the
+        voxel centre's height over ``ground_z``, ``attenuation`` ``G u`` with
+        G = 0.5 and ``transmittance`` ``exp(-G u h)``.
     """
     if not isinstance(scene, Scene):
         raise InputError(f"scene must be a tlsvox Scene, got {type(scene).__name__}")
@@ -89,7 +102,18 @@ def write_vox(scene: Scene, path: str | os.PathLike, *, max_pad: float | None = 
     mp = float(max_pad) if max_pad is not None else max(1.0, float(np.max(lad, initial=0.0)))
     ii, jj, kk = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
     cols = [ii.ravel(), jj.ravel(), kk.ravel(), pad.ravel(), wood.ravel(), occ.ravel().astype(int), std.ravel()]
-    names, fmt = COLUMNS, ["%d", "%d", "%d", "%.9g", "%.9g", "%d", "%.9g"]
+    names: tuple[str, ...] = COLUMNS
+    fmt = ["%d", "%d", "%d", "%.9g", "%.9g", "%d", "%.9g"]
+    if amapvox_columns:
+        zc = lo[2] + (kk.ravel() + 0.5) * scene.voxel_size
+        ground = zc - (scene.ground_z if scene.ground_z is not None else lo[2])
+        att = 0.5 * np.nan_to_num(pad.ravel())
+        zero = np.zeros(n_cells)
+        own = [pad.ravel(), zero, zero, zero, zero, ground, zero, zero, zero.astype(int), zero.astype(int),
+               np.exp(-att * scene.voxel_size), att, zero]
+        cols = cols[:3] + own + cols[4:]
+        names = AMAPVOX_COLUMNS + COLUMNS[1:]
+        fmt = fmt[:3] + ["%.9g"] * 8 + ["%d", "%d"] + ["%.9g"] * 3 + fmt[4:]
     if scene.wood_directional:
         beta = scene.dense("wood_beta")
         axis = scene.dense("wood_axis")
