@@ -275,11 +275,11 @@ class Scan:
         return path
 
     @classmethod
-    def read(cls, path: str | os.PathLike, *, scan_id: int | None = None) -> Scan:
+    def read(cls, path: str | os.PathLike, *, scan_id: int | None = None, origin=None) -> Scan:
         """Read a LAS/LAZ scan and its sidecar files (:func:`tlsvox.readers.las.read_las`)."""
         from tlsvox.readers.las import read_las
 
-        return read_las(path, scan_id=scan_id, cls=cls)
+        return read_las(path, scan_id=scan_id, cls=cls, origin=origin)
 
 
 def las_data(scans: list[Scan], xyz: np.ndarray, *, classification=None):

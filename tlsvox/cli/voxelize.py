@@ -189,7 +189,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         help="poses from 'tlsvox register' (its .transforms.json); they replace the "
                              ".pose.json sidecars, matched by scan name")
     inputs.add_argument("--scan-origin", type=numbers(3),
-                        help="x,y,z of the scanner in a pulse-grouped text file's coordinates (default 0,0,0)")
+                        help="x,y,z of the scanner in the coordinates of a pulse-grouped text file or of a LAS "
+                             "file without a pose (HELIOS++'s world coordinates) (default 0,0,0)")
     poses = p.add_argument_group("scans without a pose, and the empty pulses of scans without a pulse table "
                                  "([poses] in --config)")
     poses.add_argument("--scanner-frame", action="store_true",
@@ -260,10 +261,7 @@ def read_scan(path, scan_id: int, origin=None):
                          f"{str(path)!r} is not a file (a directory?); give the scan files themselves")
     fmt = scan_format(path)
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
-        if origin is not None:
-            raise InputError(f"--scan-origin is for pulse-grouped text files; {path} is LAS/LAZ (its pulses start at "
-                             "the scanner frame's origin)")
-        return Scan.read(path, scan_id=scan_id)
+        return Scan.read(path, scan_id=scan_id, origin=origin)
     if fmt is not ScanFormat.PULSES:
         raise InputError(f"{path}: voxelize needs pulses (LAS/LAZ with a pulse table or return numbers, or "
                          f"pulse-grouped text), not a bare {fmt.value.upper()} point cloud")

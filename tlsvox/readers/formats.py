@@ -281,8 +281,9 @@ def read_any(path: str | os.PathLike, *, format: str | ScanFormat | None = None,
     scan_id : int, optional
         Overrides the scan id stored in the file.
     origin : (3,) float, metres, optional
-        Pulse-grouped text only: the scanner's position in the file's
-        coordinates (default 0, 0, 0).
+        Pulse-grouped text and LAS/LAZ without a pose: the scanner's
+        position in the file's coordinates (default 0, 0, 0), e.g. a
+        HELIOS++ leg's scanner position.
 
     Returns
     -------
@@ -299,11 +300,11 @@ def read_any(path: str | os.PathLike, *, format: str | ScanFormat | None = None,
     """
     path = Path(path)
     fmt = scan_format(path, format)
-    if origin is not None and fmt is not ScanFormat.PULSES:
-        raise InputError(f"origin= is for pulse-grouped text files; {path} is {fmt.value.upper()} (its pulses "
-                         "start at the scanner frame's origin)")
+    if origin is not None and fmt not in (ScanFormat.PULSES, ScanFormat.LAS, ScanFormat.LAZ):
+        raise InputError(f"origin= is for pulse-grouped text and LAS/LAZ files; {path} is {fmt.value.upper()} (its "
+                         "points are taken in the scanner's frame)")
     if fmt in (ScanFormat.LAS, ScanFormat.LAZ):
-        scan = Scan.read(path, scan_id=scan_id)
+        scan = Scan.read(path, scan_id=scan_id, origin=origin)
     elif fmt is ScanFormat.PULSES:
         from tlsvox.readers.pulse_text import read_pulse_text
 

@@ -15,7 +15,7 @@ from voxlidar.safeio import describe_kind, file_kind
 __all__ = ["read_las", "read_pose_sidecar"]
 
 
-def read_las(path: str | os.PathLike, *, scan_id: int | None = None, cls=Scan) -> Scan:
+def read_las(path: str | os.PathLike, *, scan_id: int | None = None, cls=Scan, origin=None) -> Scan:
     """Read a LAS/LAZ scan and its sidecar files (when present).
 
     Reflectance comes from the ``reflectance_db`` extra dimension (tlsvox
@@ -27,6 +27,13 @@ def read_las(path: str | os.PathLike, *, scan_id: int | None = None, cls=Scan) -
     ``meta["pulse_grouping"] = "gps_time"``), else they are grouped
     later by ray (:func:`tlsvox.voxel.pulses.group_pulses`). ``cls``: the
     class made (:class:`~tlsvox.scan.Scan` or a subclass).
+
+    HELIOS++'s LAS output (extra bytes ``fullwaveIndex``, ``hitObjectId``,
+    ``echo_width``, ``heliosAmplitude``) has its pulses by ``fullwaveIndex``
+    and no row for a pulse that hit nothing; its coordinates are the
+    world's.  ``origin`` (3,), the scanner's position in the file's
+    coordinates (CLI ``--scan-origin``), puts the echoes in the scanner's
+    frame, translated by it (the scan's pose, unless a sidecar gives one).
     """
     import laspy
 
@@ -68,6 +75,24 @@ def read_las(path: str | os.PathLike, *, scan_id: int | None = None, cls=Scan) -
         sid = int(doc.get("scan_id", 0))
     else:
         sid = int(np.asarray(las.point_source_id)[0]) if len(las.points) else 0
+    if origin is not None:
+        if pose is not None:
+            raise InputError(f"a scan origin (--scan-origin, origin=) was given for {str(path)!r}, which has a pose "
+                             f"({pose_path.name}): its echoes are in its scanner's frame already; drop the origin")
+        o = np.asarray(origin, dtype=np.float64).reshape(-1)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise InputError(f"origin={origin!r} must be the scanner's x, y, z in the file's coordinates (3 numbers)")
+        xyz = xyz - o
+        if pose is None:
+            pose = np.eye(4)
+            pose[:3, 3] = o
+    if pulse_id is None and "fullwaveindex" in dims:  # HELIOS++: one full-waveform index per pulse
+        _, pulse_id = np.unique(np.asarray(las[dims["fullwaveindex"]], dtype=np.int64), return_inverse=True)
+        meta.update(pulse_grouping="fullwave_index", layout="HELIOS++ LAS output",
+                    empty_pulses="none recorded (HELIOS++ writes no point for a pulse that hit nothing): rebuilt "
+                                 "from the angular grid (--angular-grid)")
+        if "hitobjectid" in dims:
+            meta["hit_object_ids"] = sorted(int(v) for v in np.unique(np.asarray(las[dims["hitobjectid"]])))
     if pulse_id is None and "gps_time" in dims and len(las.points):
         # pulses grouped by GPS time (other tools' multi-return exports); not when the times do not group
         from tlsvox.readers.pulse_text import pulse_ids_from_time
