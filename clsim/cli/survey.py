@@ -97,6 +97,8 @@ def register(subparsers) -> None:
     p.add_argument("--restart", action="store_true",
                    help="delete the batches of an earlier run in OUT and start over (default: resume)")
     p.add_argument("--no-las", action="store_true", help="keep only the batch files, write no LAS")
+    p.add_argument("--pulsewaves", action="store_true",
+                   help="also write OUT/survey.pls and survey.wvs (PulseWaves: every pulse's waveform) at the end")
     p.add_argument("--helios", metavar="DIR", default=None,
                    help="also write the HELIOS++ scene, scanner, platform and survey XML (and the scene as an "
                         "AMAPVox .vox) that fly the same pulses, into DIR (clsim.survey.helios)")
@@ -169,6 +171,11 @@ def cmd_survey(args) -> int:
             f"pulses/s), {run.skipped} already on disk")
     else:
         say(f"survey: nothing to compute: all {run.n_batches} batches are on disk")
+    if args.pulsewaves:
+        from clsim.survey import load_survey, write_survey_pulsewaves
+
+        pls, wvs, gain, offset = write_survey_pulsewaves(out / "survey.pls", job.pulses(), load_survey(out))
+        say(f"survey: wrote {pls} and {wvs.name} (PulseWaves; power = {offset:.4g} + {gain:.4g} x count)")
     if args.no_las:
         say(f"survey: waveforms in {out / 'batches'} (one .npz per batch; clsim.survey.load_survey reads them)")
         return 0

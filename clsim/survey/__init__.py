@@ -16,9 +16,10 @@ from clsim.survey._pattern import Flight, ScanKind, ScanPattern, typical_flight
 from clsim.survey._pulses import Pulses, pulse_count, survey_pulses
 from clsim.survey._trajectory import Leg, Trajectory
 from clsim.survey.distributed import SurveyJob, SurveyRun, load_survey, run_survey
-from clsim.survey.las import SurveyLas, read_survey_las, write_survey_las
+from clsim.survey.las import SurveyLas, read_survey_las, write_survey_las, write_survey_pulsewaves
 from clsim.survey.plots import plot_footprints, plot_point_cloud, plot_radargram
 
 __all__ = ["CentreLine", "Flight", "Leg", "Pulses", "ScanKind", "ScanPattern", "SurveyJob", "SurveyLas", "SurveyRun",
            "Trajectory", "centre_line", "load_survey", "plot_footprints", "plot_point_cloud", "plot_radargram",
-           "pulse_count", "read_survey_las", "run_survey", "survey_pulses", "typical_flight", "write_survey_las"]
+           "pulse_count", "read_survey_las", "run_survey", "survey_pulses", "typical_flight", "write_survey_las",
+           "write_survey_pulsewaves"]

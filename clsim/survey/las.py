@@ -43,7 +43,7 @@ from clsim.sensor import C_M_PER_NS, Sensor
 from clsim.survey._las_writer import SCAN_ANGLE_STEP_DEG, SurveyLasWriter, quantiser
 from voxlidar.errors import finite_number
 
-__all__ = ["SurveyLas", "read_survey_las", "write_survey_las"]
+__all__ = ["SurveyLas", "read_survey_las", "write_survey_las", "write_survey_pulsewaves"]
 
 def _default_gain(w, bits, gain, offset):
     """(gain, offset): ``offset + gain * raw`` spans ``w`` unless given (the writer checks them)."""
@@ -192,6 +192,44 @@ def write_survey_las(path: str | os.PathLike, pulses, waveforms, *, t0_ns, bin_n
         for lo in range(0, n, step):                  # memory: the input and one chunk
             out.append(pulses[lo:lo + step], w[lo:lo + step], t0[lo:lo + step])
     return out.path, out.wdp_path
+
+
+def write_survey_pulsewaves(path: str | os.PathLike, pulses, waveforms, *, bits: int = 16, gain=None, offset=None,
+                            gps_time_offset_s: float = 0.0, system: str = "clsim") -> tuple[Path, Path, float, float]:
+    """Write a survey's waveforms as PulseWaves (``.pls`` + ``.wvs``; :func:`clsim.waveforms.io.write_pulsewaves`).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.pls``.
+    pulses : clsim.survey.Pulses
+        One per waveform row (``position``, ``direction``, ``time_s``).
+    waveforms : PulseWaveforms
+        Their waveforms (:func:`clsim.survey.load_survey`).
+    bits : {8, 16}
+    gain, offset : float, optional
+        Stored ``count = round((w - offset) / gain)``; default as :func:`write_survey_las`
+        (nothing clips).  PulseWaves has no field for them: they are returned, and written in
+        the sampling's description.
+
+    Returns
+    -------
+    (pls, wvs, gain, offset)
+    """
+    from clsim.waveforms.io.pulsewaves import write_pulsewaves
+
+    w = np.asarray(waveforms.waveform, dtype=np.float64)
+    if len(pulses) != len(w):
+        raise InputError(f"{len(pulses)} pulses for {len(w)} waveforms; one pulse per waveform row")
+    gain, offset = _default_gain(w, bits, gain, offset)
+    counts = np.clip(np.round((w - offset) / gain), 0, 2 ** bits - 1).astype(np.int64)
+    pls, wvs = write_pulsewaves(path, gps_time=np.asarray(pulses.time_s) + gps_time_offset_s,
+                                origin=pulses.position, direction=pulses.direction, t0_ns=waveforms.t0_ns,
+                                samples=counts, n_samples=waveforms.n_samples, sample_units_ns=waveforms.bin_ns,
+                                bits=bits, system=system,
+                                description=f"power = {offset:.6g} + {gain:.6g} x count (fraction of the emitted "
+                                            "energy per ns)")
+    return pls, wvs, gain, offset
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""PulseWaves (.pls + .wvs) reader.
+"""PulseWaves (.pls + .wvs): reader, and a writer of simulated survey waveforms.
 
 Implements the public PulseWaves specification, version 0.3 revision 6
 (github.com/PulseWaves/Specification): the Pulse file holds a 352-byte header,
@@ -13,6 +13,16 @@ Geometry: anchor ``A`` and target ``T`` points (scaled integers); the
 direction per sampling unit is ``d = (T - A) / 1000`` and the first sample of
 a segment lies at ``A + duration * d``; successive samples add ``d`` (for a
 segment whose sample unit equals the composition's).
+
+:func:`write_pulsewaves` writes one returning segment per pulse in that layout
+(``clsim survey --pulsewaves``): format 0 pulse records with the anchor at the
+sensor (the optical centre) and the target 1000 sampling units along the
+beam, one pulse descriptor (one returning sampling: 32-bit durations in
+thousandths of a sampling unit, 16-bit sample counts, 8 or 16 bits per
+sample), uncompressed.  What does not fit is refused in one line: a first
+sample farther than 32,767 sampling units from the sensor (the pulse
+record's 16-bit first and last returning sample: 4.9 km slant range at
+1 GHz, 2.7 km at 1.8 GHz), a waveform of more than 65,535 samples.
 
 References
 ----------
@@ -31,7 +41,7 @@ import numpy as np
 
 from clsim.errors import InputError
 
-__all__ = ["PulseWaves", "Sampling", "WaveSegment", "read_pulsewaves"]
+__all__ = ["PulseWaves", "Sampling", "WaveSegment", "read_pulsewaves", "write_pulsewaves"]
 
 _HEADER = struct.Struct("<16sIIIHH8s64s64sHHBBHqqIIIIqIiddqqdddddddddddd")  # 352 bytes
 _VLR = struct.Struct("<16sIIq64s")  # 96 bytes
@@ -314,3 +324,118 @@ def _read_waves(buf: bytes, pos: int, pulse: int, desc: PulseDescriptor, name: s
             out.append(WaveSegment(pulse, s.kind, s.channel, float(dur), raw,
                                    s.sample_units_ns or desc.sample_units_ns))
     return out
+
+
+
+
+def _fixed(text: str, n: int) -> bytes:
+    return text.encode("ascii", "replace")[:n - 1].ljust(n, b"\0")
+
+
+def write_pulsewaves(path: str | os.PathLike, *, gps_time, origin, direction, t0_ns, samples, n_samples=None,
+                     sample_units_ns: float, bits: int = 16, system: str = "clsim", scale: float = 0.0001,
+                     t_scale: float = 1e-9, description: str = "returning waveform") -> tuple[Path, Path]:
+    """Write pulses and their returning waveforms as PulseWaves (``.pls`` and ``.wvs``, atomic together).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.pls``; the waves go to the same name with ``.wvs``.
+    gps_time : (N,) float, s
+    origin : (N, 3) float, m
+        The sensor at each pulse (the anchor point).
+    direction : (N, 3) float
+        Unit direction of each beam.
+    t0_ns : (N,) float, ns
+        Time after emission of each waveform's first sample (two-way).
+    samples : (N, S) int
+        Digitiser counts, ``0 .. 2**bits - 1``; row ``i`` holds ``n_samples[i]`` of them.
+    n_samples : (N,) int, optional
+        Samples per row (default every column).
+    sample_units_ns : float
+        Sample spacing, ns.
+    bits : {8, 16}
+    system, description : str
+        The header's system identifier; the sampling record's description.
+    scale, t_scale : float
+        Coordinate scale (m) and time scale (s) of the integer fields.
+
+    Returns
+    -------
+    (pls, wvs) paths
+    """
+    from voxlidar.safeio import atomic_write
+
+    path = Path(path)
+    t = np.asarray(gps_time, dtype=np.float64).reshape(-1)
+    n = len(t)
+    a = np.asarray(origin, dtype=np.float64).reshape(n, 3)
+    d = np.asarray(direction, dtype=np.float64).reshape(n, 3)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    raw = np.asarray(samples)
+    if raw.ndim != 2 or raw.shape[0] != n:
+        raise InputError(f"samples must be (N, S) for the {n} pulses, got shape {raw.shape}")
+    ns = np.full(n, raw.shape[1], np.int64) if n_samples is None else np.asarray(n_samples, dtype=np.int64)
+    if bits not in (8, 16):
+        raise InputError(f"PulseWaves samples are 8 or 16 bits here, got bits={bits!r}")
+    if raw.size and (raw.min() < 0 or raw.max() >= 2 ** bits):
+        raise InputError(f"samples must be digitiser counts in [0, {2 ** bits - 1}] for {bits} bits; quantise first")
+    if ns.size and ns.max() > 65_535:
+        raise InputError(f"a waveform of {int(ns.max())} samples does not fit PulseWaves' 16-bit sample count "
+                         "(65,535); shorten the window (bin_ns, the scene's height)")
+    unit = float(sample_units_ns)
+    first = np.asarray(t0_ns, dtype=np.float64).reshape(-1) / unit  # sampling units from the optical centre
+    if first.size and (first.min() < 0 or first.max() + ns.max() > 32_767):
+        raise InputError(f"a waveform ends {float((first + ns).max()):,.0f} sampling units from the sensor; PulseWaves' "
+                         "pulse record holds 32,767 (16-bit first/last returning sample): fly lower, or a coarser "
+                         "sample spacing")
+    from clsim.sensor import C_M_PER_NS
+
+    step = 0.5 * C_M_PER_NS * unit  # metres of range per sampling unit (the simulator's time axis: vacuum c)
+    target = a + 1000.0 * step * d
+    pts = np.vstack([a, target]) if n else np.zeros((1, 3))
+    offset = np.floor(pts.min(axis=0))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    t_off = float(np.floor(t.min())) if n else 0.0
+    # the waves: per pulse one segment: duration (int32, 1/1000 unit), sample count (uint16), the samples
+    chunks, offsets, pos = [b"PulseWavesWaves\0" + struct.pack("<I", 0) + b"\0" * 40], [], 60
+    dtype = _UINT[bits]
+    for i in range(n):
+        body = struct.pack("<iH", int(round(1000.0 * first[i])), int(ns[i])) + raw[i, :ns[i]].astype(dtype).tobytes()
+        offsets.append(pos)
+        chunks.append(body)
+        pos += len(body)
+    rec = np.zeros(n, dtype=_PULSE0)
+    rec["T"] = np.round((t - t_off) / t_scale).astype(np.int64)
+    rec["offset"] = offsets
+    rec["anchor"] = np.round((a - offset) / scale).astype(np.int32)
+    rec["target"] = np.round((target - offset) / scale).astype(np.int32)
+    rec["first"] = np.floor(first).astype(np.int16)
+    rec["last"] = np.ceil(first + ns - 1).astype(np.int16)
+    rec["descriptor"] = 1
+    sampling = _SAMPLING.pack(_SAMPLING.size + 64, 0, 2, 0, 0, 32, 0.001, 0.0, 0, 16, 1, 0, bits, 0, unit, 0) \
+        + _fixed(description, 64)
+    composition = _COMPOSITION.pack(_COMPOSITION.size + 64, 0, 0, 0, 1, unit, 0, 0) + _fixed("clsim survey", 64)
+    payload = composition + sampling
+    vlr = _VLR.pack(_fixed("PulseWaves_Spec", 16), 200001, 0, len(payload), _fixed("pulse descriptor 1", 64)) + payload
+    start = _HEADER.size + len(vlr)
+    tt = rec["T"]
+    header = _HEADER.pack(_fixed("PulseWavesPulse", 16), 0, 0, 0, 0, 0, b"\0" * 8, _fixed(system, 64),
+                          _fixed("voxlidar clsim", 64), 1, 2026, 0, 3, _HEADER.size, start, n, 0, 0,
+                          _PULSE0.itemsize, 0, 0, 1, 0, t_scale, t_off, int(tt.min()) if n else 0,
+                          int(tt.max()) if n else 0, scale, scale, scale, *offset, lo[0], hi[0], lo[1], hi[1],
+                          lo[2], hi[2])
+    wvs_path = path.with_suffix(".wvs")
+    tmp_wvs = wvs_path.with_name(wvs_path.name + ".tmp")
+    tmp_wvs.write_bytes(b"".join(chunks))
+
+    def write(tmp):
+        Path(tmp).write_bytes(header + vlr + rec.tobytes())
+
+    try:
+        atomic_write(path, write)
+    except BaseException:
+        tmp_wvs.unlink(missing_ok=True)
+        raise
+    os.replace(tmp_wvs, wvs_path)
+    return path, wvs_path
