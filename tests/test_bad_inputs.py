@@ -114,6 +114,21 @@ def ws(tmp_path_factory):
     (d / "nanmiss.txt").write_text("3 0 0 0.1 1 1\nnan nan nan 0.2 0 0\n")
     (d / "badcount.txt").write_text("3 0 0 0.1 1 2\n5 0 0 0.1 2 3\n")
     (d / "ragged.txt").write_text("3 0 0 0.1 1 1\n5 0 0 0.2 1\n")
+    # other tools' exports gone wrong: a HELIOS++ point row cut short, a pulse of one miss row and two echoes,
+    # coordinates in millimetres (every echo kilometres off its ground), a HELIOS++ LAS without its empty pulses
+    (d / "helios_cut.xyz").write_text("3.0 0 0 12.5 1.3 1 1 5000 3 0 1000.0\n4.0 0 0 12.5 1.3 1 1 5001 3 0\n")
+    (d / "missalone.txt").write_text("3 0 0 0.1 1 1\n4 0 0 0.2 1 1\n5 0 0 0.3 0 1\n")
+    (d / "millimetres.txt").write_text("3000 0 0 0.1 1 1\n3100 200 0 0.2 1 1\n2900 -100 50 0.3 1 1\n")
+    import laspy
+
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.add_extra_dims([laspy.ExtraBytesParams("fullwaveIndex", np.int32), laspy.ExtraBytesParams("hitObjectId", np.int32)])
+    hl = laspy.LasData(h)
+    pts = np.random.default_rng(2).uniform([8, -1, 0], [10, 1, 2], (300, 3))
+    hl.x, hl.y, hl.z = pts.T
+    hl.return_number, hl.number_of_returns = np.ones(300, np.uint8), np.ones(300, np.uint8)
+    hl.fullwaveIndex = np.arange(300, dtype=np.int32)
+    hl.write(str(d / "helios.las"))
     (d / "cloud.xyz").write_text("1 2 3\n2 3 4\n3 4 5\n")
     (d / "othertransforms.json").write_text(json.dumps({"scans": [{"name": "elsewhere", "pose": np.eye(4).tolist()}]}))
     rng = np.random.default_rng(1)

@@ -103,7 +103,8 @@ def fit_ground(points, *, cell: float = 1.0, distance_threshold: float = 0.05, n
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) < 3:
-        raise InputError(f"points: need at least 3 points to fit a ground plane, got {len(p)}")
+        raise InputError(f"points: need at least 3 points to fit a ground plane, got {len(p)}; give the ground "
+                         "height instead (tlsvox voxelize --ground Z) or none (--ground none)")
     if not (np.isfinite(cell) and cell > 0):
         raise InputError(f"cell={cell!r} must be a positive size in metres, e.g. 1.0")
     ij = np.floor(p[:, :2] / cell).astype(np.int64)

@@ -116,9 +116,13 @@ def looks_pulse_grouped(path: str | os.PathLike) -> bool:
         mapped = {_ALIASES.get(n) for n in names}
         return {"return_index", "return_count"} <= mapped
     try:
-        rows = np.array([[float(v) for v in re.split(r"[,\s;]+", ln.strip()) if v] for ln in lines[:200]])
+        parsed = [[float(v) for v in re.split(r"[,\s;]+", ln.strip()) if v] for ln in lines[:200]]
     except ValueError:
         return False
+    widths = {len(r) for r in parsed}
+    if len(widths) > 1:  # rows of a pulse layout, some cut short: the reader names them
+        return len(parsed[0]) in (6, len(HELIOS_COLUMNS))
+    rows = np.array(parsed)
     if rows.ndim != 2 or rows.shape[1] not in (6, len(HELIOS_COLUMNS)):
         return False
     if rows.shape[1] == len(HELIOS_COLUMNS):  # HELIOS++: pulses by their full-waveform index
@@ -250,7 +254,9 @@ def read_pulse_text(path: str | os.PathLike, *, origin=(0.0, 0.0, 0.0), miss_ran
             data = np.loadtxt(path, delimiter=delimiter, comments=("#", "//"), skiprows=skip, ndmin=2,
                               dtype=np.float64)
     except ValueError as err:
-        raise InputError(f"{where}: not a pulse-grouped text file ({' '.join(cols)}): {err}") from None
+        why = str(err).split("; use `usecols`")[0]  # numpy's advice is about its own call, not the user's file
+        raise InputError(f"{where}: not a pulse-grouped text file ({' '.join(cols)}): {why}; fix or drop that row "
+                         "(a truncated export?)") from None
     if data.size == 0:
         raise InputError(f"{where}: no rows after the header; expected rows of {' '.join(cols)}")
     if data.shape[1] != len(cols):

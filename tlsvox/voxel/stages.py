@@ -463,7 +463,9 @@ def make_grid(echoes: Echoes, plane: GroundPlane | None, settings: VoxelizeSetti
         veg = [w[(k == EchoKind.LEAF) | (k == EchoKind.WOOD)] for w, k in zip(world, kinds)]
         pts = np.vstack(veg)
         if len(pts) == 0:
-            raise InputError("the scans have no leaf or wood echoes to size the grid from; pass bounds=")
+            raise InputError("the scans have no leaf or wood echoes to size the grid from (every echo near the fitted "
+                             "ground counts as ground): give the region, bounds= (CLI --bounds "
+                             "xmin,ymin,zmin,xmax,ymax,zmax), or --ground none when the scan holds no ground")
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         if plane is not None:
             lo[2] = max(lo[2], plane.z_center - voxel_size)
