@@ -36,7 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("measured", type=Path,
                    help="a NEON record folder (return.csv, geolocation.csv; outgoing.csv and system_impulse.csv "
                         "when present) or its return.csv; or a LAS 1.3/1.4 file with waveform packets (.wdp beside): "
-                        "its sensor positions are a straight, steady flight fitted to the pulses' lines")
+                        "its sensor positions are a straight, steady flight fitted to the pulses' lines; or a "
+                        "HELIOS++ *_fullwave.txt (origins and directions as written)")
     p.add_argument("--scene", type=Path, default=None,
                    help="replay over this scene (.npz, e.g. from tlsvox voxelize of TLS scans in the file's frame) "
                         "instead of scenes made from the held-out folds' training pulses")
@@ -56,8 +57,8 @@ def register(subparsers) -> None:
                         "beams (airborne pulses are too sparse for one voxel's own)")
     p.add_argument("--divergence-mrad", type=number(lo=0, lo_open=True, unit="mrad"), default=None,
                    help="beam divergence half angle at 1/e^2 (default: the reader's: NEON 0.25 mrad; LAS: the clsim "
-                        "preset a clsim survey file names, else 0.11 mrad as a Leica ALS50-II; files do not record "
-                        "it)")
+                        "preset a clsim survey file names, else 0.11 mrad as a Leica ALS50-II; HELIOS++ text 0.25 mrad; "
+                        "files do not record it)")
     p.add_argument("--wavelength-nm", type=number(lo=0, lo_open=True, unit="nm"), default=None,
                    help="the sensor's wavelength, for the scene's leaf and ground optics (default as for "
                         "--divergence-mrad: NEON 1064 nm, LAS the named clsim preset's or 1064 nm)")

@@ -42,7 +42,8 @@ import numpy as np
 from clsim.errors import InputError
 from clsim.sensor import C_M_PER_NS, Sensor
 
-__all__ = ["MeasuredPulses", "GeometryFit", "common_point", "read_las_pulses", "read_measured", "read_neon", "rebuild_positions",
+__all__ = ["MeasuredPulses", "GeometryFit", "HELIOS_DEFAULTS", "common_point", "read_helios_pulses", "read_las_pulses",
+           "read_measured", "read_neon", "rebuild_positions",
            "scan_lines", "straight_trajectory"]
 
 #: NEON's stored precision of x and y (7 significant digits at UTM magnitudes), metres.
@@ -535,9 +536,64 @@ def read_las_pulses(path, *, divergence_mrad: float | None = None, wavelength_nm
                                 off_line_median_m=float(np.median(miss)), off_line_max_m=float(miss.max()))))
 
 
+#: a HELIOS++ full-waveform text file states neither: its shared case's beam (0.25 mrad half angle) and 1064 nm
+HELIOS_DEFAULTS = {"divergence_mrad": 0.25, "wavelength_nm": 1064.0}
+
+
+def read_helios_pulses(path, *, divergence_mrad=None, wavelength_nm=None) -> MeasuredPulses:
+    """Measured pulses from a HELIOS++ full-waveform text file (``*_fullwave.txt``).
+
+    HELIOS++ writes each pulse's beam origin and direction and its samples on a one-way time axis
+    (``distance / c``), so a sample ``k`` lies at ``origin + c (t_min + k dt) direction``: the
+    geometry is the file's own, nothing is rebuilt.  The sample spacing in the round-trip time the
+    replay simulates is twice the file's; scan lines are split where the GPS time jumps (20 times
+    the median spacing); the divergence and wavelength, which the file does not state, default to
+    :data:`HELIOS_DEFAULTS` (``meta["sensor"]`` says so).
+    """
+    from clsim.waveforms.io.helios import C_M_PER_NS, read_helios_fullwave
+
+    fw = read_helios_fullwave(path)
+    n = len(fw)
+    if not n:
+        raise InputError(f"{Path(path).name}: no pulse in the file; nothing to replay")
+    dt = fw.dt_ns
+    if np.any(dt <= 0) or np.ptp(dt) > 1e-6 * float(dt.max()):
+        raise InputError(f"{Path(path).name}: the pulses' sample spacings differ ({float(dt.min()):g} to "
+                         f"{float(dt.max()):g} ns) or a pulse has one sample; a replay needs one sample clock")
+    said = {k: v is None for k, v in (("divergence_mrad", divergence_mrad), ("wavelength_nm", wavelength_nm))}
+    divergence_mrad = HELIOS_DEFAULTS["divergence_mrad"] if divergence_mrad is None else divergence_mrad
+    wavelength_nm = HELIOS_DEFAULTS["wavelength_nm"] if wavelength_nm is None else wavelength_nm
+    one_way = float(np.median(dt))
+    width = max(len(w) for w in fw.samples)
+    samples = np.zeros((n, width))
+    valid = np.zeros((n, width), dtype=bool)
+    for i, w in enumerate(fw.samples):
+        samples[i, :len(w)] = w
+        valid[i, :len(w)] = True
+    d = fw.direction
+    bin0 = fw.origin + (C_M_PER_NS * fw.min_time_ns)[:, None] * d
+    step = C_M_PER_NS * one_way * d
+    t = fw.gps_time - fw.gps_time.min()
+    gaps = np.diff(t)
+    line = np.r_[0, np.cumsum(gaps > 20 * np.median(gaps))] if n > 1 else np.zeros(1, np.int64)
+    return MeasuredPulses(
+        samples=samples, valid=valid, dt_ns=2.0 * one_way, bin0=bin0, step=step, origin=fw.origin.copy(),
+        line=np.asarray(line, dtype=np.int64), divergence_mrad=float(divergence_mrad), wavelength_nm=float(wavelength_nm),
+        name=Path(path).stem,
+        meta=dict(source="HELIOS++ full waveform (text)", returns_ns=[np.array([]) for _ in range(n)],
+                  sensor={"divergence_mrad": float(divergence_mrad), "wavelength_nm": float(wavelength_nm),
+                          "defaults": "HELIOS++'s file states neither: "
+                                      + ", ".join(k for k, v in said.items() if v) + " from HELIOS_DEFAULTS"
+                          if any(said.values()) else "given"},
+                  geometry=dict(rebuilt=False, lines=int(np.max(line) + 1),
+                                note="beam origins and directions as HELIOS++ wrote them; its one-way time axis "
+                                     "doubled to the round trip")))
+
+
 def read_measured(path, *, divergence_mrad=None, wavelength_nm=None) -> MeasuredPulses:
-    """The measured pulses of ``path``: a NEON record folder (or its ``return.csv``), or a LAS file with
-    waveform packets (``.wdp`` beside); ``divergence_mrad`` (half angle at 1/e^2) else each reader's default."""
+    """The measured pulses of ``path``: a NEON record folder (or its ``return.csv``), a LAS file with
+    waveform packets (``.wdp`` beside) or a HELIOS++ full-waveform text file (``.txt``);
+    ``divergence_mrad`` (half angle at 1/e^2) else each reader's default."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{str(path)!r} does not exist")
@@ -548,11 +604,13 @@ def read_measured(path, *, divergence_mrad=None, wavelength_nm=None) -> Measured
             raise InputError(f"{path.name}: LASzip files do not carry the waveform packets; give the .las with its "
                              ".wdp beside")
         return read_las_pulses(path, **kwargs)
+    if path.is_file() and path.suffix.lower() == ".txt":
+        return read_helios_pulses(path, **kwargs)
     if path.is_file() and path.suffix.lower() == ".pls":
         raise InputError(f"{path.name}: replays read NEON record folders and LAS waveform packets; PulseWaves "
                          "is not read as pulses yet (decompose it with clsim decompose)")
     folder = path if path.is_dir() else path.parent
     if not (folder / "return.csv").is_file():
         raise InputError(f"{str(folder)!r} holds no return.csv: pass a NEON record folder (return.csv, "
-                         "geolocation.csv) or a LAS file with waveform packets")
+                         "geolocation.csv), a LAS file with waveform packets or a HELIOS++ *_fullwave.txt")
     return read_neon(folder, **kwargs)

@@ -83,3 +83,27 @@ def test_decomposed_from_the_shell_at_the_known_times_and_places(tmp_path, rng, 
 def test_bad_lines_named(line, says):
     with pytest.raises(InputError, match=says):
         read_helios_fullwave(io.StringIO(line))
+
+
+def test_read_as_measured_pulses_for_a_replay(tmp_path, rng):
+    """A HELIOS++ full-waveform file as the replay's measured pulses: each sample where HELIOS++ put it
+    (origin + c t direction on its one-way time axis), the spacing doubled to the round trip, the file's
+    beam origins kept; scan lines split at a GPS-time jump; the sensor defaults stated."""
+    from clsim.replay import read_measured
+    from clsim.replay._measured import HELIOS_DEFAULTS
+
+    path, truth = _file(tmp_path, rng, count=12, bin_ns=0.5)
+    fw = read_helios_fullwave(path)
+    fw.gps_time[6:] += 1.0  # a second scan line
+    path = write_helios_fullwave(tmp_path / "two_lines_fullwave.txt", fw)
+    m = read_measured(path)
+    assert m.samples.shape == (12, 80) and m.valid.all() and m.dt_ns == pytest.approx(1.0)
+    for i in range(12):
+        start, per_ns = fw.sample_geometry(i)
+        assert np.allclose(m.bin0[i] + 7 * m.step[i], start + per_ns * 7 * 0.5, atol=1e-9)
+        assert np.allclose(m.samples[i], fw.samples[i])
+    assert np.allclose(m.origin, fw.origin) and m.line.tolist() == [0] * 6 + [1] * 6
+    assert m.divergence_mrad == HELIOS_DEFAULTS["divergence_mrad"] and "states neither" in m.meta["sensor"]["defaults"]
+    fw.max_time_ns[3] += 0.25  # one pulse on another sample clock
+    with pytest.raises(InputError, match="one sample clock"):
+        read_measured(write_helios_fullwave(tmp_path / "clocks_fullwave.txt", fw))
