@@ -30,6 +30,8 @@ GROUPS: list[tuple[str, list[tuple[str, str]]]] = [
         ("voxelize", "beams traced per second; LAD error and time against voxel size"),
         ("memory", "peak memory and time against voxel size, dense and sparse layouts"),
         ("echo_weights", "the leaf box's LAD with each echo-weight rule against the exact leaf area"),
+        ("merged", "merged clouds without pulses (scan positions given or not) against the full-pulse pipeline and "
+                   "the truth; the real VZ-400i scan without its angular grid"),
         ("lad_terms", "where the oak's leaf area goes: the estimators' assumptions one at a time"),
         ("qsm", "solid wood from fitted cylinders against the true cylinders"),
         ("pipeline", "the whole pipeline: waveform accuracy against time, per voxel size"),

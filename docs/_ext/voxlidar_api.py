@@ -42,6 +42,8 @@ PUBLIC = [
     ("tlsvox.voxel.weights", "echo weights: how echoes share their pulse"),
     ("tlsvox.voxel.footprint", "echo weights from the beam's footprint, without reflectance"),
     ("tlsvox.voxel.airborne", "scenes from airborne pulses"),
+    ("tlsvox.voxel.merged", "merged point clouds without pulses: beams from scan positions, or occupancy"),
+    ("tlsvox.voxel.profile", "vertical LAD profiles and their pictures"),
     ("tlsvox.voxel.amapvox", "AMAPVox .vox files"),
     ("tlsvox.voxel.wood", "wood: per voxel, and solid from fitted cylinders"),
     ("tlsvox.voxel.wood.qsm", "cylinders fitted to the wood"),

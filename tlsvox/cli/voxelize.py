@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from tlsvox.errors import InputError, TlsvoxError
-from voxlidar.cli import numbers
+from voxlidar.cli import number, numbers
 from voxlidar.safeio import check_distinct, check_outputs, json_text, staged
 
 DESCRIPTION = """\
@@ -84,6 +84,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "one airborne full-waveform file: a NEON record folder or a LAS file with waveform packets")
     p.add_argument("-o", "--output", required=True, help="scene file to write (.npz)")
     p.add_argument("--vox", help="also write an AMAPVox .vox file")
+    p.add_argument("--profile", metavar="PICTURE",
+                   help="also draw the LAD profile: mean LAD of the seen voxels and the occluded share against "
+                        "height (.png, .pdf, .svg, .jpg)")
+    p.add_argument("--profile-radius", type=number(lo=0, lo_open=True, unit="m"), metavar="METRES",
+                   help="the profile over the voxel columns within this distance of the crown centre (default: "
+                        "the whole grid)")
     p.add_argument("--device", default=None, help="OpenCL device: 'platform:device', 'cpu', 'gpu' or a "
                    "name part (default: VOXLIDAR_DEVICE, else PYOPENCL_CTX, else the best working "
                    "device; `clsim devices` lists them)")
@@ -200,6 +206,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     poses.add_argument("--scanner-rpy", type=numbers(3),
                        help="roll,pitch,yaw (degrees) of the scanner's own frame in the scan's frame")
     poses.add_argument("--max-range", type=float, help="follow empty pulses this far (metres)")
+    merged = p.add_argument_group("merged point clouds without pulses (one registered cloud, or one file per scan "
+                                  "position without its pulse table; tlsvox.voxel.merged)")
+    merged.add_argument("--scan-positions", metavar="POSITIONS",
+                        help="where the scanner stood, in the cloud's coordinates: x,y,z;x,y,z or a text file of x y z "
+                             "lines (the beams are rebuilt from each position to its points and the empty pulses "
+                             "estimated), or 'unknown' (no beams: leaf area from the cells holding leaf points, "
+                             "occlusion not corrected); a list that starts with a minus sign goes after '=': "
+                             "--scan-positions=-3.5,-19.7,1.7;9.1,4.2,1.7")
+    merged.add_argument("--angular-step", type=numbers(1, 2, what="degrees", example="0.04 or 0.048,0.622"),
+                        help="with --scan-positions: the scanner's angular step in degrees, one value or "
+                             "zenith,azimuth (default: estimated from the cloud)")
+    merged.add_argument("--assign", choices=["auto", "source-id", "nearest"], default="auto",
+                        help="with --scan-positions: which position each point was seen from: one file per position "
+                             "or the LAS point_source_id (auto, when their count matches), else the nearest position")
+    merged.add_argument("--occupancy-cell", type=number(lo=0, lo_open=True, unit="m"), metavar="METRES",
+                        help="with --scan-positions unknown: the fine cell whose occupancy counts (default: the leaf "
+                             "points' spacing, at least 0.01 m)")
     air = p.add_argument_group("airborne full-waveform files (NEON record folders, LAS with waveform packets)")
     air.add_argument("--airborne-echoes", default="waveform", choices=["waveform", "returns"],
                      help="echoes from the waveforms' template decomposition (default) or the LAS file's own "
@@ -279,6 +302,7 @@ def run(args) -> int:
 
     if any(airborne_kind(path) for path in args.scans):
         return run_airborne(args, _defaults())
+    explicit = {k for k, v in _defaults().items() if getattr(args, k, v) != v}  # before the defaults below
     config = _config_settings(args)  # settings of --config the command line does not set
     args.estimator = args.estimator or "bcmle"
     args.ground = args.ground or "ransac"
@@ -288,12 +312,28 @@ def run(args) -> int:
     check_distinct("scan", args.scans)
     check_outputs([("scan", p) for path in args.scans for p in (path, *sidecar_paths(path))]
                   + [("--transforms", args.transforms), ("--config", args.config)],
-                  [("-o", args.output), ("--vox", args.vox), ("--write-config", args.write_config)])
+                  [("-o", args.output), ("--vox", args.vox), ("--write-config", args.write_config),
+                   ("--profile", args.profile)])
+    from voxlidar.safeio import check_figure_path
+
+    check_figure_path("--profile", args.profile)
+    if args.profile_radius is not None and args.profile is None:
+        raise InputError("--profile-radius needs --profile PICTURE (it says what the profile covers)")
     if Path(args.output).suffix.lower() != ".npz":
         raise InputError(f"-o {args.output} must end in .npz (the scene file); --vox PATH adds an AMAPVox .vox")
     if args.vox is not None and Path(args.vox).suffix.lower() != ".vox":
         raise InputError(f"--vox {args.vox} must end in .vox")
-    scans = [read_scan(path, i, args.scan_origin) for i, path in enumerate(args.scans)]
+    merged_parts = None
+    if args.scan_positions is not None:
+        scans, merged_parts = _merged_scans(args, explicit)
+        if merged_parts is None:
+            return _run_occupancy(args, scans[0])
+    else:
+        for flag, given in (("--angular-step", args.angular_step), ("--occupancy-cell", args.occupancy_cell),
+                            ("--assign", args.assign != "auto")):
+            if given:
+                raise InputError(f"{flag} is for merged clouds without pulses: give --scan-positions too")
+        scans = [read_scan(path, i, args.scan_origin) for i, path in enumerate(args.scans)]
     if args.transforms:
         apply_transforms(scans, args.transforms)
     ground = args.ground
@@ -372,6 +412,11 @@ def run(args) -> int:
         res.scene, qsm = apply_cylinders(res.scene, model, wood)
         qsm["leaf_echoes_relabelled_wood"] = relabelled
         res.scene.meta.setdefault("qsm", {**model.summary(), **qsm})["leaf_echoes_relabelled_wood"] = relabelled
+    if merged_parts is not None:
+        from tlsvox.voxel.merged import merged_warnings
+
+        res.scene.meta["merged"] = [sc.meta["merged"] for sc in scans]
+        res.scene.meta["warnings"].extend(merged_warnings(scans))
     for w in res.scene.meta["warnings"]:
         print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
     if args.strict and res.scene.meta["warnings"]:
@@ -388,6 +433,8 @@ def run(args) -> int:
 
             Path(tmp[args.write_config]).write_text(VoxelizeSettings.from_dict(res.scene.meta["settings"]).to_toml(),
                                                     encoding="utf-8")
+    if args.profile:
+        _draw_profile(res.scene, args)
     if not args.quiet:
         s = res.scene
         summary = {"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,
@@ -406,8 +453,102 @@ def run(args) -> int:
                    **({} if "lad_voxel_size" not in s.meta else {"lad_voxel_size": {
                        k: s.meta["lad_voxel_size"][k] for k in ("size", "placement", "rule", "flags")}}),
                    **({} if qsm is None else {"qsm": s.meta.get("qsm", qsm)}),
+                   **({} if merged_parts is None else {"merged": [
+                       {k: m[k] for k in ("position", "assigned", "points", "returned_pulses", "empty_pulses",
+                                          "expected_from", "coverage_p90")} for m in s.meta["merged"]]}),
                    "seconds": {k: round(v, 2) for k, v in res.timings.items()}}
         print(json_text(summary, indent=1))
+    return 0
+
+
+#: flags that rebuild or stand in for pulses, refused beside --scan-positions (they say where pulses come from)
+_POSITION_CONFLICTS = (("transforms", "--transforms"), ("scan_origin", "--scan-origin"),
+                       ("scanner_frame", "--scanner-frame"), ("angular_grid", "--angular-grid"),
+                       ("scanner_rpy", "--scanner-rpy"))
+#: flags of the beam estimators, refused with --scan-positions unknown (there are no beams)
+_BEAM_ONLY = (("estimator", "--estimator"), ("fill", "--fill"), ("echo_weights", "--echo-weights"),
+              ("undetected", "--undetected"), ("lad_voxel_size", "--lad-voxel-size"), ("n_min", "--n-min"),
+              ("max_range", "--max-range"), ("qsm", "--qsm"), ("plan", "--plan"))
+
+
+def _merged_scans(args, explicit: set):
+    """--scan-positions: the files as one merged world-frame cloud, split into one scan per position
+    with its pulses rebuilt (returns scans, the parts), or with 'unknown' ([merged], None)."""
+    from tlsvox.voxel.merged import read_merged, split_by_positions
+
+    for dest, flag in _POSITION_CONFLICTS:
+        if dest in explicit:
+            raise InputError(f"{flag} does not go with --scan-positions: the positions say where the beams start "
+                             "(a merged cloud is taken in its own coordinates)")
+    unknown = str(args.scan_positions).strip().lower() == "unknown"
+    if unknown:
+        for dest, flag in _BEAM_ONLY + (("angular_step", "--angular-step"),):
+            if dest in explicit:
+                raise InputError(f"{flag} needs beams; with --scan-positions unknown there are none (give the "
+                                 "positions, x,y,z;x,y,z, to rebuild them)")
+        if args.leaf_angle == "measured":
+            raise InputError("--leaf-angle measured needs the scan positions (it models each scanner's view); give "
+                             "them, or name a distribution (e.g. --leaf-angle spherical)")
+    elif args.occupancy_cell is not None:
+        raise InputError("--occupancy-cell is for --scan-positions unknown (the estimate without beams)")
+    merged, source = read_merged(args.scans)
+    if unknown:
+        return [merged], None
+    parts = split_by_positions(merged, args.scan_positions, source_id=source, assign=args.assign,
+                               step=args.angular_step, progress=not args.quiet)
+    return parts, parts
+
+
+def _draw_profile(scene, args) -> None:
+    """--profile: the scene's LAD profile picture (tlsvox.voxel.profile)."""
+    from tlsvox.voxel.profile import lad_profile, lad_profile_figure
+
+    prof = lad_profile(scene, radius=args.profile_radius)
+    where = "the whole grid" if args.profile_radius is None else f"within {args.profile_radius:g} m of the crown centre"
+    names = ", ".join(Path(p).name for p in args.scans[:3]) + (" ..." if len(args.scans) > 3 else "")
+    est = scene.meta.get("estimator", "")
+    lad_profile_figure({f"{est}, {scene.voxel_size:g} m voxels": prof}, args.profile,
+                       title=f"LAD profile: {names}",
+                       caption=f"tlsvox voxelize -> {Path(args.output).name}; {where}; heights "
+                               + ("above the ground plane" if prof.above_ground else "in the grid's z"))
+    if not args.quiet:
+        print(f"tlsvox voxelize: profile written to {args.profile}", file=sys.stderr)
+
+
+def _run_occupancy(args, merged) -> int:
+    """--scan-positions unknown: the occupancy scene (tlsvox.voxel.merged.voxelize_occupancy)."""
+    from tlsvox.voxel.amapvox import write_vox
+    from tlsvox.voxel.merged import voxelize_occupancy
+
+    given = args.ground or "ransac"
+    ground: str | float | None = {"ransac": "ransac", "none": None}.get(given)
+    if ground is None and given != "none":
+        try:
+            ground = float(given)
+        except ValueError:
+            raise InputError(f"--ground={given!r} must be 'ransac', 'none' or a height in metres") from None
+    bounds = None if args.bounds is None else np.reshape(args.bounds, (2, 3))
+    leaf_angle = args.leaf_angle or "uniform"
+    res = voxelize_occupancy(merged, cell=args.occupancy_cell, voxel_size=args.voxel_size, ground=ground,
+                             bounds=bounds, snap=args.snap, leaf_angle=leaf_angle, wood=args.wood,
+                             ground_tolerance=args.ground_tolerance, leaf_azimuth=args.leaf_azimuth)
+    for w in res.scene.meta["warnings"]:
+        print(f"tlsvox voxelize: warning: {w}", file=sys.stderr)
+    if args.strict and res.scene.meta["warnings"]:
+        raise TlsvoxError(f"{len(res.scene.meta['warnings'])} quality warning(s) with --strict; "
+                          "nothing was written (drop --strict to keep the result)")
+    with staged([args.output, args.vox]) as tmp:
+        res.scene.save(tmp[args.output])
+        if args.vox:
+            write_vox(res.scene, tmp[args.vox])
+    if args.profile:
+        _draw_profile(res.scene, args)
+    if not args.quiet:
+        s = res.scene
+        print(json_text({"output": str(args.output), "grid": list(res.grid.shape), "voxel_size": s.voxel_size,
+                         "voxels_stored": s.n_voxels, "leaf_area_m2": round(s.total_leaf_area(), 3),
+                         "estimator": "occupancy", "occupancy": s.meta["occupancy"],
+                         "leaf_angle": s.leaf_angle.to_dict(), "seconds": round(res.timings["total"], 2)}, indent=1))
     return 0
 
 

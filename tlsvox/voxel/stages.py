@@ -79,8 +79,8 @@ class VoxelizeResult:
 
     scene: Scene
     grid: VoxelGrid
-    stats: VoxelStats
-    lad: LadEstimate
+    stats: VoxelStats | None  #: None for a scene made without beams (tlsvox.voxel.merged.voxelize_occupancy)
+    lad: LadEstimate | None  #: None for a scene made without beams
     wood: WoodEstimate
     ground: GroundPlane | None
     scans: list = field(default_factory=list)  #: per-scan info dicts
