@@ -26,6 +26,8 @@ GROUPS: list[tuple[str, list[tuple[str, str]]]] = [
         ("scanner", "the TLS scanner simulator's pulses per second against its sub-rays per pulse"),
         ("register_classify", "registration error and time; leaf/wood classification against the synthetic truth"),
         ("classify_mixture", "the leaf/wood threshold from two Gaussians or BIC's choice, per scan"),
+        ("classify_modes", "leaf/wood F1 by what the cloud holds: reflectance, raw intensity (relative or "
+                           "calibrated), x, y, z only; a merged cloud classified by geometry and voxelised"),
         ("relabel", "leaf echoes on fitted cylinders relabelled wood: classification and leaf area"),
         ("voxelize", "beams traced per second; LAD error and time against voxel size"),
         ("memory", "peak memory and time against voxel size, dense and sparse layouts"),

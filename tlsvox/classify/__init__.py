@@ -72,7 +72,14 @@ threshold), ``_geometry`` (geometric features), ``_classify`` (the methods),
 
 from tlsvox.classify._classes import TRUTH_CLASS, PointClass
 from tlsvox.classify._classify import Classification, ClassifyMethod, classify_scan
-from tlsvox.classify._geometry import incidence_cosine, isolated, linearity, neighbourhood_mean, refine_geometric
+from tlsvox.classify._geometry import (
+                                      incidence_cosine,
+                                      isolated,
+                                      linearity,
+                                      neighbourhood_mean,
+                                      refine_geometric,
+                                      wood_score,
+)
 from tlsvox.classify._mixture import (
                                       GaussianMixture,
                                       GaussianMixture2,
@@ -103,5 +110,6 @@ __all__ = [
     "linearity",
     "neighbourhood_mean",
     "refine_geometric",
+    "wood_score",
     "score",
 ]

@@ -9,7 +9,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tlsvox.classify._classes import PointClass
-from tlsvox.classify._geometry import ground_band_mask, incidence_cosine, isolated, neighbourhood_mean, refine_geometric
+from tlsvox.classify._geometry import (
+    ground_band_mask,
+    incidence_cosine,
+    isolated,
+    neighbourhood_mean,
+    refine_geometric,
+    wood_score,
+)
 from tlsvox.classify._mixture import (
     GaussianMixture,
     ThresholdRule,
@@ -32,6 +39,7 @@ class ClassifyMethod(Choice):
     NEIGHBOURHOOD = "neighbourhood"  #: neighbourhood-mean dB reflectance, geometric noise
     ECHO = "echo"  #: per-echo reflectance, geometric noise
     PAPER = "paper"  #: per-echo reflectance, noise below a fraction of the leaf reflectance
+    GEOMETRIC = "geometric"  #: no reflectance: the neighbourhood's shape (wood_score), geometric noise
 
 
 @dataclass
@@ -215,7 +223,8 @@ def classify_scan(scan: Scan, settings: ClassifySettings | None = None, *, calib
     nominal_leaf_reflectance, noise_fraction, wavelength_nm = (nz.nominal_leaf_reflectance, nz.noise_fraction,
                                                                rf.wavelength_nm)
     smooth_k, normal_k, target_threshold = mx.smooth_k, rf.normal_k, rf.target_threshold
-    check_scan(scan, min_points=30, require_reflectance=True)
+    geometric = method is ClassifyMethod.GEOMETRIC
+    check_scan(scan, min_points=30, require_reflectance=not geometric)
     if method is ClassifyMethod.PAPER:
         nominal_leaf_reflectance = _leaf_reflectance(nominal_leaf_reflectance, wavelength_nm)
         if not (0 < noise_fraction < 1):
@@ -223,10 +232,15 @@ def classify_scan(scan: Scan, settings: ClassifySettings | None = None, *, calib
     for name, v in (("smooth_k", smooth_k), ("normal_k", normal_k)):
         if int(v) < 1:
             raise InputError(f"{name}={v!r} must be an integer >= 1")
-    rho = apparent_reflectance(scan, source=rf.source, calibration=calibration,
-                               reference_range_m=rf.reference_range_m, allow_relative=rf.allow_relative)
+    calibrated = calibration is not None or (scan.reflectance_db is not None
+                                             and bool(np.any(np.isfinite(scan.reflectance_db))))
+    if geometric and not calibrated:
+        rho = np.full(len(scan), np.nan)  # no absolute reflectance: no target told apart by its brightness
+    else:
+        rho = apparent_reflectance(scan, source=rf.source, calibration=calibration,
+                                   reference_range_m=rf.reference_range_m, allow_relative=rf.allow_relative)
     rho = np.where(np.isfinite(rho), rho, 0.0)
-    relative = _is_relative(scan, rf.source, calibration)
+    relative = _is_relative(scan, rf.source, calibration) and not geometric
     if relative:  # raw intensity, range-normalised: no absolute scale, so no paper rule; targets by their ratio
         if method is ClassifyMethod.PAPER:
             raise InputError(f"scan {scan.name!r}: the paper's noise threshold needs absolute reflectance, and "
@@ -245,7 +259,7 @@ def classify_scan(scan: Scan, settings: ClassifySettings | None = None, *, calib
         why = f"between the noise threshold {noise_t:.3f} and {target_threshold}"
     else:
         noise_t = float("nan")
-        veg = candidate & (rho > 0)
+        veg = candidate & ((rho > 0) | geometric)
         if np.count_nonzero(veg):
             idx = np.flatnonzero(veg)
             lone = isolated(scan.xyz[idx], angular_step_deg=_scan_step_deg(scan),
@@ -258,19 +272,23 @@ def classify_scan(scan: Scan, settings: ClassifySettings | None = None, *, calib
             "reflectance units (linear 0-1 expected; pass calibration= for raw intensity)")
     idx = np.flatnonzero(veg)
     value = rho[idx]
-    if rf.incidence_correction:
+    if rf.incidence_correction and not geometric:
         value = value / incidence_cosine(scan.xyz[idx], k=normal_k, min_cos=rf.min_cos)
-    if method is ClassifyMethod.NEIGHBOURHOOD:
+    if geometric:
+        value = wood_score(scan.xyz[idx], radius_m=mx.geometry_radius_m, max_nn=mx.geometry_max_nn)
+        label = (f"geometric wood score: linearity + planarity x verticality within {mx.geometry_radius_m:g} m "
+                 "(no reflectance)")
+    elif method is ClassifyMethod.NEIGHBOURHOOD:
         value = neighbourhood_mean(scan.xyz[idx], 10.0 * np.log10(value), k=smooth_k)
         label = f"mean reflectance of {smooth_k + 1} neighbours, dB"
     else:
         label = "apparent reflectance"
-    if rf.incidence_correction:
+    if rf.incidence_correction and not geometric:
         label += " / cos(incidence)"
     if relative:
         label += f" ({scale_note})"
     fit = np.ones(len(idx), bool)
-    if (mx.fit_single_returns and method is not ClassifyMethod.PAPER
+    if (mx.fit_single_returns and method not in (ClassifyMethod.PAPER, ClassifyMethod.GEOMETRIC)
             and getattr(scan, "number_of_returns", None) is not None):
         single = np.asarray(scan.number_of_returns)[idx] == 1
         if np.count_nonzero(single) >= 10:

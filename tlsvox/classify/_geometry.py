@@ -1,4 +1,4 @@
-"""Geometric features of echoes: linearity, incidence, neighbourhood means, isolation, the ground band.
+"""Geometric features of echoes: linearity, the wood score, incidence, neighbourhood means, isolation, the ground band.
 """
 
 from __future__ import annotations
@@ -43,6 +43,37 @@ def linearity(xyz, *, k: int = 20) -> np.ndarray:
     ev = np.linalg.eigvalsh(_covariances(xyz, min(k, len(xyz))))  # ascending
     l1, l2 = ev[:, 2], ev[:, 1]
     return np.where(l1 > 0, (l1 - l2) / np.where(l1 > 0, l1, 1.0), 0.0)
+
+
+def wood_score(xyz, *, radius_m: float = 0.3, max_nn: int = 300) -> np.ndarray:
+    """Geometric wood score of every point: linearity + planarity x verticality of its neighbourhood.
+
+    The neighbours within ``radius_m`` (at most ``max_nn``, Open3D's hybrid KD-tree search), wider than
+    a leaf cluster: there leaves scatter in every direction (all three eigenvalues alike, score near 0),
+    branches line up (linearity ``(l1 - l2) / l1`` near 1) and stems form upright surfaces (planarity
+    ``(l2 - l3) / l1`` near 1 with a horizontal normal: verticality ``1 - |n_z|`` near 1).  The usual
+    eigenvalue features of TLS leaf/wood separation (Demantké et al. 2011; Wang et al. 2020).
+
+    Returns
+    -------
+    (N,) float64 in [0, 2]; 0 for a point with fewer than three neighbours
+    """
+    import open3d as o3d
+
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    if not (np.isfinite(radius_m) and radius_m > 0) or int(max_nn) < 3:
+        raise InputError(f"wood_score: radius_m={radius_m!r} must be a positive distance and max_nn={max_nn!r} "
+                         ">= 3")
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(xyz)))
+    pc.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=float(radius_m), max_nn=int(max_nn)))
+    ev, vec = np.linalg.eigh(np.asarray(pc.covariances))  # ascending
+    l1 = ev[:, 2]
+    ok = l1 > 0
+    safe = np.where(ok, l1, 1.0)
+    lin = (l1 - ev[:, 1]) / safe
+    plan = (ev[:, 1] - ev[:, 0]) / safe
+    vert = 1.0 - np.abs(vec[:, 2, 0])
+    return np.where(ok, lin + plan * vert, 0.0)
 
 
 def refine_geometric(xyz, labels, *, k: int = 20, min_linearity: float = 0.6,

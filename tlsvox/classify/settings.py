@@ -39,11 +39,13 @@ __all__ = ["ClassifySettings", "GroundBandSettings", "MixtureSettings", "NoiseSe
 class MixtureSettings:
     """The Gaussian mixture of the reflectances and the leaf/wood threshold between its modes."""
 
-    method: str = "neighbourhood"  #: "neighbourhood", "echo" or "paper"
+    method: str = "neighbourhood"  #: "neighbourhood", "echo", "paper" or "geometric"
     rule: str = "midway"  #: "midway" or "equal_posterior"
     components: int | str = "bic"  #: Gaussians fitted, or "bic"
     fit_single_returns: bool = True  #: fit to single-echo pulses' echoes
     smooth_k: int = 10  #: neighbours averaged by "neighbourhood"
+    geometry_radius_m: float = 0.3  #: "geometric": the neighbourhood of the wood score, metres
+    geometry_max_nn: int = 300  #: "geometric": at most this many neighbours
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,11 @@ neighbourhood (default) fits the mean dB reflectance of each echo and its
 10 nearest neighbours, on the echoes of single-echo pulses, and calls an
 echo noise when it has no neighbour within 10 scan-grid steps; echo does the
 same per echo; paper is the paper's rule (noise below 50 %% of the nominal
-leaf reflectance).  Writes OUT/NAME.classified.laz per scan (LAS
+leaf reflectance); geometric needs no reflectance (x, y, z only): it fits the
+Gaussians to a wood score, the linearity + planarity x verticality of the
+points within 0.3 m (branches line up, stems stand upright, leaves scatter).
+Raw intensity: --intensity relative, or --calibration CSV (a reference
+target's intensity against range).  Writes OUT/NAME.classified.laz per scan (LAS
 classification: 2 ground, 5 leaf, 7 noise, 64 wood, 65 target) and
 OUT/classification.json with thresholds, fits and, for simulated scans,
 the confusion matrix and precision/recall against the truth.
@@ -69,10 +73,11 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="first RANSAC seed (default 0)")
     p.set_defaults(func=cmd_register)
 
-    c = subparsers.add_parser("classify", help="leaf/wood/noise classification by reflectance",
+    c = subparsers.add_parser("classify", help="leaf/wood/noise classification by reflectance or geometry",
                               description=_CLASSIFY_HELP,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    c.add_argument("scans", nargs="+", metavar="SCAN", help="scan files with reflectance (dB) or intensity")
+    c.add_argument("scans", nargs="+", metavar="SCAN",
+                   help="scan files with reflectance (dB) or intensity (x, y, z only with --method geometric)")
     c.add_argument("-o", "--output", required=True, help="output folder")
     c.add_argument("--rule", default="midway", choices=[r.value for r in ThresholdRule],
                    help="leaf/wood threshold rule (default: midway, the paper's)")
@@ -90,6 +95,12 @@ def register(subparsers) -> None:
                         "range-normalised and divided by the scan's median (the leaf/wood split does not depend "
                         "on the scale; targets are echoes 10 times the median or brighter; stated in "
                         "classification.json)")
+    c.add_argument("--calibration", type=Path, default=None, metavar="CSV",
+                   help="raw intensity to reflectance: a CSV with columns range_m,intensity of a reference target "
+                        "(header row), its reflectance --reference-reflectance")
+    c.add_argument("--reference-reflectance", type=number(lo=0, lo_open=True), default=None,
+                   help="with --calibration: the reference target's Lambertian reflectance (default 1.0; "
+                        "Spectralon 0.99)")
     c.add_argument("--plot", type=Path, default=None, metavar="PATH",
                    help="also write the reflectance histograms (paper Fig. 3) to PATH (.png, .pdf, .svg, .jpg)")
     c.set_defaults(func=cmd_classify)
@@ -151,13 +162,27 @@ def cmd_classify(args) -> int:
                   + [(f"-o {out}/", out / "classification.json")]
                   + [("--plot", args.plot)])
     check_figure_path("--plot", args.plot)
-    scans = [read_any(p, scan_id=k, require_reflectance=True) for k, p in enumerate(args.scans)]
+    calibration = None
+    if args.calibration is not None:
+        from tlsvox.reflectance import CalibrationTable
+
+        if args.intensity == "relative":
+            raise InputError("--calibration and --intensity relative say different things of the intensity: give one")
+        if not args.calibration.is_file():
+            raise InputError(f"--calibration {args.calibration}: no such file; give a CSV with columns "
+                             "range_m,intensity")
+        calibration = CalibrationTable.from_csv(args.calibration, reference_reflectance=1.0 if
+                                                args.reference_reflectance is None else args.reference_reflectance)
+    elif args.reference_reflectance is not None:
+        raise InputError("--reference-reflectance needs --calibration CSV (it is that table's target)")
+    geometric = args.method == "geometric"
+    scans = [read_any(p, scan_id=k, require_reflectance=not geometric) for k, p in enumerate(args.scans)]
     settings = ClassifySettings.from_kwargs(method=args.method, rule=args.rule, components=args.components,
                                             refine=args.refine, incidence_correction=args.incidence_correction,
                                             ground=not args.no_ground)
     if args.intensity == "relative":
         settings = ClassifySettings.from_kwargs(settings, source="intensity", allow_relative=True)
-    results = [classify_scan(s, settings) for s in scans]
+    results = [classify_scan(s, settings, calibration=calibration) for s in scans]
     doc = {"scans": []}
     out.mkdir(parents=True, exist_ok=True)
     for s, c, name in zip(scans, results, names):
