@@ -336,14 +336,7 @@ def run(args) -> int:
         scans = [read_scan(path, i, args.scan_origin) for i, path in enumerate(args.scans)]
     if args.transforms:
         apply_transforms(scans, args.transforms)
-    ground = args.ground
-    if ground not in ("ransac", "none"):
-        try:
-            ground = float(ground)
-        except ValueError:
-            raise InputError(f"--ground={ground!r} must be 'ransac', 'none' or a height in metres") from None
-    elif ground == "none":
-        ground = None
+    ground = _ground_arg(args.ground)
     grid = None
     if args.angular_grid:
         z0, dz, nz, a0, da, na = args.angular_grid
@@ -499,6 +492,16 @@ def _merged_scans(args, explicit: set):
     return parts, parts
 
 
+def _ground_arg(value) -> str | float | None:
+    """--ground as voxelize takes it: 'ransac', None for 'none', or a height in metres."""
+    if value in ("ransac", "none"):
+        return None if value == "none" else value
+    try:
+        return float(value)
+    except ValueError:
+        raise InputError(f"--ground={value!r} must be 'ransac', 'none' or a height in metres") from None
+
+
 def _draw_profile(scene, args) -> None:
     """--profile: the scene's LAD profile picture (tlsvox.voxel.profile)."""
     from tlsvox.voxel.profile import lad_profile, lad_profile_figure
@@ -520,13 +523,7 @@ def _run_occupancy(args, merged) -> int:
     from tlsvox.voxel.amapvox import write_vox
     from tlsvox.voxel.merged import voxelize_occupancy
 
-    given = args.ground or "ransac"
-    ground: str | float | None = {"ransac": "ransac", "none": None}.get(given)
-    if ground is None and given != "none":
-        try:
-            ground = float(given)
-        except ValueError:
-            raise InputError(f"--ground={given!r} must be 'ransac', 'none' or a height in metres") from None
+    ground = _ground_arg(args.ground)
     bounds = None if args.bounds is None else np.reshape(args.bounds, (2, 3))
     leaf_angle = args.leaf_angle or "uniform"
     res = voxelize_occupancy(merged, cell=args.occupancy_cell, voxel_size=args.voxel_size, ground=ground,

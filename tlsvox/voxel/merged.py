@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from tlsvox.errors import InputError
-from tlsvox.scan import PulseTable, Scan
+from tlsvox.scan import PulseTable, Scan, directions_from_angles
 
 __all__ = ["AngularStep", "MERGED_CELL_STEPS", "assign_points", "crossings_per_area", "empty_pulses", "estimate_step",
            "merge_scans", "merged_warnings", "occupancy_lad", "parse_positions", "read_merged",
@@ -235,7 +235,7 @@ def empty_pulses(directions, step: AngularStep | None = None, *, cell_steps=None
         kz = max(1, int(round(n / ka)))
         cell_steps = (kz, ka)
     cz, ca = cell_steps[0] * step.zenith_deg, cell_steps[1] * step.azimuth_deg
-    expected = float(round(cz / step.zenith_deg) * round(ca / step.azimuth_deg))
+    expected = float(cell_steps[0] * cell_steps[1])
     source = (f"the angular step {step.zenith_deg:.4g} x {step.azimuth_deg:.4g} deg "
               + ("(given)" if given else "(estimated from the cloud: the next point along each scan line and "
                                          "row; give the scanner's own with --angular-step)"))
@@ -255,10 +255,8 @@ def empty_pulses(directions, step: AngularStep | None = None, *, cell_steps=None
     k = np.arange(n_new) - first
     frac = _r2(int(reps.max()) if n_new else 0)[k] if n_new else np.zeros((0, 2))
     zi, ai = cell // na, cell % na
-    zn = np.radians(z0 + (zi + frac[:, 0] * fz[zi]) * cz)  # an edge cell's pulses on its part inside the span
-    an = np.radians(a0 + (ai + frac[:, 1] * fa[ai]) * ca)
-    sz = np.sin(zn)
-    new = np.column_stack([sz * np.cos(an), sz * np.sin(an), np.cos(zn)])
+    new = directions_from_angles(np.radians(z0 + (zi + frac[:, 0] * fz[zi]) * cz),  # an edge cell's pulses on
+                                 np.radians(a0 + (ai + frac[:, 1] * fa[ai]) * ca))  # its part inside the span
     held = (counts > 0) & (share > 0.99)
     coverage = float(np.percentile(counts[held], 90) / expected) if held.any() and expected > 0 else float("nan")
     info = {"pulses_per_cell": float(expected), "cell_deg": [float(cz), float(ca)], "cells": int(nz * na),
